@@ -1,0 +1,178 @@
+//! HTTP request and response bodies (serde), shared by the server, its tests and any Rust
+//! client. Also the shape of the CLI's `--json` output and `instances.json`, so a scene
+//! reads the same whichever way it was made.
+
+use serde::{Deserialize, Serialize};
+
+/// The one error shape of every non-2xx response.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ErrorBody {
+    pub error: String,
+    /// snake_case kind: `validation`, `payload_too_large`, `overloaded`, ...
+    pub error_type: String,
+}
+
+/// Which rasterizer rendered the outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RenderBackend {
+    Cpu,
+    Wgpu,
+}
+
+/// A predicted camera, nerfstudio convention (OpenGL camera-to-world, row-major).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraOut {
+    pub view: usize,
+    pub transform_matrix: [[f64; 4]; 4],
+    pub fl_x: f32,
+    pub fl_y: f32,
+    pub cx: f32,
+    pub cy: f32,
+    pub w: u32,
+    pub h: u32,
+}
+
+/// An instance of the reconstructed scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InstanceOut {
+    pub id: u32,
+    pub label: String,
+    /// Cosine similarity of the instance's semantic prototype to the label's text embedding.
+    pub score: f32,
+    pub gaussians: usize,
+    /// Axis-aligned bounding box in the scene frame: min xyz, max xyz.
+    pub bbox: [[f32; 3]; 2],
+}
+
+/// Wall time of one pipeline stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTiming {
+    pub stage: String,
+    pub ms: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReconstructResponse {
+    pub scene_id: String,
+    pub cameras: Vec<CameraOut>,
+    pub instances: Vec<InstanceOut>,
+    pub timings: Vec<StageTiming>,
+    pub render_backend: RenderBackend,
+    /// Per-pixel Gaussians in, Gaussians kept after voxelization.
+    pub gaussians_in: usize,
+    pub gaussians_kept: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QueryRequest {
+    pub text: String,
+}
+
+/// A binary mask, run-length encoded in row-major order starting with a run of zeros
+/// (COCO-style counts, but row-major).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RleMask {
+    pub width: u32,
+    pub height: u32,
+    pub counts: Vec<u32>,
+}
+
+impl RleMask {
+    pub fn encode(width: u32, height: u32, mask: &[bool]) -> Self {
+        let mut counts = Vec::new();
+        let mut current = false;
+        let mut run = 0u32;
+        for &m in mask {
+            if m != current {
+                counts.push(run);
+                run = 0;
+                current = m;
+            }
+            run += 1;
+        }
+        counts.push(run);
+        Self { width, height, counts }
+    }
+
+    pub fn decode(&self) -> Vec<bool> {
+        let mut out = Vec::with_capacity((self.width * self.height) as usize);
+        for (i, &c) in self.counts.iter().enumerate() {
+            out.extend(std::iter::repeat_n(i % 2 == 1, c as usize));
+        }
+        out
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewMask {
+    pub view: usize,
+    pub png_url: String,
+    pub rle: RleMask,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QueryMatch {
+    pub instance_id: u32,
+    pub label: String,
+    pub score: f32,
+    pub masks: Vec<ViewMask>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QueryResponse {
+    pub text: String,
+    /// Empty when nothing in the scene matches; `message` then says so.
+    pub matches: Vec<QueryMatch>,
+    pub message: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobSceneStatus {
+    pub index: usize,
+    pub name: String,
+    pub state: JobState,
+    pub scene_id: Option<String>,
+    pub error: Option<String>,
+    /// Evaluation metrics when the scene carried ground truth.
+    pub metrics: Option<serde_json::Value>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobStatus {
+    pub job_id: String,
+    pub state: JobState,
+    pub done: usize,
+    pub total: usize,
+    pub scenes: Vec<JobSceneStatus>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rle_round_trips_and_starts_with_zeros() {
+        let mask = [true, true, false, false, false, true, false];
+        let rle = RleMask::encode(7, 1, &mask);
+        assert_eq!(rle.counts, [0, 2, 3, 1, 1]);
+        assert_eq!(rle.decode(), mask);
+        assert_eq!(RleMask::encode(2, 1, &[false, false]).counts, [2]);
+    }
+
+    #[test]
+    fn enums_serialize_snake_case() {
+        assert_eq!(serde_json::to_string(&JobState::Cancelled).unwrap(), "\"cancelled\"");
+        assert_eq!(serde_json::to_string(&RenderBackend::Wgpu).unwrap(), "\"wgpu\"");
+    }
+}

@@ -1,0 +1,15 @@
+//! inssplat-proto: the contracts every other inssplat crate speaks. Cameras (OpenCV inside,
+//! one conversion from the dataset's nerfstudio convention), `GaussianScene` (structure of
+//! arrays) and its PLY form, the scene dataset format of DATASET.md, the model's I/O
+//! signature, and the HTTP request/response types. It depends on no other workspace crate
+//! and on nothing heavy (no ONNX Runtime, GPU or training framework).
+
+pub mod camera;
+pub mod gaussian;
+pub mod ply;
+
+pub use camera::{Camera, CameraError, Intrinsics};
+pub use gaussian::{GaussianScene, INSTANCE_DIM};
+pub mod dataset;
+pub mod signature;
+pub mod api;

@@ -1,0 +1,6 @@
+//! inssplat-raster: everything geometric between network output and pixels. Back-projection
+//! of predicted depth into per-pixel Gaussians, confidence-aware voxelization and feature
+//! fusion, the differentiable CPU tile rasterizer (forward and hand-written backward, any
+//! channel count), the wgpu forward rasterizer for serving, instance clustering in 3D
+//! (HDBSCAN) and label assignment, and the image metrics of the evaluation protocol. It knows
+//! nothing of HTTP or ONNX.

@@ -1,0 +1,6 @@
+//! inssplat-server: the online half of inssplat. The inference pipeline (ONNX Runtime session
+//! → back-projection → voxelization → 3D clustering → labels → rendering), the axum HTTP
+//! service and its job store, and the `inssplat` CLI (`check`, later `reconstruct`, `query`,
+//! `render`, `eval`, `bench`, `serve`). It never trains.
+
+pub mod check;

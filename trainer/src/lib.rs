@@ -1,0 +1,4 @@
+//! inssplat-trainer: the offline half of inssplat. Procedural indoor scene synthesis (the
+//! training and evaluation data), the VGGT-style network, the InstanceSplat losses, the
+//! training loop with checkpoints, and ONNX export of the graph the server runs. The server
+//! never depends on it: the exported ONNX file is the only hand-off.
