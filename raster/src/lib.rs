@@ -4,3 +4,10 @@
 //! channel count), the wgpu forward rasterizer for serving, instance clustering in 3D
 //! (HDBSCAN) and label assignment, and the image metrics of the evaluation protocol. It knows
 //! nothing of HTTP or ONNX.
+
+pub mod backproject;
+pub mod cluster;
+pub mod label;
+pub mod metrics;
+pub mod render;
+pub mod voxel;

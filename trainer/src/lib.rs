@@ -2,3 +2,7 @@
 //! training and evaluation data), the VGGT-style network, the InstanceSplat losses, the
 //! training loop with checkpoints, and ONNX export of the graph the server runs. The server
 //! never depends on it: the exported ONNX file is the only hand-off.
+
+pub mod export;
+pub mod model;
+pub mod synth;
