@@ -1,0 +1,189 @@
+//! Instance clustering. inssplat clusters ONCE in 3D: HDBSCAN runs on a bounded, weighted
+//! subsample of the voxelized Gaussians' L2-normalized instance embeddings S, each cluster
+//! becomes a prototype (the normalized mean of its members), and every Gaussian takes the
+//! nearest prototype's id when its cosine similarity reaches `min_cosine`, else 0. Ids then
+//! live on the Gaussians, so every rendered view agrees by construction, and the cost is that
+//! of a fixed-size HDBSCAN plus one linear assignment pass, whatever the number of views.
+//! [`per_view`] holds the paper's own mode (HDBSCAN on each rendered 2D feature map) for
+//! comparison.
+
+pub mod per_view;
+
+use hdbscan::{Hdbscan, HdbscanError, HdbscanHyperParams};
+use inssplat_proto::gaussian::{LengthMismatch, sigmoid};
+use inssplat_proto::{GaussianScene, INSTANCE_DIM};
+use rayon::prelude::*;
+
+/// Embedding as compared: L2-normalized S.
+pub type Embedding = [f32; INSTANCE_DIM];
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClusterParams {
+    /// At most this many points go into HDBSCAN (weighted sampling without replacement).
+    pub max_samples: usize,
+    /// HDBSCAN: smallest cluster, in sampled points. The default, 40 (1% of the default
+    /// sample), keeps the mixed embeddings of voxels on contact lines between two instances
+    /// from forming clusters of their own.
+    pub min_cluster_size: usize,
+    /// HDBSCAN: neighbours that define a point's core distance.
+    pub min_samples: usize,
+    /// A point joins its nearest prototype only at this cosine similarity or more; else 0.
+    pub min_cosine: f32,
+    /// Seed of the subsample.
+    pub seed: u64,
+}
+
+impl Default for ClusterParams {
+    fn default() -> Self {
+        Self { max_samples: 4000, min_cluster_size: 40, min_samples: 10, min_cosine: 0.5, seed: 0x1a5e }
+    }
+}
+
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum ClusterError {
+    #[error("invalid scene: {0}")]
+    Scene(#[from] LengthMismatch),
+    #[error("HDBSCAN: {0}")]
+    Hdbscan(#[from] HdbscanError),
+    #[error("feature map has {actual} values, expected {expected} ({channels} channels of {pixels} pixels)")]
+    Shape { actual: usize, expected: usize, channels: usize, pixels: usize },
+    #[error("cluster parameter `{name}` is invalid: {reason}")]
+    Params { name: &'static str, reason: &'static str },
+}
+
+/// Outcome of clustering a set of points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Clustering {
+    /// Id per point: 1..=K, 0 = none.
+    pub ids: Vec<u32>,
+    /// Unit prototype of id k at index k−1; ids are ordered by sampled cluster size, largest first.
+    pub prototypes: Vec<Embedding>,
+    /// Points HDBSCAN saw, and how many of them it called noise.
+    pub sampled: usize,
+    pub sample_noise: usize,
+}
+
+/// Clusters the scene's instance embeddings once in 3D and writes an id per Gaussian into
+/// `scene.instance_id`. Sampling is weighted by opacity · confidence.
+pub fn cluster_instances(scene: &mut GaussianScene, params: &ClusterParams) -> Result<Clustering, ClusterError> {
+    scene.validate()?;
+    let points: Vec<Embedding> = scene.instance_embedding.par_iter().map(|e| unit(*e)).collect();
+    let weights: Vec<f32> = (0..scene.len())
+        .into_par_iter()
+        .map(|i| sigmoid(scene.logit_opacity[i]) * scene.confidence[i].max(0.0))
+        .collect();
+    let clustering = cluster_points(&points, &weights, params)?;
+    scene.instance_id.clone_from(&clustering.ids);
+    Ok(clustering)
+}
+
+/// Clusters unit vectors: HDBSCAN on a weighted subsample, then nearest-prototype assignment
+/// of every point. Zero vectors and points of weight ≤ 0 are never sampled; zero vectors get
+/// id 0.
+pub fn cluster_points(
+    points: &[Embedding],
+    weights: &[f32],
+    params: &ClusterParams,
+) -> Result<Clustering, ClusterError> {
+    check(params)?;
+    let sample = weighted_sample(points, weights, params.max_samples, params.seed);
+    if sample.len() < params.min_cluster_size || sample.len() <= params.min_samples {
+        return Ok(Clustering {
+            ids: vec![0; points.len()],
+            prototypes: Vec::new(),
+            sampled: sample.len(),
+            sample_noise: 0,
+        });
+    }
+    let data: Vec<Vec<f32>> = sample.iter().map(|&i| points[i].to_vec()).collect();
+    let hp =
+        HdbscanHyperParams::builder().min_cluster_size(params.min_cluster_size).min_samples(params.min_samples).build();
+    let labels = Hdbscan::new(&data, hp).cluster()?;
+
+    let clusters = labels.iter().filter_map(|&l| usize::try_from(l).ok()).max().map_or(0, |m| m + 1);
+    let mut sums = vec![([0.0f32; INSTANCE_DIM], 0usize); clusters];
+    for (&i, &l) in sample.iter().zip(&labels) {
+        if let Ok(l) = usize::try_from(l) {
+            let (sum, count) = &mut sums[l];
+            sum.iter_mut().zip(&points[i]).for_each(|(s, p)| *s += p);
+            *count += 1;
+        }
+    }
+    sums.sort_by_key(|s| std::cmp::Reverse(s.1));
+    let prototypes: Vec<Embedding> = sums.iter().filter(|(_, n)| *n > 0).map(|(s, _)| unit(*s)).collect();
+    let ids = assign(points, &prototypes, params.min_cosine);
+    Ok(Clustering { ids, prototypes, sampled: sample.len(), sample_noise: labels.iter().filter(|&&l| l < 0).count() })
+}
+
+fn check(params: &ClusterParams) -> Result<(), ClusterError> {
+    let bad = |name, reason| Err(ClusterError::Params { name, reason });
+    if params.max_samples < 2 {
+        return bad("max_samples", "must be at least 2");
+    }
+    if params.min_cluster_size < 2 {
+        return bad("min_cluster_size", "must be at least 2");
+    }
+    if params.min_samples < 1 {
+        return bad("min_samples", "must be at least 1");
+    }
+    if !(-1.0..=1.0).contains(&params.min_cosine) {
+        return bad("min_cosine", "must lie in [-1, 1]");
+    }
+    Ok(())
+}
+
+/// Nearest prototype by cosine (points and prototypes are unit), id k+1, or 0 below
+/// `min_cosine` or for a zero point.
+pub fn assign(points: &[Embedding], prototypes: &[Embedding], min_cosine: f32) -> Vec<u32> {
+    points
+        .par_iter()
+        .map(|p| {
+            if p.iter().all(|&x| x == 0.0) {
+                return 0;
+            }
+            let mut best = (0, f32::MIN);
+            for (k, q) in prototypes.iter().enumerate() {
+                let c: f32 = p.iter().zip(q).map(|(a, b)| a * b).sum();
+                if c > best.1 {
+                    best = (k as u32 + 1, c);
+                }
+            }
+            if best.1 >= min_cosine { best.0 } else { 0 }
+        })
+        .collect()
+}
+
+/// Indices of up to `m` points drawn without replacement with probability ∝ weight
+/// (Efraimidis–Spirakis: the `m` largest keys ln(u)/w), in increasing index order. Only
+/// points with a positive finite weight and a non-zero vector take part.
+fn weighted_sample(points: &[Embedding], weights: &[f32], m: usize, seed: u64) -> Vec<usize> {
+    let mut keyed: Vec<(f32, usize)> = (0..points.len())
+        .filter(|&i| weights[i].is_finite() && weights[i] > 0.0 && points[i].iter().any(|&x| x != 0.0))
+        .map(|i| (uniform(seed, i as u64).ln() / weights[i], i))
+        .collect();
+    if keyed.len() > m {
+        keyed.select_nth_unstable_by(m - 1, |a, b| b.0.total_cmp(&a.0));
+        keyed.truncate(m);
+    }
+    let mut idx: Vec<usize> = keyed.into_iter().map(|(_, i)| i).collect();
+    idx.sort_unstable();
+    idx
+}
+
+/// A uniform number in (0, 1) from (seed, index), by the SplitMix64 finalizer.
+fn uniform(seed: u64, index: u64) -> f32 {
+    let mut z = seed.wrapping_add(index.wrapping_add(1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    ((z >> 40) as f32 + 0.5) / (1u64 << 24) as f32
+}
+
+/// L2-normalized copy; a zero or non-finite vector becomes zero (it joins no instance).
+pub fn unit<const N: usize>(v: [f32; N]) -> [f32; N] {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n.is_finite() && n > 1e-12 { v.map(|x| x / n) } else { [0.0; N] }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,236 @@
+//! The backward pass: tiles walked back to front, recovering each pixel's transmittance
+//! from the final one (T_k = T_{k+1} / (1 − α_k)) instead of storing it, as gsplat does.
+//! Each tile writes the gradient it owes every Gaussian of its list into that list entry's
+//! own slot (no atomics, and sums happen in a fixed order, so results do not depend on the
+//! thread count); the slots are then summed per Gaussian and pushed through the projection.
+
+use glam::Mat3;
+use inssplat_proto::Camera;
+use rayon::prelude::*;
+
+use super::composite::{TILE_PIXELS, gaussian_value, row_span, span};
+use super::project::{ProjectedGrad, project_backward, quaternion_vjp};
+use super::{CameraGrad, ForwardState, SplatGrads, Splats, TILE};
+
+/// Per-pixel gradients on the raw sums the compositor forms, pixel-major within a tile.
+struct TileGrads {
+    /// dL/dF for each pixel and channel, `[pixel][channel]`.
+    features: Vec<f32>,
+    /// dL/d(Σ w·z).
+    depth_sum: Vec<f32>,
+    /// dL/d(1 − T_final), the depth normalization folded in.
+    alpha: Vec<f32>,
+}
+
+/// Number of gradient slots per intersection before the feature channels: x, y, conic a, b,
+/// c, opacity, depth.
+const GEOM: usize = 7;
+
+/// Gathers a tile's incoming gradients and folds expected depth D = S / max(A, 1e-10) into
+/// gradients on S and on A.
+fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[f32], d_alpha: &[f32]) -> TileGrads {
+    let c = state.channels;
+    let (w, h) = (state.width as usize, state.height as usize);
+    let (tx, ty) = (tile % state.bins.tiles_x as usize, tile / state.bins.tiles_x as usize);
+    let mut g = TileGrads {
+        features: vec![0.0; TILE_PIXELS * c],
+        depth_sum: vec![0.0; TILE_PIXELS],
+        alpha: vec![0.0; TILE_PIXELS],
+    };
+    for ly in 0..TILE as usize {
+        let y = ty * TILE as usize + ly;
+        if y >= h {
+            break;
+        }
+        for lx in 0..TILE as usize {
+            let x = tx * TILE as usize + lx;
+            if x >= w {
+                break;
+            }
+            let (p, pix) = (ly * TILE as usize + lx, y * w + x);
+            for ch in 0..c {
+                g.features[p * c + ch] = d_features[ch * w * h + pix];
+            }
+            let alpha = 1.0 - state.transmittance[pix];
+            let denom = alpha.max(1e-10);
+            g.depth_sum[p] = d_depth[pix] / denom;
+            let through_norm = if alpha > 1e-10 { d_depth[pix] * state.depth[pix] / alpha } else { 0.0 };
+            g.alpha[p] = d_alpha[pix] - through_norm;
+        }
+    }
+    g
+}
+
+/// Walks one tile back to front; writes each list entry's gradient slot
+/// (`GEOM + channels` floats per entry) into `slots`.
+fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &mut [f32]) {
+    let c = state.channels;
+    let stride = GEOM + c;
+    let (w, h) = (state.width as usize, state.height as usize);
+    let origin =
+        [(tile % state.bins.tiles_x as usize) as u32 * TILE, (tile / state.bins.tiles_x as usize) as u32 * TILE];
+    let ranks = state.bins.isects(tile);
+    let mut t = [0.0f32; TILE_PIXELS];
+    let mut t_final = [0.0f32; TILE_PIXELS];
+    let mut last = [0u32; TILE_PIXELS];
+    // Σ over later Gaussians of w·f, starting with the background's T_final·bg.
+    let mut buf = vec![0.0f32; TILE_PIXELS * c];
+    let mut buf_depth = [0.0f32; TILE_PIXELS];
+    for p in 0..TILE_PIXELS {
+        let (x, y) = (origin[0] as usize + p % TILE as usize, origin[1] as usize + p / TILE as usize);
+        if x < w && y < h {
+            let pix = y * w + x;
+            t[p] = state.transmittance[pix];
+            t_final[p] = t[p];
+            last[p] = state.last[pix];
+            for ch in 0..c {
+                buf[p * c + ch] = t[p] * state.background[ch];
+            }
+        }
+    }
+    let row_last: Vec<u32> = last.chunks(TILE as usize).map(|row| row.iter().copied().max().unwrap_or(0)).collect();
+    let end = row_last.iter().copied().max().unwrap_or(0) as usize;
+    for k in (0..end).rev() {
+        let rank = ranks[k] as usize;
+        let g = &state.bins.sorted[rank];
+        let Some((y0, y1)) = span(g.xy[1], g.extent[1], origin[1]) else { continue };
+        let f = &state.bins.sorted_features[rank * c..(rank + 1) * c];
+        let slot = &mut slots[k * stride..(k + 1) * stride];
+        let [a, b, cc] = g.conic;
+        for (y, &row_end) in row_last.iter().enumerate().take(y1 + 1).skip(y0) {
+            if k as u32 >= row_end {
+                continue;
+            }
+            let dy = (origin[1] + y as u32) as f32 + 0.5 - g.xy[1];
+            let Some((x0, x1)) = row_span(g, dy, origin[0]) else { continue };
+            for x in x0..=x1 {
+                let p = y * TILE as usize + x;
+                if k as u32 >= last[p] {
+                    continue;
+                }
+                let dx = (origin[0] + x as u32) as f32 + 0.5 - g.xy[0];
+                let v = gaussian_value(g, dx, dy);
+                let (alpha, dalpha_dv) = state.cutoff.alpha(v);
+                if alpha <= 0.0 {
+                    continue;
+                }
+                // α ≤ 0.999, so 1/(1 − α) ≤ 1000.
+                let inv = 1.0 / (1.0 - alpha);
+                let t_k = t[p] * inv;
+                t[p] = t_k;
+                let weight = alpha * t_k;
+                let gf = &grads.features[p * c..(p + 1) * c];
+                let bp = &mut buf[p * c..(p + 1) * c];
+                // dF_c/dα = T_k f_c − (Σ_{later} w f_c + T_final bg_c) / (1 − α).
+                let (mut dot_f, mut dot_buf) = (0.0, 0.0);
+                for ((&gfc, bpc), (&fc, sc)) in gf.iter().zip(bp.iter_mut()).zip(f.iter().zip(&mut slot[GEOM..])) {
+                    dot_f += gfc * fc;
+                    dot_buf += gfc * *bpc;
+                    *bpc += weight * fc;
+                    *sc += gfc * weight;
+                }
+                let mut g_alpha = t_k * dot_f - inv * dot_buf;
+                g_alpha += grads.depth_sum[p] * (t_k * g.depth - buf_depth[p] * inv);
+                g_alpha += grads.alpha[p] * t_final[p] * inv;
+                buf_depth[p] += weight * g.depth;
+                slot[6] += grads.depth_sum[p] * weight;
+
+                let g_v = g_alpha * dalpha_dv;
+                // v = o·exp(power): dv/do = v/o, dv/dpower = v.
+                slot[5] += g_v * v / g.opacity;
+                let g_power = g_v * v;
+                // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.
+                slot[0] += g_power * (a * dx + b * dy);
+                slot[1] += g_power * (b * dx + cc * dy);
+                slot[2] -= 0.5 * g_power * dx * dx;
+                slot[3] -= g_power * dx * dy;
+                slot[4] -= 0.5 * g_power * dy * dy;
+            }
+        }
+    }
+}
+
+/// The whole backward; see [`super::render_backward`].
+pub(crate) fn backward(
+    splats: &Splats,
+    camera: &Camera,
+    state: &ForwardState,
+    d_features: &[f32],
+    d_depth: &[f32],
+    d_alpha: &[f32],
+) -> SplatGrads {
+    let c = state.channels;
+    let stride = GEOM + c;
+    let n = splats.means.len();
+    let mut slots = vec![0.0f32; state.bins.rank_from_isect.len() * stride];
+    // Split the slot array at tile boundaries so each tile owns its entries.
+    let mut per_tile: Vec<(usize, &mut [f32])> = Vec::with_capacity(state.bins.tile_count());
+    let mut rest = slots.as_mut_slice();
+    for tile in 0..state.bins.tile_count() {
+        let len = state.bins.isects(tile).len() * stride;
+        let (mine, tail) = rest.split_at_mut(len);
+        per_tile.push((tile, mine));
+        rest = tail;
+    }
+    per_tile.into_par_iter().for_each(|(tile, mine)| {
+        if mine.is_empty() {
+            return;
+        }
+        let grads = tile_grads(state, tile, d_features, d_depth, d_alpha);
+        backward_tile(state, tile, &grads, mine);
+    });
+
+    // Sum slots per Gaussian (fixed order: by intersection index).
+    let mut projected_grads = vec![ProjectedGrad::default(); n];
+    let mut features = vec![0.0f32; n * c];
+    for (isect, &rank) in state.bins.rank_from_isect.iter().enumerate() {
+        let gid = state.bins.gid_from_rank[rank as usize];
+        let s = &slots[isect * stride..(isect + 1) * stride];
+        let pg = &mut projected_grads[gid as usize];
+        pg.xy[0] += s[0];
+        pg.xy[1] += s[1];
+        pg.conic[0] += s[2];
+        pg.conic[1] += s[3];
+        pg.conic[2] += s[4];
+        pg.opacity += s[5];
+        pg.depth += s[6];
+        for (dst, src) in features[gid as usize * c..(gid as usize + 1) * c].iter_mut().zip(&s[GEOM..]) {
+            *dst += src;
+        }
+    }
+
+    let params: Vec<_> = (0..n)
+        .into_par_iter()
+        .map(|i| match state.projected[i].as_ref() {
+            Some(p) => project_backward(
+                &state.view,
+                splats.means[i],
+                splats.log_scales[i],
+                splats.rotations[i],
+                p,
+                &projected_grads[i],
+            ),
+            None => Default::default(),
+        })
+        .collect();
+    // The camera's gradient sums every Gaussian's share; the view used the normalized
+    // rotation, so the quaternion gradient goes through that normalization.
+    let (mut g_rot, mut g_trans) = ([0.0f32; 9], [0.0f32; 3]);
+    for p in &params {
+        g_rot.iter_mut().zip(&p.view_rot).for_each(|(a, b)| *a += b);
+        g_trans.iter_mut().zip(&p.view_trans).for_each(|(a, b)| *a += b);
+    }
+    let q = camera.rotation;
+    let norm = q.length();
+    let unit = [q.w / norm, q.x / norm, q.y / norm, q.z / norm];
+    let camera =
+        CameraGrad { rotation: quaternion_vjp(unit, norm, Mat3::from_cols_array(&g_rot)), translation: g_trans };
+    SplatGrads {
+        camera,
+        means: params.iter().map(|p| p.mean).collect(),
+        log_scales: params.iter().map(|p| p.log_scale).collect(),
+        rotations: params.iter().map(|p| p.rotation).collect(),
+        logit_opacity: params.iter().map(|p| p.logit_opacity).collect(),
+        features,
+    }
+}
