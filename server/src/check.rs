@@ -37,3 +37,21 @@ pub fn check_scene(dir: &Path) -> anyhow::Result<SceneSummary> {
         has_eval_split: scene.eval.is_some(),
     })
 }
+
+impl SceneSummary {
+    /// One line for people.
+    pub fn describe(&self) -> String {
+        format!(
+            "{}: ok, {} frames {}×{}, depth in {}, instance masks in {}, {} instances ({}){}",
+            self.path,
+            self.frames,
+            self.width,
+            self.height,
+            self.with_depth,
+            self.with_instances,
+            self.instances,
+            self.labels.join(", "),
+            if self.has_eval_split { ", eval split" } else { "" }
+        )
+    }
+}

@@ -4,3 +4,8 @@
 //! `render`, `eval`, `bench`, `serve`). It never trains.
 
 pub mod check;
+pub mod inputs;
+pub mod output;
+pub mod pipeline;
+pub mod runtime;
+pub mod vocab;

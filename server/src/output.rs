@@ -1,0 +1,244 @@
+//! Writes a reconstruction to a folder: `scene.ply` (standard 3DGS + extras),
+//! `transforms.json` (predicted cameras, nerfstudio convention, so the folder opens in
+//! nerfstudio-compatible tools), `instances/NNN.png` and `labels/NNN.png` (a colour per
+//! instance / label), `instances.json` and `preview.png` (input | depth | instances | labels
+//! per view). Each file is written to a temporary name and renamed, so a crash never leaves a
+//! half-written artefact.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use image::{Rgb, RgbImage};
+use inssplat_proto::api::{CameraOut, InstanceOut, ReconstructResponse, RenderBackend};
+use inssplat_proto::dataset::{FrameJson, TransformsJson};
+use inssplat_raster::metrics::segmentation::NO_LABEL;
+use serde::Serialize;
+
+use crate::pipeline::reconstruct::Reconstruction;
+
+/// A distinct colour for index `i` (golden-angle hues); index 0 is black ("none").
+pub fn palette(i: u32) -> [u8; 3] {
+    if i == 0 {
+        return [0, 0, 0];
+    }
+    let h = (i as f32 * 137.508).rem_euclid(360.0) / 60.0;
+    let (s, v) = (0.65, if i.is_multiple_of(2) { 0.95 } else { 0.75 });
+    let c = v * s;
+    let x = c * (1.0 - (h % 2.0 - 1.0).abs());
+    let (r, g, b) = match h as u32 {
+        0 => (c, x, 0.0),
+        1 => (x, c, 0.0),
+        2 => (0.0, c, x),
+        3 => (0.0, x, c),
+        4 => (x, 0.0, c),
+        _ => (c, 0.0, x),
+    };
+    let m = v - c;
+    [((r + m) * 255.0) as u8, ((g + m) * 255.0) as u8, ((b + m) * 255.0) as u8]
+}
+
+/// Writes `bytes` to `path` atomically (temporary file + rename).
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
+}
+
+fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, image::ImageFormat::Png)?;
+    write_atomic(path, bytes.get_ref())
+}
+
+fn colour_map(width: u32, height: u32, values: &[u32], colour: impl Fn(u32) -> [u8; 3]) -> RgbImage {
+    RgbImage::from_fn(width, height, |x, y| Rgb(colour(values[(y * width + x) as usize])))
+}
+
+/// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.
+fn depth_image(width: u32, height: u32, depth: &[f32]) -> RgbImage {
+    let mut sorted: Vec<f32> = depth.iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect();
+    sorted.sort_by(f32::total_cmp);
+    let pick = |q: f32| sorted.get(((sorted.len().max(1) - 1) as f32 * q) as usize).copied().unwrap_or(1.0);
+    let (lo, hi) = (pick(0.02), pick(0.98).max(pick(0.02) + 1e-6));
+    RgbImage::from_fn(width, height, |x, y| {
+        let d = depth[(y * width + x) as usize];
+        let v = if d > 0.0 { (255.0 * (1.0 - ((d - lo) / (hi - lo)).clamp(0.0, 1.0))) as u8 } else { 0 };
+        Rgb([v, v, v])
+    })
+}
+
+/// The `instances.json` document.
+#[derive(Serialize)]
+struct InstancesDoc<'a> {
+    instances: &'a [InstanceOut],
+    vocabulary: &'a [String],
+    /// Colour of each instance id in `instances/NNN.png` and of each label in `labels/NNN.png`.
+    instance_colours: Vec<(u32, [u8; 3])>,
+    label_colours: Vec<(String, [u8; 3])>,
+}
+
+/// The predicted cameras, nerfstudio convention, in the input photos' pixel units.
+pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
+    rec.views
+        .iter()
+        .enumerate()
+        .map(|(view, v)| {
+            let k = v.letterbox.to_original(&v.camera.intrinsics);
+            CameraOut {
+                view,
+                transform_matrix: v.camera.to_nerfstudio(),
+                fl_x: k.fx,
+                fl_y: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+                w: k.width,
+                h: k.height,
+            }
+        })
+        .collect()
+}
+
+/// Writes every artefact of `rec` into `out`; `names` are the input files (for
+/// `transforms.json`). Returns the paths written.
+pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    for sub in ["instances", "labels"] {
+        std::fs::create_dir_all(out.join(sub)).with_context(|| format!("cannot create {}", out.join(sub).display()))?;
+    }
+    let mut written = Vec::new();
+    let mut ply = Vec::new();
+    inssplat_proto::ply::write_ply(&mut ply, &rec.scene)?;
+    let path = out.join("scene.ply");
+    write_atomic(&path, &ply)?;
+    written.push(path);
+
+    let frames = cameras_out(rec)
+        .into_iter()
+        .zip(names)
+        .map(|(c, name)| FrameJson {
+            file_path: name.clone(),
+            depth_file_path: None,
+            instance_file_path: None,
+            transform_matrix: c.transform_matrix,
+            fl_x: Some(f64::from(c.fl_x)),
+            fl_y: Some(f64::from(c.fl_y)),
+            cx: Some(f64::from(c.cx)),
+            cy: Some(f64::from(c.cy)),
+            w: Some(c.w),
+            h: Some(c.h),
+        })
+        .collect();
+    let transforms = TransformsJson {
+        camera_model: "OPENCV".into(),
+        fl_x: None,
+        fl_y: None,
+        cx: None,
+        cy: None,
+        w: None,
+        h: None,
+        depth_unit_m: None,
+        instances: Vec::new(),
+        frames,
+        eval: None,
+    };
+    let path = out.join("transforms.json");
+    write_atomic(&path, serde_json::to_string_pretty(&transforms)?.as_bytes())?;
+    written.push(path);
+
+    let mut sheet_rows = Vec::new();
+    for (i, v) in rec.views.iter().enumerate() {
+        let (w, h) = (v.camera.intrinsics.width, v.camera.intrinsics.height);
+        let inst = colour_map(w, h, &v.instance_ids, palette);
+        let labels = colour_map(w, h, &v.labels, |l| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) });
+        for (dir, img) in [("instances", &inst), ("labels", &labels)] {
+            let path = out.join(dir).join(format!("{i:03}.png"));
+            save_png(&path, img)?;
+            written.push(path);
+        }
+        let rgb = RgbImage::from_raw(w, h, v.rgb.clone()).context("view image size")?;
+        sheet_rows.push([rgb, depth_image(w, h, &v.depth), inst, labels]);
+    }
+    let path = out.join("preview.png");
+    save_png(&path, &contact_sheet(&sheet_rows))?;
+    written.push(path);
+
+    let doc = InstancesDoc {
+        instances: &rec.instances,
+        vocabulary: &rec.vocabulary,
+        instance_colours: rec.instances.iter().map(|i| (i.id, palette(i.id))).collect(),
+        label_colours: rec.vocabulary.iter().enumerate().map(|(l, name)| (name.clone(), palette(l as u32 + 1))).collect(),
+    };
+    let path = out.join("instances.json");
+    write_atomic(&path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
+    written.push(path);
+    Ok(written)
+}
+
+/// The result as the CLI's `--json` prints it (the HTTP response shape without a scene id).
+pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
+    ReconstructResponse {
+        scene_id: String::new(),
+        cameras: cameras_out(rec),
+        instances: rec.instances.clone(),
+        timings: rec.timings.clone(),
+        render_backend: RenderBackend::Cpu,
+        gaussians_in: rec.voxel.gaussians_in,
+        gaussians_kept: rec.voxel.gaussians_out,
+    }
+}
+
+/// A few lines for people: what was found, how long each stage took, where the files are.
+pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
+    let mut text = format!(
+        "{} views → {} Gaussians kept of {} ({} instances)\n",
+        s.cameras.len(),
+        s.gaussians_kept,
+        s.gaussians_in,
+        s.instances.len()
+    );
+    for i in &s.instances {
+        text.push_str(&format!("  #{:<3} {:<20} score {:.2}  {} Gaussians\n", i.id, i.label, i.score, i.gaussians));
+    }
+    let total: f64 = s.timings.iter().map(|t| t.ms).sum();
+    let stages: Vec<String> = s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
+    text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
+    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, instances/, labels/, instances.json, preview.png)", out.display()));
+    text
+}
+
+/// Rows of equally sized tiles, 2-pixel gaps, white background.
+fn contact_sheet(rows: &[[RgbImage; 4]]) -> RgbImage {
+    let (tw, th) = rows.first().map_or((1, 1), |r| r[0].dimensions());
+    let gap = 2;
+    let mut sheet = RgbImage::from_pixel(4 * (tw + gap) + gap, rows.len() as u32 * (th + gap) + gap, Rgb([255, 255, 255]));
+    for (r, row) in rows.iter().enumerate() {
+        for (c, tile) in row.iter().enumerate() {
+            image::imageops::overlay(&mut sheet, tile, i64::from(gap + c as u32 * (tw + gap)), i64::from(gap + r as u32 * (th + gap)));
+        }
+    }
+    sheet
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn palette_is_distinct_for_nearby_ids_and_black_for_none() {
+        assert_eq!(palette(0), [0, 0, 0]);
+        let colours: Vec<_> = (1..=24).map(palette).collect();
+        for (i, a) in colours.iter().enumerate() {
+            for b in &colours[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+    }
+
+    #[test]
+    fn atomic_write_leaves_no_partial_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.json");
+        write_atomic(&p, b"{}").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"{}");
+        assert!(!dir.path().join("x.partial").exists());
+    }
+}

@@ -1,0 +1,152 @@
+//! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
+//! letterboxed to the model's square input. The header is read first and oversized or empty
+//! images are refused before any pixel is decoded, so memory stays bounded whatever is sent.
+
+use std::io::Cursor;
+
+use image::{DynamicImage, ImageDecoder, ImageReader, imageops::FilterType};
+use inssplat_proto::Intrinsics;
+
+/// Largest accepted image, in pixels (a 40-megapixel photo).
+pub const MAX_PIXELS: u64 = 40_000_000;
+
+/// Grey used for letterbox padding (mean of [0, 1]).
+const PAD: f32 = 0.5;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    #[error("{name}: empty file")]
+    Empty { name: String },
+    #[error("{name}: not a supported image (JPEG, PNG or WebP): {message}")]
+    Format { name: String, message: String },
+    #[error("{name}: image is {width}×{height}; images must be non-empty and at most {MAX_PIXELS} pixels")]
+    Size { name: String, width: u32, height: u32 },
+    #[error("{name}: corrupt image data: {message}")]
+    Corrupt { name: String, message: String },
+}
+
+/// How an input photo maps into the model's square input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Letterbox {
+    /// Original size after EXIF orientation.
+    pub width: u32,
+    pub height: u32,
+    /// Model pixels per original pixel.
+    pub scale: f32,
+    /// Offset of the photo inside the square, in model pixels.
+    pub pad_x: f32,
+    pub pad_y: f32,
+}
+
+impl Letterbox {
+    /// Intrinsics in the original photo for intrinsics predicted at the model resolution.
+    pub fn to_original(&self, k: &Intrinsics) -> Intrinsics {
+        Intrinsics {
+            fx: k.fx / self.scale,
+            fy: k.fy / self.scale,
+            cx: (k.cx - self.pad_x) / self.scale,
+            cy: (k.cy - self.pad_y) / self.scale,
+            width: self.width,
+            height: self.height,
+        }
+    }
+}
+
+/// A decoded photo ready for the network.
+#[derive(Debug, Clone)]
+pub struct ModelImage {
+    /// Planar `[3][res][res]` in [0, 1].
+    pub planar: Vec<f32>,
+    pub letterbox: Letterbox,
+}
+
+/// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`.
+pub fn decode(name: &str, bytes: &[u8], res: u32) -> Result<ModelImage, DecodeError> {
+    let rgb = decode_rgb(name, bytes)?;
+    Ok(letterbox(&rgb, res))
+}
+
+/// Decodes to RGB with EXIF orientation applied.
+pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<image::RgbImage, DecodeError> {
+    if bytes.is_empty() {
+        return Err(DecodeError::Empty { name: name.into() });
+    }
+    let format_err = |e: &dyn std::fmt::Display| DecodeError::Format { name: name.into(), message: e.to_string() };
+    let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| format_err(&e))?;
+    if reader.format().is_none() {
+        return Err(format_err(&"unrecognized file signature"));
+    }
+    let mut decoder = reader.into_decoder().map_err(|e| format_err(&e))?;
+    let (width, height) = decoder.dimensions();
+    if width == 0 || height == 0 || u64::from(width) * u64::from(height) > MAX_PIXELS {
+        return Err(DecodeError::Size { name: name.into(), width, height });
+    }
+    let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
+    let mut img = DynamicImage::from_decoder(decoder)
+        .map_err(|e| DecodeError::Corrupt { name: name.into(), message: e.to_string() })?;
+    img.apply_orientation(orientation);
+    Ok(img.into_rgb8())
+}
+
+/// Scales `rgb` to fit `res`×`res` keeping its aspect ratio and pads the rest with grey.
+pub fn letterbox(rgb: &image::RgbImage, res: u32) -> ModelImage {
+    let (w, h) = rgb.dimensions();
+    let scale = res as f32 / w.max(h) as f32;
+    let (nw, nh) = (((w as f32 * scale).round() as u32).clamp(1, res), ((h as f32 * scale).round() as u32).clamp(1, res));
+    let resized = if (nw, nh) == (w, h) { rgb.clone() } else { image::imageops::resize(rgb, nw, nh, FilterType::Triangle) };
+    let (ox, oy) = ((res - nw) / 2, (res - nh) / 2);
+    let n = (res * res) as usize;
+    let mut planar = vec![PAD; 3 * n];
+    for (x, y, p) in resized.enumerate_pixels() {
+        let i = ((y + oy) * res + (x + ox)) as usize;
+        for c in 0..3 {
+            planar[c * n + i] = f32::from(p[c]) / 255.0;
+        }
+    }
+    ModelImage {
+        planar,
+        letterbox: Letterbox { width: w, height: h, scale: nw as f32 / w as f32, pad_x: ox as f32, pad_y: oy as f32 },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png(w: u32, h: u32) -> Vec<u8> {
+        let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 10) as u8, (y * 10) as u8, 200]));
+        let mut out = Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn letterboxes_wide_image_into_the_middle() {
+        let m = decode("a.png", &png(20, 10), 10).unwrap();
+        assert_eq!(m.letterbox, Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 });
+        let n = 100;
+        assert_eq!(m.planar[0], PAD, "top rows are padding");
+        assert!((m.planar[2 * n + 2 * 10 + 3] - 200.0 / 255.0).abs() < 1e-6, "blue channel of the photo");
+        let k = Intrinsics { fx: 10.0, fy: 10.0, cx: 5.0, cy: 5.0, width: 10, height: 10 };
+        let back = m.letterbox.to_original(&k);
+        assert_eq!((back.fx, back.cx, back.cy, back.width, back.height), (20.0, 10.0, 6.0, 20, 10));
+    }
+
+    #[test]
+    fn refuses_empty_garbage_and_huge_inputs_by_name() {
+        assert!(matches!(decode("e.png", b"", 8), Err(DecodeError::Empty { .. })));
+        let err = decode("junk.jpg", b"this is not an image", 8).unwrap_err();
+        assert!(matches!(err, DecodeError::Format { .. }) && err.to_string().starts_with("junk.jpg"), "{err}");
+        // A valid PNG header claiming 20000×20000: refused from the header, before decoding.
+        let mut huge = png(1, 1);
+        huge[16..20].copy_from_slice(&20000u32.to_be_bytes());
+        huge[20..24].copy_from_slice(&20000u32.to_be_bytes());
+        let crc = crc32fast::hash(&huge[12..29]);
+        huge[29..33].copy_from_slice(&crc.to_be_bytes());
+        let err = decode("huge.png", &huge, 8).unwrap_err();
+        assert!(matches!(err, DecodeError::Size { width: 20000, height: 20000, .. }), "{err}");
+        let mut cut = png(16, 16);
+        cut.truncate(cut.len() - 30);
+        assert!(matches!(decode("cut.png", &cut, 8), Err(DecodeError::Corrupt { .. })));
+    }
+}

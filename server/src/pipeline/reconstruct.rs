@@ -1,0 +1,237 @@
+//! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
+//! → cluster once in 3D → semantic prototypes → text labels → per-view instance and label
+//! maps rendered from the clustered Gaussians. Every stage is timed.
+
+use std::time::Instant;
+
+use glam::{Quat, Vec3};
+use inssplat_proto::api::{InstanceOut, StageTiming};
+use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
+use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
+use inssplat_raster::backproject::{ViewOutputs, backproject};
+use inssplat_raster::cluster::{ClusterParams, cluster_instances};
+use inssplat_raster::label::masks::{label_map, render_instance_ids};
+use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
+use inssplat_raster::voxel::{VoxelParams, VoxelReport, voxelize};
+use inssplat_text::LabelCache;
+use rayon::prelude::*;
+
+use super::decode::{DecodeError, Letterbox, decode};
+use crate::runtime::{Model, ModelOutput, RuntimeError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("{0} images given; inssplat needs between {MIN_VIEWS} and {MAX_VIEWS} views of one scene")]
+    ViewCount(usize),
+    #[error(transparent)]
+    Decode(#[from] DecodeError),
+    #[error(transparent)]
+    Runtime(#[from] RuntimeError),
+    #[error("label vocabulary is empty")]
+    EmptyVocabulary,
+    #[error("{stage}: {message}")]
+    Stage { stage: &'static str, message: String },
+}
+
+fn stage_err(stage: &'static str) -> impl Fn(&dyn std::fmt::Display) -> PipelineError {
+    move |e| PipelineError::Stage { stage, message: e.to_string() }
+}
+
+/// Tunables of the post-processing stages.
+#[derive(Debug, Clone, Default)]
+pub struct PipelineConfig {
+    pub voxel: VoxelParams,
+    pub cluster: ClusterParams,
+}
+
+/// One input photo.
+pub struct InputImage {
+    pub name: String,
+    pub bytes: Vec<u8>,
+}
+
+/// What one view looks like after reconstruction, at the model resolution.
+pub struct ViewResult {
+    pub camera: Camera,
+    pub letterbox: Letterbox,
+    /// `[H][W]` instance id, 0 = none.
+    pub instance_ids: Vec<u32>,
+    /// `[H][W]` vocabulary index, `NO_LABEL` where none.
+    pub labels: Vec<u32>,
+    /// `[H][W]` predicted depth in metres.
+    pub depth: Vec<f32>,
+    /// `[H][W][3]` the letterboxed input, 8-bit.
+    pub rgb: Vec<u8>,
+}
+
+/// A reconstructed scene.
+pub struct Reconstruction {
+    pub scene: GaussianScene,
+    pub views: Vec<ViewResult>,
+    pub instances: Vec<InstanceOut>,
+    pub prototypes: Vec<InstancePrototype>,
+    pub vocabulary: Vec<String>,
+    pub voxel: VoxelReport,
+    pub timings: Vec<StageTiming>,
+}
+
+/// Collects stage timings.
+#[derive(Default)]
+struct Stopwatch {
+    timings: Vec<StageTiming>,
+}
+
+impl Stopwatch {
+    fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
+        let start = Instant::now();
+        let out = f();
+        self.timings.push(StageTiming { stage: stage.to_string(), ms: start.elapsed().as_secs_f64() * 1e3 });
+        out
+    }
+}
+
+/// Cameras predicted by the network (model resolution, world = view 0's camera).
+pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
+    out.camera
+        .chunks_exact(CAMERA_CHANNELS)
+        .map(|c| {
+            let q = Quat::from_xyzw(c[4], c[5], c[6], c[3]);
+            let rotation = if q.is_finite() && q.length() > 1e-8 { q.normalize() } else { Quat::IDENTITY };
+            let focal = |fov: f32, size: usize| 0.5 * size as f32 / (0.5 * fov.clamp(0.05, 3.0)).tan();
+            let intrinsics = Intrinsics {
+                fx: focal(c[8], out.width),
+                fy: focal(c[7], out.height),
+                cx: 0.5 * out.width as f32,
+                cy: 0.5 * out.height as f32,
+                width: out.width as u32,
+                height: out.height as u32,
+            };
+            Camera { intrinsics, rotation, translation: Vec3::new(c[0], c[1], c[2]) }
+        })
+        .collect()
+}
+
+/// Runs the whole pipeline on `images` with the label `vocabulary`.
+pub fn reconstruct(
+    model: &mut Model,
+    labels: &LabelCache,
+    images: &[InputImage],
+    vocabulary: &[String],
+    config: &PipelineConfig,
+) -> Result<Reconstruction, PipelineError> {
+    if !(MIN_VIEWS..=MAX_VIEWS).contains(&images.len()) {
+        return Err(PipelineError::ViewCount(images.len()));
+    }
+    if vocabulary.is_empty() {
+        return Err(PipelineError::EmptyVocabulary);
+    }
+    let mut clock = Stopwatch::default();
+    let res = model.resolution;
+    let decoded = clock.time("decode", || {
+        images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32)).collect::<Result<Vec<_>, _>>()
+    })?;
+    let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
+    let out = clock.time("model", || model.run(&batch, images.len()))?;
+    let cameras = predicted_cameras(&out);
+
+    let pixels = out.height * out.width;
+    let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
+    let per_pixel = clock.time("backproject", || {
+        let views: Vec<ViewOutputs<'_>> = (0..out.views)
+            .map(|v| ViewOutputs {
+                camera: &cameras[v],
+                depth: &out.depth[plane(1, v)],
+                depth_conf: &out.depth_conf[plane(1, v)],
+                gaussians: &out.gaussians[plane(GAUSSIAN_CHANNELS, v)],
+                instance: &out.instance[plane(INSTANCE_DIM, v)],
+                semantic: &out.semantic[plane(out.sem_dim, v)],
+            })
+            .collect();
+        backproject(&views, out.sem_dim)
+    });
+    let per_pixel = per_pixel.map_err(|e| stage_err("backproject")(&e))?;
+    let (mut scene, voxel) =
+        clock.time("voxelize", || voxelize(&per_pixel, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;
+    let clustering = clock
+        .time("cluster", || cluster_instances(&mut scene, &config.cluster))
+        .map_err(|e| stage_err("cluster")(&e))?;
+
+    let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
+    let (prototypes, matches) = clock.time("label", || -> Result<_, PipelineError> {
+        let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
+        let texts = labels.embed(&words).map_err(|e| stage_err("label")(&e))?;
+        let prototypes = semantic_prototypes(&scene, &projection).map_err(|e| stage_err("label")(&e))?;
+        let matches = assign_labels(&prototypes, &texts).map_err(|e| stage_err("label")(&e))?;
+        Ok((prototypes, matches))
+    })?;
+    let k = clustering.prototypes.len();
+    let mut label_of_id = vec![None; k];
+    for (p, m) in prototypes.iter().zip(&matches) {
+        label_of_id[p.id as usize - 1] = m.map(|m| m.label);
+    }
+    scene.meta.labels = prototypes
+        .iter()
+        .zip(&matches)
+        .filter_map(|(p, m)| m.map(|m| (p.id, vocabulary[m.label].clone())))
+        .collect();
+    scene.meta.model_version = Some(model.model_version.clone());
+    scene.meta.up_axis = Some("-y".into());
+    let instances = instance_table(&scene, &prototypes, &matches, vocabulary);
+
+    let id_maps = clock.time("render", || {
+        cameras.par_iter().map(|c| render_instance_ids(&scene, c, k)).collect::<Result<Vec<_>, _>>()
+    });
+    let id_maps = id_maps.map_err(|e| stage_err("render")(&e))?;
+    let views = decoded
+        .into_iter()
+        .zip(id_maps)
+        .enumerate()
+        .map(|(v, (d, ids))| ViewResult {
+            camera: cameras[v],
+            letterbox: d.letterbox,
+            labels: label_map(&ids, &label_of_id),
+            instance_ids: ids,
+            depth: out.depth[plane(1, v)].to_vec(),
+            rgb: (0..pixels).flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8)).collect(),
+        })
+        .collect();
+    scene.meta.producer = format!("inssplat {}", env!("CARGO_PKG_VERSION"));
+    Ok(Reconstruction {
+        scene,
+        views,
+        instances,
+        prototypes,
+        vocabulary: vocabulary.to_vec(),
+        voxel,
+        timings: clock.timings,
+    })
+}
+
+/// Id, label, score, Gaussian count and bounding box of every instance.
+fn instance_table(
+    scene: &GaussianScene,
+    prototypes: &[InstancePrototype],
+    matches: &[Option<inssplat_raster::label::LabelMatch>],
+    vocabulary: &[String],
+) -> Vec<InstanceOut> {
+    prototypes
+        .iter()
+        .zip(matches)
+        .map(|(p, m)| {
+            let mut bbox = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
+            for (mean, _) in scene.means.iter().zip(&scene.instance_id).filter(|(_, id)| **id == p.id) {
+                for a in 0..3 {
+                    bbox[0][a] = bbox[0][a].min(mean[a]);
+                    bbox[1][a] = bbox[1][a].max(mean[a]);
+                }
+            }
+            InstanceOut {
+                id: p.id,
+                label: m.map_or_else(|| "unknown".to_string(), |m| vocabulary[m.label].clone()),
+                score: m.map_or(0.0, |m| m.score),
+                gaussians: p.gaussians,
+                bbox,
+            }
+        })
+        .collect()
+}

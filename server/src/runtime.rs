@@ -1,0 +1,193 @@
+//! The network under ONNX Runtime: finds the shared library (`ORT_DYLIB_PATH` or the setup
+//! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
+//! `proto::signature` (an error names the file and the tensor), sets intra-op threads from the
+//! core count, warms up, and runs batches of views into planar output arrays.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use inssplat_proto::signature::{self, TensorSpec};
+use ort::session::Session;
+use ort::value::{TensorElementType, TensorRef, ValueType};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    #[error(
+        "ONNX Runtime library not found: set ORT_DYLIB_PATH (unset or missing) or run scripts/setup, which puts it under {default}"
+    )]
+    LibraryMissing { default: String },
+    #[error("cannot load ONNX Runtime from {path}: {message}")]
+    Library { path: PathBuf, message: String },
+    #[error("model file {path} not found")]
+    ModelMissing { path: PathBuf },
+    #[error("cannot load model {path}: {message}")]
+    Load { path: PathBuf, message: String },
+    #[error("model {path}: tensor `{tensor}`: {problem}")]
+    Signature { path: PathBuf, tensor: String, problem: String },
+    #[error("model {path}: metadata `{key}`: {problem}")]
+    Metadata { path: PathBuf, key: &'static str, problem: String },
+    #[error("inference failed: {0}")]
+    Run(String),
+}
+
+/// The network's outputs for N views, each planar `[N][C][H][W]` (camera `[N][9]`).
+#[derive(Debug, Clone)]
+pub struct ModelOutput {
+    pub views: usize,
+    pub height: usize,
+    pub width: usize,
+    pub sem_dim: usize,
+    pub camera: Vec<f32>,
+    pub depth: Vec<f32>,
+    pub depth_conf: Vec<f32>,
+    pub gaussians: Vec<f32>,
+    pub instance: Vec<f32>,
+    pub semantic: Vec<f32>,
+    /// Φ_sem, `[384][d_s]` row-major, and its bias `[384]`.
+    pub sem_proj_weight: Vec<f32>,
+    pub sem_proj_bias: Vec<f32>,
+}
+
+/// A loaded, signature-checked model.
+pub struct Model {
+    session: Session,
+    pub path: PathBuf,
+    /// Input size (square) in pixels.
+    pub resolution: usize,
+    pub sem_dim: usize,
+    pub model_version: String,
+}
+
+/// Default place of the library unpacked by scripts/setup, relative to the workspace.
+fn default_library() -> Option<PathBuf> {
+    let roots = [std::env::current_dir().ok(), std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf))];
+    for root in roots.into_iter().flatten() {
+        for dir in root.ancestors() {
+            let Ok(entries) = std::fs::read_dir(dir.join(".deps")) else { continue };
+            let mut found: Vec<PathBuf> = entries
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("onnxruntime-")))
+                .flat_map(|d| std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path()))
+                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("libonnxruntime.so.")))
+                .collect();
+            found.sort();
+            if let Some(p) = found.pop() {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+/// Loads the ONNX Runtime library once per process.
+fn init_runtime() -> Result<&'static ort::environment::Environment, RuntimeError> {
+    static ENV: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
+    let path = match std::env::var_os("ORT_DYLIB_PATH").map(PathBuf::from).filter(|p| p.is_file()) {
+        Some(p) => p,
+        None => default_library()
+            .ok_or_else(|| RuntimeError::LibraryMissing { default: ".deps/onnxruntime-*/libonnxruntime.so.*".into() })?,
+    };
+    let env = ENV.get_or_init(|| {
+        ort::init_from(&path)
+            .map_err(|e| e.to_string())
+            .and_then(|b| b.with_name("inssplat").build().map_err(|e| e.to_string()))
+    });
+    env.as_ref().map_err(|message| RuntimeError::Library { path, message: message.clone() })
+}
+
+impl Model {
+    /// Loads `path`, checks it against the signature, and runs one warm-up batch.
+    pub fn load(path: &Path, threads: usize) -> Result<Self, RuntimeError> {
+        if !path.is_file() {
+            return Err(RuntimeError::ModelMissing { path: path.to_path_buf() });
+        }
+        let env = init_runtime()?;
+        let load_err = |e: ort::Error| RuntimeError::Load { path: path.to_path_buf(), message: e.to_string() };
+        let session = Session::builder(env)
+            .map_err(load_err)?
+            .with_intra_threads(threads.max(1))
+            .map_err(|e| load_err(e.into()))?
+            .commit_from_file(path)
+            .map_err(load_err)?;
+        check_tensors(path, "input", &signature::INPUTS, session.inputs().iter().map(|o| (o.name(), o.dtype())))?;
+        check_tensors(path, "output", &signature::OUTPUTS, session.outputs().iter().map(|o| (o.name(), o.dtype())))?;
+        let meta = session.metadata().map_err(load_err)?;
+        let get = |key: &'static str| {
+            meta.custom(key)
+                .ok_or_else(|| RuntimeError::Metadata { path: path.to_path_buf(), key, problem: "missing".into() })
+        };
+        let io = get(signature::META_IO_VERSION)?;
+        if io != signature::IO_VERSION {
+            let problem = format!("`{io}`, this build speaks `{}`", signature::IO_VERSION);
+            return Err(RuntimeError::Metadata { path: path.to_path_buf(), key: signature::META_IO_VERSION, problem });
+        }
+        let number = |key: &'static str| -> Result<usize, RuntimeError> {
+            let v = get(key)?;
+            v.parse().map_err(|_| RuntimeError::Metadata { path: path.to_path_buf(), key, problem: format!("`{v}` is not a number") })
+        };
+        let resolution = number(signature::META_RESOLUTION)?;
+        let sem_dim = number(signature::META_SEM_DIM)?;
+        let model_version = get(signature::META_MODEL_VERSION)?;
+        drop(meta);
+        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version };
+        let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
+        model.run(&warm, 2)?;
+        Ok(model)
+    }
+
+    /// Runs the network on `views` images, `images` planar `[views][3][res][res]` in [0, 1].
+    pub fn run(&mut self, images: &[f32], views: usize) -> Result<ModelOutput, RuntimeError> {
+        let r = self.resolution;
+        assert_eq!(images.len(), views * 3 * r * r, "image batch size");
+        let input = TensorRef::from_array_view(([views, 3, r, r], images)).map_err(|e| RuntimeError::Run(e.to_string()))?;
+        let outputs = self
+            .session
+            .run(ort::inputs![signature::INPUT_IMAGES.name => input])
+            .map_err(|e| RuntimeError::Run(e.to_string()))?;
+        let take = |spec: &TensorSpec| -> Result<Vec<f32>, RuntimeError> {
+            let (_, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
+            Ok(data.to_vec())
+        };
+        Ok(ModelOutput {
+            views,
+            height: r,
+            width: r,
+            sem_dim: self.sem_dim,
+            camera: take(&signature::OUTPUT_CAMERA)?,
+            depth: take(&signature::OUTPUT_DEPTH)?,
+            depth_conf: take(&signature::OUTPUT_DEPTH_CONF)?,
+            gaussians: take(&signature::OUTPUT_GAUSSIANS)?,
+            instance: take(&signature::OUTPUT_INSTANCE)?,
+            semantic: take(&signature::OUTPUT_SEMANTIC)?,
+            sem_proj_weight: take(&signature::OUTPUT_SEM_PROJ_WEIGHT)?,
+            sem_proj_bias: take(&signature::OUTPUT_SEM_PROJ_BIAS)?,
+        })
+    }
+}
+
+/// Checks that every tensor of `expected` is present with the right element type and rank.
+fn check_tensors<'a>(
+    path: &Path,
+    side: &str,
+    expected: &[TensorSpec],
+    actual: impl Iterator<Item = (&'a str, &'a ValueType)>,
+) -> Result<(), RuntimeError> {
+    let actual: Vec<_> = actual.collect();
+    for spec in expected {
+        let err = |problem: String| RuntimeError::Signature { path: path.to_path_buf(), tensor: spec.name.into(), problem };
+        let Some((_, ty)) = actual.iter().find(|(n, _)| *n == spec.name) else {
+            let names: Vec<_> = actual.iter().map(|(n, _)| *n).collect();
+            return Err(err(format!("missing {side} (the model has {names:?})")));
+        };
+        match (ty.tensor_type(), ty.tensor_shape()) {
+            (Some(TensorElementType::Float32), Some(shape)) if shape.len() == spec.rank => {}
+            (Some(TensorElementType::Float32), Some(shape)) => {
+                return Err(err(format!("rank {}, expected {} {}", shape.len(), spec.rank, spec.shape)));
+            }
+            (Some(t), _) => return Err(err(format!("element type {t:?}, expected float32"))),
+            (None, _) => return Err(err("not a tensor".into())),
+        }
+    }
+    Ok(())
+}

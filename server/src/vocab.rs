@@ -1,0 +1,50 @@
+//! The label vocabulary: the default list of indoor object names (the categories the
+//! training scenes use, plus common neighbours), or one the user gives as a file (one label a
+//! line) or a comma-separated list.
+
+use std::path::Path;
+
+use anyhow::Context;
+
+/// Default labels for indoor scenes.
+pub const DEFAULT_VOCABULARY: &[&str] = &[
+    "armchair", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "chair", "chest of drawers",
+    "coffee table", "desk", "door", "dresser", "fridge", "lamp", "nightstand", "office chair", "oven",
+    "piano", "plant", "rug", "shelf", "side table", "sink", "sofa", "speaker", "stool", "table", "toilet",
+    "tv", "vase", "wardrobe", "washing machine", "wastebasket",
+];
+
+/// The vocabulary from `--vocab`: a readable file means one label per line, anything else a
+/// comma-separated list; `None` gives the default.
+pub fn vocabulary(arg: Option<&str>) -> anyhow::Result<Vec<String>> {
+    let raw: Vec<String> = match arg {
+        None => DEFAULT_VOCABULARY.iter().map(|s| s.to_string()).collect(),
+        Some(a) if Path::new(a).is_file() => std::fs::read_to_string(a)
+            .with_context(|| format!("cannot read vocabulary file {a}"))?
+            .lines()
+            .map(str::to_string)
+            .collect(),
+        Some(a) => a.split(',').map(str::to_string).collect(),
+    };
+    let mut v: Vec<String> = raw.into_iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+    v.sort();
+    v.dedup();
+    anyhow::ensure!(!v.is_empty(), "--vocab {}: no labels in it", arg.unwrap_or(""));
+    Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_lists_files_and_rejects_empty() {
+        assert_eq!(vocabulary(Some(" lamp, chair ,lamp")).unwrap(), ["chair", "lamp"]);
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("v.txt");
+        std::fs::write(&f, "sofa\n\nbed\n").unwrap();
+        assert_eq!(vocabulary(Some(f.to_str().unwrap())).unwrap(), ["bed", "sofa"]);
+        assert!(vocabulary(Some(" , ")).is_err());
+        assert!(vocabulary(None).unwrap().len() >= 20);
+    }
+}
