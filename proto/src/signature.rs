@@ -85,6 +85,7 @@ pub const OUTPUTS: [TensorSpec; 8] = [
 /// ONNX metadata keys (custom_metadata_map).
 pub const META_IO_VERSION: &str = "inssplat.io_version";
 pub const META_MODEL_VERSION: &str = "inssplat.model_version";
+/// Input size as `"<H>x<W>"` in pixels, e.g. `"128x128"` (square for now).
 pub const META_RESOLUTION: &str = "inssplat.resolution";
 pub const META_SEM_DIM: &str = "inssplat.sem_dim";
 pub const META_TRAIN_STEPS: &str = "inssplat.train_steps";

@@ -126,7 +126,17 @@ impl Model {
             let v = get(key)?;
             v.parse().map_err(|_| RuntimeError::Metadata { path: path.to_path_buf(), key, problem: format!("`{v}` is not a number") })
         };
-        let resolution = number(signature::META_RESOLUTION)?;
+        let resolution = {
+            let key = signature::META_RESOLUTION;
+            let v = get(key)?;
+            match v.split_once('x').map(|(h, w)| (h.parse::<usize>(), w.parse::<usize>())) {
+                Some((Ok(h), Ok(w))) if h == w && h > 0 => h,
+                _ => {
+                    let problem = format!("`{v}`: expected a square \"<H>x<W>\" size such as \"128x128\"");
+                    return Err(RuntimeError::Metadata { path: path.to_path_buf(), key, problem });
+                }
+            }
+        };
         let sem_dim = number(signature::META_SEM_DIM)?;
         let model_version = get(signature::META_MODEL_VERSION)?;
         drop(meta);

@@ -6,3 +6,5 @@
 pub mod export;
 pub mod model;
 pub mod synth;
+pub mod loss;
+pub mod render_op;

@@ -1,0 +1,112 @@
+//! `inssplat reconstruct` end to end: a small network exported by the trainer (random
+//! weights: this checks the plumbing, not accuracy), a procedural test scene, the real
+//! binary and the real ONNX Runtime. Also the CLI's errors for bad input, each naming the
+//! file at fault.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use burn::prelude::Device;
+use inssplat_e2e::inssplat;
+use inssplat_proto::api::ReconstructResponse;
+use inssplat_proto::dataset::TransformsJson;
+use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+
+/// A tiny exported network and a 4-view 32×32 scene, made once per test process.
+fn fixtures() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
+    static FIXTURES: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    FIXTURES.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let config = ModelConfig::new()
+            .with_image_size(32)
+            .with_dim(32)
+            .with_depth(2)
+            .with_heads(2)
+            .with_decoder_dim(32)
+            .with_decoder_min_dim(16);
+        let net = config.init(&Device::flex()).unwrap();
+        let model = dir.path().join("tiny.onnx");
+        export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
+        let mut cfg = SynthConfig::new(Split::Val, Furniture::Primitives);
+        (cfg.width, cfg.height, cfg.frames, cfg.objects) = (32, 32, (4, 4), (3, 5));
+        let scene = synth::generate(11, &cfg).unwrap();
+        let scene_dir = dir.path().join("scene");
+        scene.write(&scene_dir).unwrap();
+        (dir, model, scene_dir)
+    })
+}
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = inssplat(args);
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn reconstructs_a_scene_and_writes_every_artefact() {
+    let (dir, model, scene) = fixtures();
+    let out = dir.path().join("out");
+    let (ok, stdout, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
+    assert!(ok, "{stderr}");
+    let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(r.cameras.len(), 4);
+    assert!(r.gaussians_kept > 0 && r.gaussians_kept <= r.gaussians_in && r.gaussians_in <= 4 * 32 * 32);
+    let stages: Vec<&str> = r.timings.iter().map(|t| t.stage.as_str()).collect();
+    assert_eq!(stages, ["decode", "model", "backproject", "voxelize", "cluster", "label", "render"]);
+
+    let ply = inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap()).unwrap();
+    assert_eq!(ply.len(), r.gaussians_kept);
+    assert_eq!(ply.sem_dim, 16);
+    assert_eq!(ply.meta.model_version.as_deref(), Some("e2e-random"));
+    for v in 0..4 {
+        for kind in ["instances", "labels"] {
+            let img = image::open(out.join(format!("{kind}/{v:03}.png"))).unwrap();
+            assert_eq!((img.width(), img.height()), (32, 32), "{kind} {v}");
+        }
+    }
+    let t: TransformsJson = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(t.frames.len(), 4);
+    assert!(t.frames[0].file_path.ends_with("images/000.png"));
+    assert!(out.join("preview.png").is_file() && out.join("instances.json").is_file());
+}
+
+#[test]
+fn refuses_a_single_view() {
+    let (dir, model, scene) = fixtures();
+    let (ok, _, stderr) =
+        run(&["reconstruct", s(&scene.join("images/000.png")), "-o", s(&dir.path().join("o1")), "--model", s(model)]);
+    assert!(!ok);
+    assert!(stderr.contains("1 images given"), "{stderr}");
+}
+
+#[test]
+fn names_a_corrupt_and_an_empty_image() {
+    let (dir, model, scene) = fixtures();
+    let bad = dir.path().join("corrupt.png");
+    std::fs::write(&bad, b"\x89PNG\r\n\x1a\n garbage").unwrap();
+    let empty = dir.path().join("empty.jpg");
+    std::fs::write(&empty, b"").unwrap();
+    let good = scene.join("images/001.png");
+    for file in [&bad, &empty] {
+        let (ok, _, stderr) = run(&["reconstruct", s(file), s(&good), "-o", s(&dir.path().join("o2")), "--model", s(model)]);
+        assert!(!ok);
+        assert!(stderr.contains(s(file)), "error names {}: {stderr}", file.display());
+    }
+}
+
+#[test]
+fn names_a_missing_and_an_incompatible_model() {
+    let (dir, _, scene) = fixtures();
+    let missing = dir.path().join("nope.onnx");
+    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o3")), "--model", s(&missing)]);
+    assert!(!ok && stderr.contains("nope.onnx") && stderr.contains("not found"), "{stderr}");
+    let not_a_model = dir.path().join("garbage.onnx");
+    std::fs::write(&not_a_model, b"definitely not protobuf").unwrap();
+    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o4")), "--model", s(&not_a_model)]);
+    assert!(!ok && stderr.contains("garbage.onnx"), "{stderr}");
+}

@@ -1,0 +1,142 @@
+//! Throughput of the network on the CPU: one forward + backward pass of the default
+//! configuration (128×128, 4 views) on `Device::flex().autodiff()`, reported as time and
+//! effective GFLOP/s (analytic model FLOPs: backward counted as twice the forward), and — when
+//! `ORT_DYLIB_PATH` is set — the exported graph's forward in ONNX Runtime at 8 and 16 views.
+//! Run with `cargo bench -p inssplat-trainer --bench model_step` (env `STEPS` = timed steps).
+
+use std::time::{Duration, Instant};
+
+use burn::module::Module;
+use burn::prelude::*;
+use burn::tensor::Distribution;
+use inssplat_trainer::export::{ExportMeta, to_onnx_bytes};
+use inssplat_trainer::model::{InsSplatNet, ModelConfig};
+
+fn median(mut times: Vec<Duration>) -> Duration {
+    times.sort();
+    times[times.len() / 2]
+}
+
+/// A scalar touching every output, so every head receives a gradient.
+fn step(net: &InsSplatNet, images: Tensor<4>) {
+    let out = net.forward(images).expect("forward");
+    let loss = out.camera.mean()
+        + out.depth.mean()
+        + out.depth_conf.log().mean()
+        + out.gaussians.mean()
+        + out.instance.powi_scalar(2).mean()
+        + out.semantic.powi_scalar(2).mean();
+    let grads = loss.backward();
+    drop(grads);
+}
+
+fn bench_train_step(config: &ModelConfig, views: usize, steps: usize) {
+    let device = Device::flex().autodiff();
+    let net = config.init(&device).expect("config");
+    let size = config.image_size;
+    println!(
+        "model: dim {} depth {} heads {} decoder {} sem {} -> {:.2} M parameters",
+        config.dim,
+        config.depth,
+        config.heads,
+        config.decoder_dim,
+        config.sem_dim,
+        net.num_params() as f64 / 1e6
+    );
+    let images = || {
+        Tensor::<4>::random(
+            [views, 3, size, size],
+            Distribution::Uniform(0.0, 1.0),
+            &device,
+        )
+    };
+    step(&net, images());
+    let times: Vec<Duration> = (0..steps)
+        .map(|_| {
+            let x = images();
+            let t = Instant::now();
+            step(&net, x);
+            t.elapsed()
+        })
+        .collect();
+    let t = median(times.clone());
+    let flops = 3 * net.forward_flops(views);
+    println!(
+        "train step (forward+backward), {views} views {size}x{size}: median {:.3} s over {steps} (min {:.3} s), \
+         {:.2} GFLOP model -> {:.1} GFLOP/s effective",
+        t.as_secs_f64(),
+        times.iter().min().unwrap().as_secs_f64(),
+        flops as f64 / 1e9,
+        flops as f64 / 1e9 / t.as_secs_f64()
+    );
+    let fwd = net.forward_flops(views);
+    let inference = Device::flex();
+    let net = config.init(&inference).expect("config");
+    let x = Tensor::<4>::random(
+        [views, 3, size, size],
+        Distribution::Uniform(0.0, 1.0),
+        &inference,
+    );
+    let _ = net.forward(x.clone()).expect("forward");
+    let t = Instant::now();
+    let _ = net.forward(x).expect("forward");
+    let e = t.elapsed().as_secs_f64();
+    println!(
+        "burn forward only (no autodiff), {views} views: {e:.3} s, {:.1} GFLOP/s",
+        fwd as f64 / 1e9 / e
+    );
+}
+
+fn bench_ort(config: &ModelConfig, steps: usize) {
+    let Ok(path) = std::env::var("ORT_DYLIB_PATH") else {
+        println!("ORT_DYLIB_PATH unset: skipping the ONNX Runtime timing (source .deps/env)");
+        return;
+    };
+    let net = config.init(&Device::flex()).expect("config");
+    let bytes = to_onnx_bytes(
+        &net,
+        &ExportMeta {
+            model_version: "bench".into(),
+            train_steps: 0,
+        },
+    )
+    .expect("export");
+    let env = ort::init_from(&path)
+        .expect("load ONNX Runtime")
+        .with_name("inssplat-bench")
+        .build()
+        .expect("environment");
+    let builder = ort::session::Session::builder(&env).expect("builder");
+    let mut builder = builder.with_intra_threads(2).expect("threads");
+    let mut session = builder.commit_from_memory(&bytes).expect("session");
+    let size = config.image_size;
+    for views in [8usize, 16] {
+        let data = vec![0.5f32; views * 3 * size * size];
+        let mut run = || {
+            let input = ort::value::Tensor::from_array(([views, 3, size, size], data.clone()))
+                .expect("input");
+            let t = Instant::now();
+            let out = session.run(ort::inputs!["images" => input]).expect("run");
+            drop(out);
+            t.elapsed()
+        };
+        run();
+        let times: Vec<Duration> = (0..steps).map(|_| run()).collect();
+        let t = median(times).as_secs_f64();
+        let flops = net.forward_flops(views) as f64;
+        println!(
+            "ONNX Runtime forward, {views} views: median {t:.3} s ({:.1} GFLOP/s effective)",
+            flops / 1e9 / t
+        );
+    }
+}
+
+fn main() {
+    let steps = std::env::var("STEPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3);
+    let config = ModelConfig::new();
+    bench_train_step(&config, 4, steps);
+    bench_ort(&config, steps);
+}

@@ -1,0 +1,302 @@
+//! Walks [`InsSplatNet`] module by module, in the same order and with the same arithmetic as
+//! its `forward`, emitting ONNX nodes with the module weights as initializers. Every op is
+//! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
+//! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
+//! Shape, Expand, Exp, Softplus, Sigmoid, Identity). The view count stays symbolic: shapes
+//! are given with 0 (copy) and -1 (infer), and the only data-dependent size, the number of
+//! non-reference views, comes from a Shape node.
+
+use burn::nn::conv::{Conv2d, ConvTranspose2d};
+use burn::nn::{LayerNorm, Linear};
+use inssplat_proto::signature as sig;
+
+use super::ExportError;
+use super::graph::{Graph, attr_float, attr_int, attr_ints};
+use crate::model::{
+    Block, CameraHead, DenseDecoder, GAUSSIAN_AFFINE_CHANNELS, InsSplatNet, LN_EPS, ModelConfig,
+    OUT_INSTANCE, SH_C0, gaussian_affine,
+};
+
+const END: i64 = i64::MAX;
+
+fn linear(g: &mut Graph, hint: &str, m: &Linear, x: &str) -> Result<String, ExportError> {
+    let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
+    let y = g.op("MatMul", &[x, &w], vec![]);
+    match &m.bias {
+        Some(b) => {
+            let b = g.param(&format!("{hint}.bias"), b.val())?;
+            Ok(g.op("Add", &[&y, &b], vec![]))
+        }
+        None => Ok(y),
+    }
+}
+
+fn layer_norm(g: &mut Graph, hint: &str, m: &LayerNorm, x: &str) -> Result<String, ExportError> {
+    let gamma = g.param(&format!("{hint}.gamma"), m.gamma.val())?;
+    let mut inputs = vec![x.to_string(), gamma];
+    if let Some(b) = &m.beta {
+        inputs.push(g.param(&format!("{hint}.beta"), b.val())?);
+    }
+    let refs: Vec<&str> = inputs.iter().map(String::as_str).collect();
+    Ok(g.op(
+        "LayerNormalization",
+        &refs,
+        vec![attr_int("axis", -1), attr_float("epsilon", LN_EPS as f32)],
+    ))
+}
+
+fn conv(g: &mut Graph, hint: &str, m: &Conv2d, x: &str) -> Result<String, ExportError> {
+    let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
+    let b = g.param(
+        &format!("{hint}.bias"),
+        m.bias
+            .as_ref()
+            .ok_or(ExportError::Unsupported("conv without bias"))?
+            .val(),
+    )?;
+    let [kh, kw] = m.kernel_size;
+    let (ph, pw) = ((kh / 2) as i64, (kw / 2) as i64);
+    let attrs = vec![
+        attr_ints("kernel_shape", &[kh as i64, kw as i64]),
+        attr_ints("pads", &[ph, pw, ph, pw]),
+        attr_ints("strides", &[m.stride[0] as i64, m.stride[1] as i64]),
+    ];
+    Ok(g.op("Conv", &[x, &w, &b], attrs))
+}
+
+fn conv_transpose(
+    g: &mut Graph,
+    hint: &str,
+    m: &ConvTranspose2d,
+    x: &str,
+) -> Result<String, ExportError> {
+    let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
+    let b = g.param(
+        &format!("{hint}.bias"),
+        m.bias
+            .as_ref()
+            .ok_or(ExportError::Unsupported("deconv without bias"))?
+            .val(),
+    )?;
+    let [kh, kw] = m.kernel_size;
+    let attrs = vec![
+        attr_ints("kernel_shape", &[kh as i64, kw as i64]),
+        attr_ints("strides", &[m.stride[0] as i64, m.stride[1] as i64]),
+    ];
+    Ok(g.op("ConvTranspose", &[x, &w, &b], attrs))
+}
+
+/// One transformer layer on `x`: `[batch, seq, dim]` (batch and seq may be symbolic).
+fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize) -> Result<String, ExportError> {
+    let heads = m.heads as i64;
+    let hd = (dim / m.heads) as i64;
+    let h = layer_norm(g, &format!("{hint}.norm1"), &m.norm1, x)?;
+    let qkv = linear(g, &format!("{hint}.qkv"), &m.qkv, &h)?;
+    let qkv = g.reshape(&qkv, &[0, 0, 3, heads, hd]);
+    let qkv = g.transpose(&qkv, &[2, 0, 3, 1, 4]);
+    let parts = g.op_n("Split", &[&qkv], 3, vec![attr_int("axis", 0)]);
+    let axis0 = g.i64s(&[0]);
+    let q = g.op("Squeeze", &[&parts[0], &axis0], vec![]);
+    let k = g.op("Squeeze", &[&parts[1], &axis0], vec![]);
+    let v = g.op("Squeeze", &[&parts[2], &axis0], vec![]);
+    let scale = g.scalar(1.0 / (hd as f32).sqrt());
+    let q = g.op("Mul", &[&q, &scale], vec![]);
+    let kt = g.transpose(&k, &[0, 1, 3, 2]);
+    let scores = g.op("MatMul", &[&q, &kt], vec![]);
+    let probs = g.op("Softmax", &[&scores], vec![attr_int("axis", -1)]);
+    let ctx = g.op("MatMul", &[&probs, &v], vec![]);
+    let ctx = g.transpose(&ctx, &[0, 2, 1, 3]);
+    let ctx = g.reshape(&ctx, &[0, 0, dim as i64]);
+    let a = linear(g, &format!("{hint}.proj"), &m.proj, &ctx)?;
+    let x = g.op("Add", &[x, &a], vec![]);
+    let h = layer_norm(g, &format!("{hint}.norm2"), &m.norm2, &x)?;
+    let h = linear(g, &format!("{hint}.fc1"), &m.fc1, &h)?;
+    let h = g.gelu(&h);
+    let h = linear(g, &format!("{hint}.fc2"), &m.fc2, &h)?;
+    Ok(g.op("Add", &[&x, &h], vec![]))
+}
+
+/// Token embedding, as `InsSplatNet::embed`. Returns (centred images, tokens `[N, S, dim]`).
+fn embed(
+    g: &mut Graph,
+    net: &InsSplatNet,
+    c: &ModelConfig,
+) -> Result<(String, String), ExportError> {
+    let (p, gr, d) = (c.patch as i64, c.grid() as i64, c.dim);
+    let half = g.scalar(0.5);
+    let centred = g.op("Sub", &[sig::INPUT_IMAGES.name, &half], vec![]);
+    let x = g.reshape(&centred, &[-1, 3, gr, p, gr, p]);
+    let x = g.transpose(&x, &[0, 2, 4, 1, 3, 5]);
+    let x = g.reshape(&x, &[-1, gr * gr, 3 * p * p]);
+    let x = linear(g, "patch_embed", &net.patch_embed, &x)?;
+    let pos = g.param("pos_embed", net.pos_embed.val())?;
+    let x = g.op("Add", &[&x, &pos], vec![]);
+    let cams = net.camera_tokens.val();
+    let cam0 = g.weight(
+        "camera_token.reference",
+        cams.clone().narrow(0, 0, 1),
+        &[1, 1, d],
+    )?;
+    let cam1 = g.weight("camera_token.other", cams.narrow(0, 1, 1), &[1, 1, d])?;
+    let reference = g.param("reference_embed", net.reference_embed.val())?;
+    let first = g.slice(&x, &[0], &[1], &[0]);
+    let first = g.op("Add", &[&first, &reference], vec![]);
+    let first = g.op("Concat", &[&cam0, &first], vec![attr_int("axis", 1)]);
+    let rest = g.slice(&x, &[1], &[END], &[0]);
+    let others = g.op(
+        "Shape",
+        &[&rest],
+        vec![attr_int("start", 0), attr_int("end", 1)],
+    );
+    let tail = g.i64s(&[1, d as i64]);
+    let target = g.op("Concat", &[&others, &tail], vec![attr_int("axis", 0)]);
+    let rest_cam = g.op("Expand", &[&cam1, &target], vec![]);
+    let rest = g.op("Concat", &[&rest_cam, &rest], vec![attr_int("axis", 1)]);
+    let tokens = g.op("Concat", &[&first, &rest], vec![attr_int("axis", 0)]);
+    Ok((centred, tokens))
+}
+
+fn camera_head(
+    g: &mut Graph,
+    m: &CameraHead,
+    tokens: &str,
+    c: &ModelConfig,
+) -> Result<(), ExportError> {
+    let x = layer_norm(g, "camera_head.norm", &m.norm, tokens)?;
+    let x = linear(g, "camera_head.fc1", &m.fc1, &x)?;
+    let x = g.gelu(&x);
+    let raw = linear(g, "camera_head.fc2", &m.fc2, &x)?;
+    let fov = g.slice(&raw, &[7], &[9], &[1]);
+    let fov = g.op("Sigmoid", &[&fov], vec![]);
+    let fov_scale = g.scalar((2.0 * c.fov_base) as f32);
+    let fov = g.op("Mul", &[&fov, &fov_scale], vec![]);
+    let identity = g.f32s(
+        "identity_pose",
+        &[1, 7],
+        &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+    );
+    let rest = g.slice(&raw, &[1, 0], &[END, 7], &[0, 1]);
+    let rest = g.op("Add", &[&rest, &identity], vec![]);
+    let pose = g.op("Concat", &[&identity, &rest], vec![attr_int("axis", 0)]);
+    g.op_into(
+        "Concat",
+        &[&pose, &fov],
+        &[sig::OUTPUT_CAMERA.name],
+        vec![attr_int("axis", 1)],
+    );
+    Ok(())
+}
+
+fn decoder(
+    g: &mut Graph,
+    m: &DenseDecoder,
+    levels: &[String],
+    centred: &str,
+    c: &ModelConfig,
+) -> Result<(), ExportError> {
+    let gr = c.grid() as i64;
+    let refs: Vec<&str> = levels.iter().map(String::as_str).collect();
+    let x = g.op("Concat", &refs, vec![attr_int("axis", 2)]);
+    let x = layer_norm(g, "decoder.norm", &m.norm, &x)?;
+    let x = linear(g, "decoder.fuse", &m.fuse, &x)?;
+    let x = g.reshape(&x, &[-1, gr, gr, c.decoder_dim as i64]);
+    let mut x = g.transpose(&x, &[0, 3, 1, 2]);
+    for (i, stage) in m.stages.iter().enumerate() {
+        let r = conv(g, &format!("decoder.stages.{i}.refine"), &stage.refine, &x)?;
+        let r = g.gelu(&r);
+        let y = g.op("Add", &[&x, &r], vec![]);
+        x = conv_transpose(g, &format!("decoder.stages.{i}.up"), &stage.up, &y)?;
+    }
+    let x = g.op("Concat", &[&x, centred], vec![attr_int("axis", 1)]);
+    let x = conv(g, "decoder.mix", &m.mix, &x)?;
+    let x = g.gelu(&x);
+    let raw = conv(g, "decoder.out", &m.out, &x)?;
+    let split = g.i64s(&[
+        1,
+        1,
+        GAUSSIAN_AFFINE_CHANNELS as i64,
+        3,
+        c.sem_dim as i64,
+        OUT_INSTANCE as i64,
+    ]);
+    let parts = g.op_n("Split", &[&raw, &split], 6, vec![attr_int("axis", 1)]);
+    let depth = g.op("Softplus", &[&parts[0]], vec![]);
+    let depth_scale = g.scalar(c.depth_scale as f32);
+    g.op_into(
+        "Mul",
+        &[&depth, &depth_scale],
+        &[sig::OUTPUT_DEPTH.name],
+        vec![],
+    );
+    let conf = g.op("Exp", &[&parts[1]], vec![]);
+    let one = g.scalar(1.0);
+    g.op_into(
+        "Add",
+        &[&conf, &one],
+        &[sig::OUTPUT_DEPTH_CONF.name],
+        vec![],
+    );
+    let (mul, add) = gaussian_affine(c);
+    let n_aff = GAUSSIAN_AFFINE_CHANNELS;
+    let mul = g.f32s("gaussian_mul", &[1, n_aff, 1, 1], &mul);
+    let add = g.f32s("gaussian_add", &[1, n_aff, 1, 1], &add);
+    let affine = g.op("Mul", &[&parts[2], &mul], vec![]);
+    let affine = g.op("Add", &[&affine, &add], vec![]);
+    let inv_c0 = g.scalar((1.0 / SH_C0) as f32);
+    let skip = g.op("Mul", &[centred, &inv_c0], vec![]);
+    let colour = g.op("Add", &[&parts[3], &skip], vec![]);
+    g.op_into(
+        "Concat",
+        &[&affine, &colour],
+        &[sig::OUTPUT_GAUSSIANS.name],
+        vec![attr_int("axis", 1)],
+    );
+    g.op_into(
+        "Identity",
+        &[&parts[4]],
+        &[sig::OUTPUT_SEMANTIC.name],
+        vec![],
+    );
+    g.op_into(
+        "Identity",
+        &[&parts[5]],
+        &[sig::OUTPUT_INSTANCE.name],
+        vec![],
+    );
+    Ok(())
+}
+
+/// Emits the whole network into `g`, reading `images` and writing every signature output.
+pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
+    let c = net.config();
+    let d = c.dim as i64;
+    let s = (c.grid() * c.grid() + 1) as i64;
+    let (centred, mut x) = embed(g, net, c)?;
+    let mut levels = Vec::new();
+    for (i, b) in net.blocks.iter().enumerate() {
+        let hint = format!("blocks.{i}");
+        if i % 2 == 0 {
+            x = block(g, &hint, b, &x, c.dim)?;
+        } else {
+            let flat = g.reshape(&x, &[1, -1, d]);
+            let y = block(g, &hint, b, &flat, c.dim)?;
+            x = g.reshape(&y, &[-1, s, d]);
+            levels.push(g.slice(&x, &[1], &[END], &[1]));
+        }
+    }
+    let cam = g.slice(&x, &[0], &[1], &[1]);
+    let cam = g.reshape(&cam, &[-1, d]);
+    camera_head(g, &net.camera_head, &cam, c)?;
+    decoder(g, &net.decoder, &levels, &centred, c)?;
+    let (w, b) = net.sem_proj();
+    let w = g.param("sem_proj.weight", w)?;
+    let b = g.param("sem_proj.bias", b)?;
+    g.op_into(
+        "Identity",
+        &[&w],
+        &[sig::OUTPUT_SEM_PROJ_WEIGHT.name],
+        vec![],
+    );
+    g.op_into("Identity", &[&b], &[sig::OUTPUT_SEM_PROJ_BIAS.name], vec![]);
+    Ok(())
+}

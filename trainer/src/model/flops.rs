@@ -1,0 +1,37 @@
+//! Analytic FLOP count of the network (a multiply-add counts 2), for throughput reports:
+//! matmuls, attention products and convolutions; element-wise work, norms and softmax are
+//! left out, so "effective GFLOP/s" understates the arithmetic actually done.
+
+use super::{DenseDecoder, ModelConfig};
+
+/// FLOPs of one forward pass at `n` views.
+pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
+    let (n, d, p, g) = (n as u64, c.dim as u64, c.patch as u64, c.grid() as u64);
+    let tokens = g * g;
+    let s = tokens + 1;
+    let mut f = 2 * n * tokens * 3 * p * p * d;
+    let mlp = c.mlp_ratio as u64;
+    for i in 0..c.depth {
+        f += 2 * n * s * d * d * (4 + 2 * mlp);
+        f += if i % 2 == 0 {
+            4 * n * s * s * d
+        } else {
+            4 * (n * s) * (n * s) * d
+        };
+    }
+    f += 2 * n * (d * d + d * 9);
+    let levels = (c.depth / 2) as u64;
+    f += 2 * n * tokens * levels * d * c.decoder_dim as u64;
+    for st in 0..c.stages() {
+        let r = g << st;
+        let (ch, next) = (
+            c.decoder_channels(st) as u64,
+            c.decoder_channels(st + 1) as u64,
+        );
+        f += 2 * n * r * r * ch * ch * 9 + 2 * n * r * r * ch * next * 4;
+    }
+    let hw = (c.image_size * c.image_size) as u64;
+    let last = c.decoder_channels(c.stages()) as u64;
+    f += 2 * n * hw * (last + 3) * last + 2 * n * hw * last * DenseDecoder::out_channels(c) as u64;
+    f
+}

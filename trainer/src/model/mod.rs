@@ -1,0 +1,276 @@
+//! The InstanceSplat network, VGGT-style and sized to train on a small CPU: the images of N
+//! views are cut into patches and embedded; transformer layers alternate frame attention
+//! (within one view) and global attention (across all views' tokens); a camera token per view
+//! feeds the camera head, and a DPT-style dense decoder turns several layers' patch tokens
+//! into full-resolution maps: depth and confidence, per-pixel Gaussian parameters, the compact
+//! semantic feature L and the instance embedding S. The output activations produce exactly
+//! the model I/O signature of `inssplat_proto::signature`, so the ONNX graph written by
+//! [`crate::export`] (which walks these same modules) needs no post-processing.
+//!
+//! burn 0.22 tensors carry their backend in their [`Device`] (no backend type parameter):
+//! the same model runs on `Device::flex()` for inference and export, on
+//! `Device::flex().autodiff()` for training, or on a GPU device.
+
+mod block;
+mod decoder;
+mod flops;
+
+use burn::module::Param;
+use burn::nn::{Initializer, Linear, LinearConfig};
+use burn::prelude::*;
+use inssplat_proto::signature::TEXT_DIM;
+
+pub use block::{Block, LN_EPS};
+pub use decoder::{
+    CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
+    OUT_INSTANCE, SH_C0, Stage, gaussian_affine,
+};
+
+/// Shape and output-scaling hyper-parameters of the network.
+#[derive(Config, Debug, PartialEq)]
+pub struct ModelConfig {
+    /// Square input resolution in pixels (H = W); a multiple of `patch`.
+    #[config(default = 128)]
+    pub image_size: usize,
+    /// Patch side in pixels; a power of two (the decoder upsamples by 2 per stage).
+    #[config(default = 8)]
+    pub patch: usize,
+    /// Token width.
+    #[config(default = 192)]
+    pub dim: usize,
+    /// Transformer layers, alternating frame then global attention; even.
+    #[config(default = 6)]
+    pub depth: usize,
+    #[config(default = 3)]
+    pub heads: usize,
+    #[config(default = 4)]
+    pub mlp_ratio: usize,
+    /// Channels of the dense decoder at token resolution; halved per upsampling stage.
+    #[config(default = 128)]
+    pub decoder_dim: usize,
+    /// Lower bound on decoder channels at the finer stages.
+    #[config(default = 32)]
+    pub decoder_min_dim: usize,
+    /// Width d_s of the compact semantic feature L.
+    #[config(default = 16)]
+    pub sem_dim: usize,
+    /// depth = depth_scale · softplus(raw), metres.
+    #[config(default = 2.0)]
+    pub depth_scale: f64,
+    /// Gaussian offset xyz = offset_scale · raw, metres.
+    #[config(default = 0.05)]
+    pub offset_scale: f64,
+    /// Added to the raw log-scales (≈ log of one pixel's footprint at room distance).
+    #[config(default = -3.5)]
+    pub log_scale_bias: f64,
+    /// fov = 2 · fov_base · sigmoid(raw), radians: fov_base at raw = 0.
+    #[config(default = 1.0)]
+    pub fov_base: f64,
+}
+
+impl ModelConfig {
+    /// Patches per side.
+    pub fn grid(&self) -> usize {
+        self.image_size / self.patch
+    }
+
+    /// Upsampling stages of the decoder (log2 of the patch size).
+    pub fn stages(&self) -> usize {
+        self.patch.trailing_zeros() as usize
+    }
+
+    /// Decoder channels at stage `s` (0 = token resolution, `stages()` = full resolution).
+    pub fn decoder_channels(&self, s: usize) -> usize {
+        (self.decoder_dim >> s).max(self.decoder_min_dim)
+    }
+
+    /// Checks the constraints the architecture relies on.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |what: String| Err(ModelError::Config(what));
+        if !self.patch.is_power_of_two() || self.patch < 2 {
+            return bad(format!("patch {} must be a power of two ≥ 2", self.patch));
+        }
+        if self.image_size == 0 || !self.image_size.is_multiple_of(self.patch) {
+            return bad(format!(
+                "image_size {} must be a positive multiple of patch {}",
+                self.image_size, self.patch
+            ));
+        }
+        if self.depth == 0 || !self.depth.is_multiple_of(2) {
+            return bad(format!(
+                "depth {} must be even and positive (frame/global pairs)",
+                self.depth
+            ));
+        }
+        if self.heads == 0 || !self.dim.is_multiple_of(self.heads) {
+            return bad(format!(
+                "dim {} must be a multiple of heads {}",
+                self.dim, self.heads
+            ));
+        }
+        if self.sem_dim == 0 || self.decoder_min_dim == 0 || self.mlp_ratio == 0 {
+            return bad("sem_dim, decoder_min_dim and mlp_ratio must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// Builds a freshly initialised network on `device`.
+    pub fn init(&self, device: &Device) -> Result<InsSplatNet, ModelError> {
+        self.validate()?;
+        let tokens = self.grid() * self.grid();
+        let small = Initializer::Normal {
+            mean: 0.0,
+            std: 0.02,
+        };
+        Ok(InsSplatNet {
+            patch_embed: LinearConfig::new(3 * self.patch * self.patch, self.dim).init(device),
+            pos_embed: small.init([tokens, self.dim], device),
+            camera_tokens: small.init([2, self.dim], device),
+            reference_embed: small.init([1, self.dim], device),
+            blocks: (0..self.depth)
+                .map(|_| Block::new(self.dim, self.heads, self.mlp_ratio, device))
+                .collect(),
+            camera_head: CameraHead::new(self.dim, device),
+            decoder: DenseDecoder::new(self, device),
+            sem_proj: LinearConfig::new(self.sem_dim, TEXT_DIM).init(device),
+            config: self.clone(),
+        })
+    }
+}
+
+/// Errors of building or running the network.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("invalid model configuration: {0}")]
+    Config(String),
+    #[error("images must be [N, 3, {size}, {size}] with N ≥ 1, got {got:?}")]
+    InputShape { size: usize, got: [usize; 4] },
+}
+
+/// The network. Fields are crate-visible so that [`crate::export`] can walk them.
+#[derive(Module, Debug)]
+pub struct InsSplatNet {
+    /// Patch embedding: a linear map of each flattened (channel, row, column) patch.
+    pub(crate) patch_embed: Linear,
+    /// Learned position embedding, `[tokens, dim]`.
+    pub(crate) pos_embed: Param<Tensor<2>>,
+    /// Camera token of the reference view (row 0) and of every other view (row 1).
+    pub(crate) camera_tokens: Param<Tensor<2>>,
+    /// Added to the reference view's patch tokens, `[1, dim]`.
+    pub(crate) reference_embed: Param<Tensor<2>>,
+    /// Even indices attend within a view, odd ones across views.
+    pub(crate) blocks: Vec<Block>,
+    pub(crate) camera_head: CameraHead,
+    pub(crate) decoder: DenseDecoder,
+    /// Φ_sem: compact semantic feature L (d_s) → text space (384).
+    pub(crate) sem_proj: Linear,
+    #[module(skip)]
+    pub(crate) config: ModelConfig,
+}
+
+/// Everything one forward pass predicts, shaped as in the model I/O signature.
+#[derive(Debug, Clone)]
+pub struct ModelOutput {
+    /// `[N, 9]`: translation (3), rotation w,x,y,z (4), fov_y, fov_x; view 0 is the identity.
+    pub camera: Tensor<2>,
+    /// `[N, 1, H, W]`, metres, > 0.
+    pub depth: Tensor<4>,
+    /// `[N, 1, H, W]`, > 1.
+    pub depth_conf: Tensor<4>,
+    /// `[N, 14, H, W]`: offset, log-scale, rotation, opacity logit, SH DC colour.
+    pub gaussians: Tensor<4>,
+    /// `[N, 8, H, W]`: instance embedding S.
+    pub instance: Tensor<4>,
+    /// `[N, d_s, H, W]`: compact semantic feature L.
+    pub semantic: Tensor<4>,
+}
+
+impl InsSplatNet {
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Φ_sem as the signature lays it out: weight `[384, d_s]` and bias `[384]`
+    /// (text-space feature = W·L + b).
+    pub fn sem_proj(&self) -> (Tensor<2>, Tensor<1>) {
+        let weight = self.sem_proj.weight.val().transpose();
+        let bias = self.sem_proj.bias.as_ref().expect("Φ_sem has a bias").val();
+        (weight, bias)
+    }
+
+    /// Maps compact semantic features `[.., d_s]` (channels last) to the text space.
+    pub fn project_semantic<const D: usize>(&self, features: Tensor<D>) -> Tensor<D> {
+        self.sem_proj.forward(features)
+    }
+
+    /// Token embedding: `[N, 3, H, W]` images in [0, 1] → `[N, 1 + tokens, dim]`, camera
+    /// token first, reference embedding on view 0.
+    fn embed(&self, images: Tensor<4>) -> Tensor<3> {
+        let c = &self.config;
+        let (p, g) = (c.patch, c.grid());
+        let n = images.dims()[0];
+        let patches = (images - 0.5)
+            .reshape([n, 3, g, p, g, p])
+            .permute([0, 2, 4, 1, 3, 5])
+            .reshape([n, g * g, 3 * p * p]);
+        let x = self.patch_embed.forward(patches) + self.pos_embed.val().unsqueeze_dim(0);
+        let cams = self.camera_tokens.val();
+        let first = Tensor::cat(
+            vec![
+                cams.clone().narrow(0, 0, 1).unsqueeze_dim(0),
+                x.clone().narrow(0, 0, 1) + self.reference_embed.val().unsqueeze_dim(0),
+            ],
+            1,
+        );
+        if n == 1 {
+            return first;
+        }
+        let rest_cam = cams
+            .narrow(0, 1, 1)
+            .unsqueeze_dim::<3>(0)
+            .repeat_dim(0, n - 1);
+        let rest = Tensor::cat(vec![rest_cam, x.narrow(0, 1, n - 1)], 1);
+        Tensor::cat(vec![first, rest], 0)
+    }
+
+    /// The forward pass. `images`: `[N, 3, H, W]`, RGB in [0, 1], N ≥ 1.
+    pub fn forward(&self, images: Tensor<4>) -> Result<ModelOutput, ModelError> {
+        let c = &self.config;
+        let dims = images.dims();
+        if dims[0] == 0 || dims[1] != 3 || dims[2] != c.image_size || dims[3] != c.image_size {
+            return Err(ModelError::InputShape {
+                size: c.image_size,
+                got: dims,
+            });
+        }
+        let n = dims[0];
+        let mut x = self.embed(images.clone());
+        let [_, s, d] = x.dims();
+        let mut levels = Vec::with_capacity(c.depth / 2);
+        for (i, block) in self.blocks.iter().enumerate() {
+            if i % 2 == 0 {
+                x = block.forward(x);
+            } else {
+                x = block.forward(x.reshape([1, n * s, d])).reshape([n, s, d]);
+                levels.push(x.clone().slice([0..n, 1..s]));
+            }
+        }
+        let camera = self
+            .camera_head
+            .forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
+        let dense = self.decoder.forward(levels, images, c);
+        Ok(ModelOutput {
+            camera,
+            depth: dense.depth,
+            depth_conf: dense.depth_conf,
+            gaussians: dense.gaussians,
+            instance: dense.instance,
+            semantic: dense.semantic,
+        })
+    }
+
+    /// Analytic FLOP count of one forward pass at `views` views (multiply-add = 2 FLOPs).
+    pub fn forward_flops(&self, views: usize) -> u64 {
+        flops::forward_flops(&self.config, views)
+    }
+}

@@ -1,0 +1,244 @@
+//! Parity of the exported ONNX graph with the trainer's own forward pass: a small network
+//! with randomised weights (larger than the initial ones, so every activation leaves its
+//! linear range) is exported, run through the real ONNX Runtime (`ORT_DYLIB_PATH`, set by
+//! `.deps/env`) at 2 and at 5 views — the dynamic view axis — and every signature output is
+//! compared with burn's, element by element. Also checks the graph's declared I/O and metadata
+//! against `inssplat_proto::signature`.
+
+use burn::module::{Module, ModuleMapper, Param};
+use burn::prelude::*;
+use burn::tensor::Distribution;
+use inssplat_proto::signature as sig;
+use inssplat_trainer::export::{ExportMeta, export_onnx, to_model_proto};
+use inssplat_trainer::model::{InsSplatNet, ModelConfig, ModelOutput};
+use ort::session::Session;
+use ort::value::Tensor as OrtTensor;
+
+/// Absolute tolerance; values larger than 1 in magnitude are compared relative to themselves.
+const TOL: f32 = 1e-3;
+
+fn small_config() -> ModelConfig {
+    ModelConfig::new()
+        .with_image_size(32)
+        .with_dim(32)
+        .with_depth(2)
+        .with_heads(2)
+        .with_decoder_dim(32)
+        .with_decoder_min_dim(16)
+}
+
+/// Adds N(0, std²) noise to every weight.
+struct Perturb {
+    std: f64,
+}
+
+impl ModuleMapper for Perturb {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let std = self.std;
+        param.map(|t| {
+            let noise = Tensor::random(t.shape(), Distribution::Normal(0.0, std), &t.device());
+            t + noise
+        })
+    }
+}
+
+fn network(device: &Device) -> InsSplatNet {
+    device.seed(7);
+    small_config()
+        .init(device)
+        .expect("valid config")
+        .map(&mut Perturb { std: 0.15 })
+}
+
+fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_into_vec_as::<f32>().expect("f32 data")
+}
+
+fn session(bytes: &[u8]) -> Session {
+    let path = std::env::var("ORT_DYLIB_PATH")
+        .expect("ORT_DYLIB_PATH is unset: source .deps/env (scripts/setup writes it)");
+    let env = ort::init_from(&path)
+        .expect("load ONNX Runtime")
+        .with_name("inssplat-parity")
+        .build()
+        .expect("environment");
+    let builder = Session::builder(&env).expect("session builder");
+    let mut builder = builder.with_intra_threads(2).expect("thread count");
+    builder
+        .commit_from_memory(bytes)
+        .expect("ONNX Runtime accepts the exported graph")
+}
+
+fn compare(name: &str, ours: Vec<f32>, theirs: &[f32]) -> f32 {
+    assert_eq!(ours.len(), theirs.len(), "{name}: element count");
+    let mut worst = 0f32;
+    for (i, (a, b)) in ours.iter().zip(theirs).enumerate() {
+        assert!(
+            a.is_finite() && b.is_finite(),
+            "{name}[{i}]: non-finite burn {a} vs ORT {b}"
+        );
+        let diff = (a - b).abs();
+        assert!(
+            diff <= TOL * a.abs().max(1.0),
+            "{name}[{i}]: burn {a} vs ORT {b} (diff {diff})"
+        );
+        worst = worst.max(diff);
+    }
+    worst
+}
+
+fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &Device) {
+    let size = net.config().image_size;
+    let images = Tensor::<4>::random(
+        [views, 3, size, size],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let input = OrtTensor::from_array(([views, 3, size, size], to_vec(images.clone())))
+        .expect("input tensor");
+    let ModelOutput {
+        camera,
+        depth,
+        depth_conf,
+        gaussians,
+        instance,
+        semantic,
+    } = net.forward(images).expect("forward");
+    let (w, b) = net.sem_proj();
+    let outputs = session
+        .run(ort::inputs![sig::INPUT_IMAGES.name => input])
+        .expect("ORT run");
+    let ours = [
+        (
+            sig::OUTPUT_CAMERA.name,
+            camera.dims().to_vec(),
+            to_vec(camera),
+        ),
+        (sig::OUTPUT_DEPTH.name, depth.dims().to_vec(), to_vec(depth)),
+        (
+            sig::OUTPUT_DEPTH_CONF.name,
+            depth_conf.dims().to_vec(),
+            to_vec(depth_conf),
+        ),
+        (
+            sig::OUTPUT_GAUSSIANS.name,
+            gaussians.dims().to_vec(),
+            to_vec(gaussians),
+        ),
+        (
+            sig::OUTPUT_INSTANCE.name,
+            instance.dims().to_vec(),
+            to_vec(instance),
+        ),
+        (
+            sig::OUTPUT_SEMANTIC.name,
+            semantic.dims().to_vec(),
+            to_vec(semantic),
+        ),
+        (
+            sig::OUTPUT_SEM_PROJ_WEIGHT.name,
+            w.dims().to_vec(),
+            to_vec(w),
+        ),
+        (sig::OUTPUT_SEM_PROJ_BIAS.name, b.dims().to_vec(), to_vec(b)),
+    ];
+    for (name, dims, values) in ours {
+        let (shape, theirs) = outputs[name]
+            .try_extract_tensor::<f32>()
+            .expect("f32 output");
+        let shape: Vec<usize> = shape.iter().map(|&d| d as usize).collect();
+        assert_eq!(shape, dims, "{name}: shape");
+        let worst = compare(name, values, theirs);
+        eprintln!("{views} views, {name} {dims:?}: max |burn - ORT| = {worst:.2e}");
+    }
+}
+
+#[test]
+fn export_matches_burn_forward_at_2_and_5_views() {
+    let device = Device::flex();
+    let net = network(&device);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("model.onnx");
+    let meta = ExportMeta {
+        model_version: "parity-test".into(),
+        train_steps: 0,
+    };
+    export_onnx(&net, &path, &meta).expect("export");
+    let bytes = std::fs::read(&path).expect("read back");
+    let mut session = session(&bytes);
+    for views in [2, 5] {
+        check_views(views, &net, &mut session, &device);
+    }
+    let metadata = session.metadata().expect("metadata");
+    assert_eq!(
+        metadata.custom(sig::META_IO_VERSION).as_deref(),
+        Some(sig::IO_VERSION)
+    );
+    assert_eq!(
+        metadata.custom(sig::META_MODEL_VERSION).as_deref(),
+        Some("parity-test")
+    );
+    assert_eq!(
+        metadata.custom(sig::META_RESOLUTION).as_deref(),
+        Some("32x32")
+    );
+    assert_eq!(metadata.custom(sig::META_SEM_DIM).as_deref(), Some("16"));
+    assert_eq!(metadata.custom(sig::META_TRAIN_STEPS).as_deref(), Some("0"));
+}
+
+#[test]
+fn export_declares_the_signature() {
+    let net = small_config().init(&Device::flex()).expect("valid config");
+    let model = to_model_proto(
+        &net,
+        &ExportMeta {
+            model_version: "x".into(),
+            train_steps: 3,
+        },
+    )
+    .expect("export");
+    assert!(
+        model
+            .opset_import
+            .iter()
+            .any(|o| o.version.unwrap_or(0) >= 17)
+    );
+    let graph = model.graph.expect("graph");
+    let names = |v: &[inssplat_trainer::export::onnx_pb::ValueInfoProto]| -> Vec<String> {
+        v.iter()
+            .map(|i| i.name.clone().unwrap_or_default())
+            .collect()
+    };
+    let want_in: Vec<String> = sig::INPUTS.iter().map(|t| t.name.to_string()).collect();
+    let want_out: Vec<String> = sig::OUTPUTS.iter().map(|t| t.name.to_string()).collect();
+    assert_eq!(names(&graph.input), want_in);
+    assert_eq!(names(&graph.output), want_out);
+    let allowed = [
+        "Add",
+        "Concat",
+        "Conv",
+        "ConvTranspose",
+        "Div",
+        "Erf",
+        "Exp",
+        "Expand",
+        "Identity",
+        "LayerNormalization",
+        "MatMul",
+        "Mul",
+        "Reshape",
+        "Shape",
+        "Sigmoid",
+        "Slice",
+        "Softmax",
+        "Softplus",
+        "Split",
+        "Squeeze",
+        "Sub",
+        "Transpose",
+    ];
+    for node in &graph.node {
+        let op = node.op_type.as_deref().unwrap_or_default();
+        assert!(allowed.contains(&op), "unexpected op {op}");
+    }
+}

@@ -1,0 +1,189 @@
+//! Hand-computed values of L_rgb, L_geom, L_sem and L_bd-rgb on tiny inputs, the defaults of
+//! the loss configuration and the weighted total.
+
+use burn::prelude::*;
+use glam::{Quat, Vec3};
+use inssplat_proto::{Camera, Intrinsics};
+use inssplat_trainer::loss::{
+    BoundaryTerm, LossConfig, LossError, LossTerms, boundary_rgb_loss, boundary_weights, camera_loss, camera_targets,
+    depth_loss, geometry_loss, median_depth, rgb_loss, semantic_loss,
+};
+
+fn tensor<const D: usize>(values: &[f32], shape: [usize; D]) -> Tensor<D> {
+    Tensor::from_data(TensorData::new(values.to_vec(), shape), &Device::flex())
+}
+
+fn scalar(x: Tensor<1>) -> f64 {
+    f64::from(x.into_scalar::<f32>())
+}
+
+fn close(got: f64, expected: f64, what: &str) {
+    assert!((got - expected).abs() <= 1e-5 + 1e-5 * expected.abs(), "{what}: got {got}, expected {expected}");
+}
+
+fn sigmoid(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+#[test]
+fn loss_config_defaults_are_the_papers() {
+    let c = LossConfig::new();
+    assert_eq!(
+        [c.rgb_weight, c.geometry_weight, c.instance_weight, c.semantic_weight, c.boundary_weight],
+        [1.0, 1.0, 0.01, 0.02, 0.02]
+    );
+    assert_eq!([c.pull_weight, c.push_weight, c.cross_weight], [2.0, 1.0, 2.0]);
+    assert_eq!([c.eta_max, c.tau_sem], [3.0, 0.5]);
+    assert_eq!([c.boundary_threshold, c.boundary_temperature, c.charbonnier_eps], [0.15, 0.05, 1e-3]);
+    let one = |v: f32| tensor(&[v], [1]);
+    let terms =
+        LossTerms { rgb: one(1.0), geometry: one(2.0), instance: one(3.0), semantic: one(4.0), boundary: one(5.0) };
+    close(scalar(c.total(&terms)), 1.0 + 2.0 + 0.03 + 0.08 + 0.1, "total");
+}
+
+#[test]
+fn loss_rgb_is_mse() {
+    // Two pixels, three channels: differences 0.1, −0.2, 0.3, 0, 0.5, −0.4.
+    let rendered = tensor(&[0.1, 0.0, 0.8, 0.5, 0.3, 0.1], [1, 3, 1, 2]);
+    let target = tensor(&[0.0, 0.2, 0.5, 0.5, -0.2, 0.5], [1, 3, 1, 2]);
+    let expected = (0.01 + 0.04 + 0.09 + 0.0 + 0.25 + 0.16) / 6.0;
+    close(scalar(rgb_loss(rendered, target).unwrap()), expected, "L_rgb");
+    assert!(matches!(
+        rgb_loss(tensor(&[0.0; 3], [1, 3, 1, 1]), tensor(&[0.0; 6], [1, 3, 1, 2])),
+        Err(LossError::Shape { .. })
+    ));
+}
+
+#[test]
+fn loss_depth_is_confidence_weighted_relative_error() {
+    // Pixels: gt 2, 0 (no hit), 4, 3 → median of {2, 3, 4} is 3.
+    let gt = [2.0, 0.0, 4.0, 3.0];
+    assert_eq!(median_depth(&gt), Some(3.0));
+    assert_eq!(median_depth(&[0.0, 0.0]), None);
+    let e = std::f64::consts::E;
+    let depth = tensor(&[2.3, 5.0, 3.6, 3.0], [1, 1, 2, 2]);
+    let conf = tensor(&[2.0, 1.5, e as f32, 1.0], [1, 1, 2, 2]);
+    let config = LossConfig::new();
+    let alpha = 0.2;
+    let expected = ((2.0 * 0.3 / 3.0 - alpha * 2f64.ln()) + (e * 0.4 / 3.0 - alpha * 1.0) + 0.0) / 3.0;
+    close(scalar(depth_loss(depth, conf, &gt, 3.0, &config).unwrap()), expected, "L_depth");
+}
+
+fn camera(rotation: Quat, translation: Vec3, fov_y: f32) -> Camera {
+    Camera { intrinsics: Intrinsics::from_fov_y(64, 48, fov_y), rotation, translation }
+}
+
+#[test]
+fn loss_camera_targets_are_relative_to_view_zero() {
+    let r0 = Quat::from_euler(glam::EulerRot::YXZ, 0.3, -0.2, 0.1);
+    let t0 = Vec3::new(0.5, -1.0, 2.0);
+    // View 1 = a known motion (rotation about y by 0.4, then translation) after view 0.
+    let rel_r = Quat::from_rotation_y(0.4);
+    let rel_t = Vec3::new(0.2, 0.0, -0.3);
+    let cams = [camera(r0, t0, 0.9), camera(rel_r * r0, rel_r * t0 + rel_t, 0.7)];
+    let targets = camera_targets(&cams);
+    let (fy0, fx0) = cams[0].intrinsics.fov();
+    let identity = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, fy0, fx0];
+    for (got, want) in targets[0].iter().zip(identity) {
+        close(f64::from(*got), f64::from(want), "view 0 target");
+    }
+    let (fy1, fx1) = cams[1].intrinsics.fov();
+    let sign = if targets[1][3] * rel_r.w >= 0.0 { 1.0 } else { -1.0 };
+    let want = [rel_t.x, rel_t.y, rel_t.z, sign * rel_r.w, sign * rel_r.x, sign * rel_r.y, sign * rel_r.z, fy1, fx1];
+    for (got, want) in targets[1].iter().zip(want) {
+        assert!((got - want).abs() < 1e-5, "view 1 target {:?} vs {want:?}", targets[1]);
+    }
+}
+
+#[test]
+fn loss_camera_hand_values() {
+    let targets = [[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2], [1.0, 2.0, 3.0, 0.0, 1.0, 0.0, 0.0, 0.8, 1.0]];
+    // View 0: fov_y off by 0.1. View 1: x off by 0.3, rotation = −2·target (same rotation).
+    let pred =
+        tensor(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.1, 1.2, 1.3, 2.0, 3.0, 0.0, -2.0, 0.0, 0.0, 0.8, 1.0], [2, 9]);
+    close(scalar(camera_loss(pred, &targets, 2.0).unwrap()), 0.1 / 4.0 + 0.3 / 3.0 / 2.0, "L_cam, sign-invariant");
+    // Rotation by angle a about x against the identity: mean |(cos a/2 − 1, sin a/2, 0, 0)|.
+    let a: f64 = 0.5;
+    let (c, s) = ((a / 2.0).cos(), (a / 2.0).sin());
+    let targets = [targets[0], [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.8, 1.0]];
+    let pred = tensor(
+        &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2, 0.0, 0.0, 0.0, c as f32, s as f32, 0.0, 0.0, 0.8, 1.0],
+        [2, 9],
+    );
+    close(scalar(camera_loss(pred.clone(), &targets, 1.0).unwrap()), ((1.0 - c) + s) / 4.0, "L_cam rotation");
+
+    // L_geom = L_depth + L_cam with the scene's median depth as the scale.
+    let gt = [2.0, 4.0];
+    let depth = tensor(&[3.0, 4.0], [1, 1, 1, 2]);
+    let conf = tensor(&[1.0, 1.0], [1, 1, 1, 2]);
+    let geom = geometry_loss(depth, conf, &gt, pred, &targets, &LossConfig::new()).unwrap();
+    close(scalar(geom), (1.0 / 4.0) / 2.0 + ((1.0 - c) + s) / 4.0, "L_geom");
+}
+
+#[test]
+fn loss_semantic_hand_values() {
+    // 2×2 view, ids [0, 1, 2, 1]; features l = (5, 5), (1, 0), (0, 1), (1, 1);
+    // Φ_sem(l) = W·l + b embeds 2-d features into 3-d: W = [[1, 0], [0, 1], [0, 0]].
+    let ids = [0, 1, 2, 1];
+    let semantic = tensor(&[5.0, 1.0, 0.0, 1.0, 5.0, 0.0, 1.0, 1.0], [1, 2, 2, 2]);
+    let teacher = tensor(&[9.0, 9.0, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0], [3, 3]);
+    let weight = tensor(&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [3, 2]);
+    let loss = |ids: &[u32], bias: [f32; 3]| {
+        semantic_loss(semantic.clone(), ids, teacher.clone(), weight.clone(), tensor(&bias, [3]))
+    };
+    // b = 0. Pixel 1: (1,0,0)·(1,0,0) → cos 1; pixel 2: (0,1,0)·(0,0,2) → 0; pixel 3: (1,1,0)·(1,0,0) → 1/√2.
+    let expected = (0.0 + 1.0 + (1.0 - 0.5f64.sqrt())) / 3.0;
+    close(scalar(loss(&ids, [0.0; 3]).unwrap()), expected, "L_sem");
+    // b = (0, 0, 1): (1,0,1) → 1/√2; (0,1,1) vs (0,0,2) → 1/√2; (1,1,1) vs (1,0,0) → 1/√3.
+    let expected = ((1.0 - 0.5f64.sqrt()) * 2.0 + (1.0 - (1.0 / 3.0f64).sqrt())) / 3.0;
+    close(scalar(loss(&ids, [0.0, 0.0, 1.0]).unwrap()), expected, "L_sem with bias");
+    // Only background: zero. An id without a teacher row: error.
+    close(scalar(loss(&[0; 4], [0.0; 3]).unwrap()), 0.0, "background");
+    assert_eq!(loss(&[0, 1, 3, 1], [0.0; 3]).unwrap_err(), LossError::TeacherRow { id: 3, rows: 3 });
+}
+
+/// A 1×9 strip (or its 9×1 transpose): pixels 0–1 embed as (1, 0), pixels 2–8 as (0.8, 0.6)
+/// (scaled, to check the normalization), so r = 1 − 0.8 = 0.2 at pixels 1 and 2 only.
+fn strip_embedding() -> Vec<f32> {
+    let a: Vec<f32> = (0..9).map(|x| if x < 2 { 2.0 } else { 0.4 }).collect();
+    let b: Vec<f32> = (0..9).map(|x| if x < 2 { 0.0 } else { 0.3 }).collect();
+    [a, b].concat()
+}
+
+#[test]
+fn loss_boundary_weights_hand_values() {
+    let config = LossConfig::new();
+    // The 5×5 max spreads r = 0.2 from pixels 1–2 to pixels 0–4; elsewhere r = 0.
+    let near = sigmoid((0.2 - 0.15) / 0.05) as f32;
+    let far = sigmoid(-0.15 / 0.05) as f32;
+    let expected: Vec<f32> = (0..9).map(|x| if x <= 4 { near } else { far }).collect();
+    for (h, w) in [(1, 9), (9, 1)] {
+        let got = boundary_weights(&strip_embedding(), 1, h, w, &config);
+        for (g, e) in got.iter().zip(&expected) {
+            assert!((g - e).abs() < 1e-5, "{h}×{w}: {got:?} vs {expected:?}");
+        }
+    }
+}
+
+#[test]
+fn loss_boundary_rgb_hand_values() {
+    let config = LossConfig::new();
+    let embedding = tensor(&strip_embedding(), [1, 2, 1, 9]);
+    // Rendered = target + 0.1·x in every channel.
+    let target: Vec<f32> = (0..27).map(|i| (i % 5) as f32 * 0.1).collect();
+    let rendered: Vec<f32> = target.iter().enumerate().map(|(i, t)| t + 0.1 * (i % 9) as f32).collect();
+    let eps = 1e-3f64;
+    let (near, far) = (sigmoid(1.0), sigmoid(-3.0));
+    let (mut num, mut den) = (0.0, 0.0);
+    for x in 0..9u32 {
+        let b = if x <= 4 { near } else { far };
+        let d = 0.1 * f64::from(x);
+        num += b * (d * d + eps * eps).sqrt();
+        den += b;
+    }
+    let loss = boundary_rgb_loss(tensor(&rendered, [1, 3, 1, 9]), tensor(&target, [1, 3, 1, 9]), &embedding, &config);
+    close(scalar(loss.unwrap()), num / den, "L_bd-rgb");
+    let off = config.with_boundary(BoundaryTerm::Off);
+    let loss = boundary_rgb_loss(tensor(&rendered, [1, 3, 1, 9]), tensor(&target, [1, 3, 1, 9]), &embedding, &off);
+    close(scalar(loss.unwrap()), 0.0, "ablated");
+}
