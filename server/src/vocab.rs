@@ -6,12 +6,13 @@ use std::path::Path;
 
 use anyhow::Context;
 
-/// Default labels for indoor scenes.
+/// Default labels: every category the training scenes use (catalog furniture and primitive
+/// objects of `inssplat-train synth`), so a user gets the names the model was taught.
 pub const DEFAULT_VOCABULARY: &[&str] = &[
-    "armchair", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "chair", "chest of drawers",
-    "coffee table", "desk", "door", "dresser", "fridge", "lamp", "nightstand", "office chair", "oven",
-    "piano", "plant", "rug", "shelf", "side table", "sink", "sofa", "speaker", "stool", "table", "toilet",
-    "tv", "vase", "wardrobe", "washing machine", "wastebasket",
+    "armchair", "ball", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "chair", "coffee table",
+    "computer", "desk", "dresser", "fan", "fireplace", "guitar", "lamp", "nightstand", "office chair", "oven",
+    "piano", "picture", "plant", "pool table", "radiator", "refrigerator", "rug", "sink", "sofa", "speaker",
+    "stool", "table", "toilet", "trash can", "tv", "tv stand", "vase", "wardrobe", "washing machine",
 ];
 
 /// The vocabulary from `--vocab`: a readable file means one label per line, anything else a
