@@ -111,6 +111,33 @@ impl GaussianScene {
         &self.semantic[i * self.sem_dim..(i + 1) * self.sem_dim]
     }
 
+    /// Makes room for `n` more Gaussians in every field.
+    pub fn reserve(&mut self, n: usize) {
+        self.means.reserve(n);
+        self.log_scales.reserve(n);
+        self.rotations.reserve(n);
+        self.logit_opacity.reserve(n);
+        self.sh_dc.reserve(n);
+        self.confidence.reserve(n);
+        self.instance_embedding.reserve(n);
+        self.semantic.reserve(n * self.sem_dim);
+        self.instance_id.reserve(n);
+    }
+
+    /// Moves every Gaussian of `other` (same `sem_dim`) to the end of this scene.
+    pub fn append(&mut self, other: GaussianScene) {
+        assert_eq!(other.sem_dim, self.sem_dim, "semantic feature width");
+        self.means.extend(other.means);
+        self.log_scales.extend(other.log_scales);
+        self.rotations.extend(other.rotations);
+        self.logit_opacity.extend(other.logit_opacity);
+        self.sh_dc.extend(other.sh_dc);
+        self.confidence.extend(other.confidence);
+        self.instance_embedding.extend(other.instance_embedding);
+        self.semantic.extend(other.semantic);
+        self.instance_id.extend(other.instance_id);
+    }
+
     /// Appends one Gaussian. `semantic` must have `sem_dim` entries.
     pub fn push(&mut self, g: Gaussian<'_>) {
         assert_eq!(g.semantic.len(), self.sem_dim, "semantic feature width");

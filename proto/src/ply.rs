@@ -175,8 +175,7 @@ pub fn read_ply<R: Read>(input: &mut R) -> Result<GaussianScene, PlyError> {
 }
 
 fn scene_from_records(scene: &mut GaussianScene, records: Vec<VertexRecord>, sem_dim: usize) {
-    let n = records.len();
-    scene.means.reserve(n);
+    scene.reserve(records.len());
     for mut r in records {
         r.sem.resize(sem_dim, 0.0);
         scene.push(crate::gaussian::Gaussian {

@@ -55,9 +55,9 @@ pub fn backproject(views: &[ViewOutputs<'_>], sem_dim: usize) -> Result<Gaussian
     let parts: Vec<GaussianScene> = views.par_iter().map(|view| backproject_view(view, sem_dim)).collect();
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
     let total = parts.iter().map(GaussianScene::len).sum();
-    reserve(&mut scene, total);
+    scene.reserve(total);
     for part in parts {
-        append(&mut scene, part);
+        scene.append(part);
     }
     Ok(scene)
 }
@@ -96,7 +96,7 @@ fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> GaussianScene {
     let gauss = |c: usize, p: usize| view.gaussians[c * pixels + p];
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
     let valid = view.depth.iter().filter(|d| d.is_finite() && **d > 0.0).count();
-    reserve(&mut scene, valid);
+    scene.reserve(valid);
     let mut semantic = vec![0.0; sem_dim];
     for p in 0..pixels {
         let z = view.depth[p];
@@ -129,32 +129,6 @@ fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> GaussianScene {
         });
     }
     scene
-}
-
-/// Reserves room for `n` more Gaussians in every field.
-pub(crate) fn reserve(scene: &mut GaussianScene, n: usize) {
-    scene.means.reserve(n);
-    scene.log_scales.reserve(n);
-    scene.rotations.reserve(n);
-    scene.logit_opacity.reserve(n);
-    scene.sh_dc.reserve(n);
-    scene.confidence.reserve(n);
-    scene.instance_embedding.reserve(n);
-    scene.semantic.reserve(n * scene.sem_dim);
-    scene.instance_id.reserve(n);
-}
-
-/// Moves every Gaussian of `part` to the end of `scene` (same `sem_dim`).
-pub(crate) fn append(scene: &mut GaussianScene, part: GaussianScene) {
-    scene.means.extend(part.means);
-    scene.log_scales.extend(part.log_scales);
-    scene.rotations.extend(part.rotations);
-    scene.logit_opacity.extend(part.logit_opacity);
-    scene.sh_dc.extend(part.sh_dc);
-    scene.confidence.extend(part.confidence);
-    scene.instance_embedding.extend(part.instance_embedding);
-    scene.semantic.extend(part.semantic);
-    scene.instance_id.extend(part.instance_id);
 }
 
 #[cfg(test)]

@@ -15,7 +15,6 @@ use inssplat_proto::gaussian::{Gaussian, LengthMismatch, logit, sigmoid};
 use inssplat_proto::{GaussianScene, INSTANCE_DIM};
 use rayon::prelude::*;
 
-use crate::backproject::{append, reserve};
 use crate::cluster::unit;
 
 /// Default voxel size as a fraction of the robust extent: 1/60. On the 128×128 views of the
@@ -127,7 +126,7 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<(Gaussian
         .map(|task| {
             let range = task * VOXELS_PER_TASK..((task + 1) * VOXELS_PER_TASK).min(voxels);
             let mut out = GaussianScene::with_sem_dim(scene.sem_dim);
-            reserve(&mut out, range.len());
+            out.reserve(range.len());
             let mut merger = Merger::new(scene.sem_dim);
             for v in range {
                 merger.merge_into(scene, &members[starts[v]..starts[v + 1]], params.weighting, &mut out);
@@ -136,9 +135,9 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<(Gaussian
         })
         .collect();
     let mut out = GaussianScene { meta: scene.meta.clone(), ..GaussianScene::with_sem_dim(scene.sem_dim) };
-    reserve(&mut out, voxels);
+    out.reserve(voxels);
     for part in parts {
-        append(&mut out, part);
+        out.append(part);
     }
     let report = VoxelReport {
         gaussians_in: scene.len(),
