@@ -12,31 +12,13 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
-use inssplat_raster::render::{GpuRenderer, Splats, render, render_any, render_backward};
+use inssplat_raster::render::{GpuRenderer, render, render_any, render_backward};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-struct Scene {
-    means: Vec<[f32; 3]>,
-    log_scales: Vec<[f32; 3]>,
-    rotations: Vec<[f32; 4]>,
-    logits: Vec<f32>,
-    features: Vec<f32>,
-    channels: usize,
-}
-
-impl Scene {
-    fn splats(&self) -> Splats<'_> {
-        Splats {
-            means: &self.means,
-            log_scales: &self.log_scales,
-            rotations: &self.rotations,
-            logit_opacity: &self.logits,
-            features: &self.features,
-            channels: self.channels,
-        }
-    }
-}
+#[path = "../tests/support/mod.rs"]
+mod support;
+use support::Scene;
 
 /// A camera inside the room, turned by `angle` about the vertical, looking across it.
 fn camera(size: u32, angle: f32) -> Camera {

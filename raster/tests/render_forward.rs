@@ -12,29 +12,10 @@ use inssplat_raster::render::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// Owned scene; `splats()` borrows it.
-#[derive(Clone, Default)]
-struct Scene {
-    means: Vec<[f32; 3]>,
-    log_scales: Vec<[f32; 3]>,
-    rotations: Vec<[f32; 4]>,
-    logits: Vec<f32>,
-    features: Vec<f32>,
-    channels: usize,
-}
+mod support;
+use support::Scene;
 
 impl Scene {
-    fn splats(&self) -> Splats<'_> {
-        Splats {
-            means: &self.means,
-            log_scales: &self.log_scales,
-            rotations: &self.rotations,
-            logit_opacity: &self.logits,
-            features: &self.features,
-            channels: self.channels,
-        }
-    }
-
     fn push(&mut self, mean: [f32; 3], log_scale: [f32; 3], rotation: [f32; 4], logit: f32, rng: &mut ChaCha8Rng) {
         self.means.push(mean);
         self.log_scales.push(log_scale);

@@ -16,32 +16,14 @@
 
 use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
-use inssplat_raster::render::{AlphaCutoff, RenderOptions, Splats, render_backward, render_with};
+use inssplat_raster::render::{AlphaCutoff, RenderOptions, render_backward, render_with};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-#[derive(Clone)]
-struct Scene {
-    means: Vec<[f32; 3]>,
-    log_scales: Vec<[f32; 3]>,
-    rotations: Vec<[f32; 4]>,
-    logits: Vec<f32>,
-    features: Vec<f32>,
-    channels: usize,
-}
+mod support;
+use support::Scene;
 
 impl Scene {
-    fn splats(&self) -> Splats<'_> {
-        Splats {
-            means: &self.means,
-            log_scales: &self.log_scales,
-            rotations: &self.rotations,
-            logit_opacity: &self.logits,
-            features: &self.features,
-            channels: self.channels,
-        }
-    }
-
     /// The parameter of `kind` number `i` (flattened), mutably.
     fn param(&mut self, kind: Kind, i: usize) -> &mut f32 {
         match kind {
