@@ -8,3 +8,4 @@ pub mod model;
 pub mod synth;
 pub mod loss;
 pub mod render_op;
+pub mod train;

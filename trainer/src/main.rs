@@ -1,7 +1,7 @@
-//! `inssplat-train`: the trainer's command line. Each job is a subcommand; `synth` writes
+//! `inssplat-train`: the trainer's command line. Each job is a subcommand: `synth` writes
 //! procedural scenes in the DATASET.md format (with a progress bar, dataset statistics at
-//! the end and optional contact-sheet previews). Training, export and single-scene fitting
-//! join as further subcommands of [`Command`].
+//! the end and optional contact-sheet previews); `train` starts or resumes a training run;
+//! `export` writes a run's network as the ONNX file the server loads.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -23,7 +23,13 @@ struct Cli {
 enum Command {
     /// Synthesize procedural indoor scenes (RGB, depth, instance masks, labels, cameras).
     Synth(SynthArgs),
+    /// Train the network (or continue a run with --resume).
+    Train(Box<cli_train::TrainArgs>),
+    /// Export a checkpoint's network to ONNX for the server.
+    Export(cli_train::ExportArgs),
 }
+
+mod cli_train;
 
 #[derive(Clone, Copy, ValueEnum)]
 enum StructureArg {
@@ -129,6 +135,8 @@ fn parse_range<T: std::str::FromStr + PartialOrd + Copy>(s: &str) -> Result<(T, 
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Synth(args) => run_synth(args),
+        Command::Train(args) => cli_train::run_train(*args),
+        Command::Export(args) => cli_train::run_export(args),
     }
 }
 

@@ -18,7 +18,8 @@ pub const SPLIT_STRIDE: u64 = 1 << 40;
 /// View counts the evaluation split defines context sets for.
 pub const CONTEXT_VIEWS: [usize; 4] = [2, 4, 8, 16];
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Split {
     Train,
     Val,

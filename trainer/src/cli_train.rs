@@ -1,0 +1,234 @@
+//! The `train` and `export` subcommands of `inssplat-train`: flags to a [`TrainConfig`] and a
+//! [`Session`], a summary at the end, and ONNX export of a run's newest checkpoint.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::*;
+use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
+use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::synth::{self, Split};
+use inssplat_trainer::train::sample::{DataSpec, describe};
+use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
+
+#[derive(clap::Args)]
+pub struct TrainArgs {
+    /// Run folder: checkpoints, logs and the loss chart go here.
+    #[arg(long, env = "INSSPLAT_TRAIN_OUT")]
+    out: PathBuf,
+    /// Continue the newest checkpoint in --out with its own configuration and data.
+    #[arg(long)]
+    resume: bool,
+    /// Folder of training scenes (DATASET.md format), instead of synthesizing them.
+    #[arg(long, conflicts_with = "resume")]
+    data: Option<PathBuf>,
+    /// Folder of validation scenes (default: the val split, synthesized).
+    #[arg(long)]
+    val_data: Option<PathBuf>,
+    /// Sweet Home 3D furniture folder for synthesized scenes.
+    #[arg(long, env = "INSSPLAT_FURNITURE_DIR", default_value = synth::DEFAULT_FURNITURE_DIR)]
+    furniture_dir: PathBuf,
+    /// Synthesize with furniture from primitives only.
+    #[arg(long)]
+    primitives_only: bool,
+    /// Optimizer steps of the whole run (with --resume: extends or shortens it).
+    #[arg(long)]
+    steps: Option<u64>,
+    #[arg(long, default_value_t = 200)]
+    warmup: u64,
+    /// Peak learning rate.
+    #[arg(long, default_value_t = 5e-4)]
+    lr: f64,
+    /// Learning-rate factor of the transformer blocks.
+    #[arg(long, default_value_t = 1.0)]
+    backbone_lr_scale: f64,
+    #[arg(long, default_value_t = 2)]
+    min_views: usize,
+    #[arg(long, default_value_t = 8)]
+    max_views: usize,
+    /// Held-out views rendered and supervised per step.
+    #[arg(long, default_value_t = 1)]
+    targets: usize,
+    /// Consecutive steps sharing one scene.
+    #[arg(long, default_value_t = 2)]
+    scene_reuse: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Square input resolution.
+    #[arg(long, default_value_t = 128)]
+    image_size: usize,
+    #[arg(long, default_value_t = 8)]
+    patch: usize,
+    /// Token width.
+    #[arg(long, default_value_t = 192)]
+    dim: usize,
+    /// Transformer layers (frame/global pairs, even).
+    #[arg(long, default_value_t = 6)]
+    depth: usize,
+    #[arg(long, default_value_t = 3)]
+    heads: usize,
+    #[arg(long, default_value_t = 128)]
+    decoder_dim: usize,
+    /// Width of the compact semantic feature.
+    #[arg(long, default_value_t = 16)]
+    sem_dim: usize,
+    /// Ablation: no semantic hard-negative weights in the push term.
+    #[arg(long)]
+    no_hard_negatives: bool,
+    /// Ablation: no cross-view term in L_ins.
+    #[arg(long)]
+    no_cross_view: bool,
+    /// Ablation: no boundary RGB loss.
+    #[arg(long)]
+    no_boundary: bool,
+    /// Ablation: train only the instance and semantic heads.
+    #[arg(long)]
+    frozen_gaussians: bool,
+    /// Minutes between checkpoints.
+    #[arg(long, default_value_t = 5.0)]
+    checkpoint_minutes: f64,
+    /// Checkpoints kept.
+    #[arg(long, default_value_t = 2)]
+    keep: usize,
+    /// Validate every N steps (0 = never).
+    #[arg(long, default_value_t = 250)]
+    val_every: u64,
+    #[arg(long, default_value_t = 4)]
+    val_samples: usize,
+    /// Stop with a checkpoint after this many minutes (resume later with --resume).
+    #[arg(long)]
+    time_limit: Option<f64>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// `on`, or `off_value` when the ablation flag `off` is set.
+fn pick<T>(off: bool, on: T, off_value: T) -> T {
+    if off { off_value } else { on }
+}
+
+fn minutes(m: f64, flag: &str) -> Result<Duration> {
+    Duration::try_from_secs_f64(m * 60.0).with_context(|| format!("{flag}: {m} is not a number of minutes"))
+}
+
+impl TrainArgs {
+    fn config(&self) -> TrainConfig {
+        let model = ModelConfig::new()
+            .with_image_size(self.image_size)
+            .with_patch(self.patch)
+            .with_dim(self.dim)
+            .with_depth(self.depth)
+            .with_heads(self.heads)
+            .with_decoder_dim(self.decoder_dim)
+            .with_sem_dim(self.sem_dim);
+        let loss = LossConfig::new()
+            .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
+            .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
+            .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
+            .with_gaussians(pick(self.frozen_gaussians, GaussianTraining::Trained, GaussianTraining::Frozen));
+        TrainConfig::new(model, loss)
+            .with_steps(self.steps.unwrap_or(20_000))
+            .with_warmup(self.warmup)
+            .with_lr(self.lr)
+            .with_backbone_lr_scale(self.backbone_lr_scale)
+            .with_min_views(self.min_views)
+            .with_max_views(self.max_views)
+            .with_targets(self.targets)
+            .with_scene_reuse(self.scene_reuse)
+            .with_seed(self.seed)
+    }
+
+    fn furniture(&self) -> Result<Option<PathBuf>> {
+        if self.primitives_only {
+            return Ok(None);
+        }
+        if !self.furniture_dir.is_dir() {
+            bail!(
+                "--furniture-dir / INSSPLAT_FURNITURE_DIR: {} is not a folder (install sweethome3d-furniture, or pass --primitives-only)",
+                self.furniture_dir.display()
+            );
+        }
+        Ok(Some(self.furniture_dir.clone()))
+    }
+
+    fn session(&self) -> Result<Session> {
+        Ok(Session {
+            checkpoint_every: minutes(self.checkpoint_minutes, "--checkpoint-minutes")?,
+            keep: self.keep,
+            val_every: self.val_every,
+            val_samples: self.val_samples,
+            val_data: self.val_data.clone().map(DataSpec::Folder),
+            time_limit: self.time_limit.map(|m| minutes(m, "--time-limit")).transpose()?,
+            progress: !self.quiet,
+        })
+    }
+}
+
+pub fn run_train(args: TrainArgs) -> Result<()> {
+    let session = args.session()?;
+    let summary = if args.resume {
+        let dir = checkpoint::latest(&args.out)?.with_context(|| format!("--resume: {} has no checkpoint", args.out.display()))?;
+        let state = checkpoint::read_state(&dir)?;
+        eprintln!("resuming {} at step {} of {} ({})", dir.display(), state.step, args.steps.unwrap_or(state.config.steps), describe(&state.data));
+        train::resume(&args.out, args.steps, &session)?
+    } else {
+        let data = match &args.data {
+            Some(dir) => DataSpec::Folder(dir.clone()),
+            None => DataSpec::Synth { split: Split::Train, furniture_dir: args.furniture()?, size: args.image_size as u32 },
+        };
+        let config = args.config();
+        let net = config.model.init(&Device::flex()).map_err(anyhow::Error::msg)?;
+        eprintln!(
+            "new run in {}: {:.2} M parameters, {} steps, {}",
+            args.out.display(),
+            burn::module::Module::num_params(&net) as f64 / 1e6,
+            config.steps,
+            describe(&data)
+        );
+        train::train(&args.out, config, data, &session)?
+    };
+    println!(
+        "steps {}..{}: loss {:.4} -> {:.4} (mean of first/last 20), median {:.2} s/step{}",
+        summary.first_step,
+        summary.steps,
+        summary.first_loss,
+        summary.last_loss,
+        summary.median_step.as_secs_f64(),
+        summary.last_val.map_or(String::new(), |v| format!(", val loss {:.4}", v.total))
+    );
+    if let Some(dir) = summary.checkpoint {
+        println!("checkpoint {}; chart {}", dir.display(), args.out.join("loss.png").display());
+    }
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct ExportArgs {
+    /// A run folder (its newest checkpoint) or a checkpoint folder.
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// The ONNX file to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Model version recorded in the ONNX metadata (default: the run folder's name and step).
+    #[arg(long)]
+    model_version: Option<String>,
+}
+
+pub fn run_export(args: ExportArgs) -> Result<()> {
+    let dir = checkpoint::latest(&args.checkpoint)?
+        .with_context(|| format!("--checkpoint: {} is neither a run with checkpoints nor a checkpoint", args.checkpoint.display()))?;
+    let state = checkpoint::read_state(&dir)?;
+    let net = checkpoint::load_model(&dir, &state, &Device::flex())?;
+    let version = args.model_version.unwrap_or_else(|| {
+        let run = args.checkpoint.file_name().and_then(|n| n.to_str()).unwrap_or("run");
+        format!("inssplat-{}+{run}.{}", env!("CARGO_PKG_VERSION"), state.step)
+    });
+    let meta = ExportMeta { model_version: version.clone(), train_steps: state.step };
+    export_onnx(&net, &args.out, &meta).with_context(|| format!("exporting to {}", args.out.display()))?;
+    println!("wrote {} ({version}, {} steps, {:.1} MB)", args.out.display(), state.step, std::fs::metadata(&args.out)?.len() as f64 / 1e6);
+    Ok(())
+}

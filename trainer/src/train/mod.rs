@@ -1,0 +1,418 @@
+//! The training loop: AdamW with warm-up + cosine learning rate (optionally a smaller one for
+//! the transformer backbone), 2–8 input views per step plus held-out target views, data from
+//! a folder of scenes or synthesized on the fly (prefetched on a background thread), a
+//! validation loss on fixed val samples, checkpoints every few minutes with exact resume, an
+//! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
+//!
+//! A run lives in one folder `RUN`: `checkpoints/`, `train_log.csv`, `val_log.csv`,
+//! `loss.png`. [`train`] starts a run, [`resume`] continues the newest checkpoint of one with
+//! the configuration and data it was started with.
+
+pub mod checkpoint;
+pub mod log;
+pub mod sample;
+pub mod schedule;
+pub mod step;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use burn::grad_clipping::GradientClippingConfig;
+use burn::module::{ModuleVisitor, Param, ParamId};
+use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use inssplat_text::{LabelCache, TextEmbedder};
+
+use crate::loss::{GaussianTraining, LossConfig};
+use crate::model::{InsSplatNet, ModelConfig};
+use checkpoint::{CheckpointError, CheckpointState, CHECKPOINT_FORMAT};
+use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
+use sample::{DataSpec, Prefetcher, Sample, SampleError, Sampler, Source, ViewPlan};
+use schedule::Schedule;
+use step::{LossValues, StepError, objective};
+
+/// Everything that defines a run; saved in every checkpoint.
+#[derive(Config, Debug)]
+pub struct TrainConfig {
+    pub model: ModelConfig,
+    pub loss: LossConfig,
+    /// Optimizer steps of the whole run (the cosine ends here).
+    #[config(default = 20000)]
+    pub steps: u64,
+    #[config(default = 200)]
+    pub warmup: u64,
+    /// Peak learning rate.
+    #[config(default = 5e-4)]
+    pub lr: f64,
+    /// Final learning rate as a fraction of the peak.
+    #[config(default = 0.05)]
+    pub lr_floor: f64,
+    /// Learning-rate factor of the transformer blocks (the paper's 0.1 fine-tunes a pretrained
+    /// VGGT; trained from scratch the backbone needs the full rate).
+    #[config(default = 1.0)]
+    pub backbone_lr_scale: f64,
+    #[config(default = 0.05)]
+    pub weight_decay: f64,
+    /// Gradient clipping by norm, per parameter tensor (0 = off).
+    #[config(default = 1.0)]
+    pub grad_clip: f64,
+    #[config(default = 2)]
+    pub min_views: usize,
+    #[config(default = 8)]
+    pub max_views: usize,
+    /// Held-out views rendered and supervised each step.
+    #[config(default = 1)]
+    pub targets: usize,
+    /// Consecutive steps that share one scene.
+    #[config(default = 2)]
+    pub scene_reuse: u64,
+    #[config(default = 0)]
+    pub seed: u64,
+}
+
+impl TrainConfig {
+    fn plan(&self) -> ViewPlan {
+        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse }
+    }
+
+    fn schedule(&self) -> Schedule {
+        Schedule { peak: self.lr, warmup: self.warmup, steps: self.steps, floor: self.lr_floor }
+    }
+
+    fn validate(&self) -> Result<(), TrainError> {
+        self.model.validate().map_err(|e| TrainError::Config(e.to_string()))?;
+        if self.min_views < 1 || self.min_views > self.max_views {
+            return Err(TrainError::Config(format!(
+                "views {}..{}: need 1 ≤ min ≤ max",
+                self.min_views, self.max_views
+            )));
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            return Err(TrainError::Config(format!("learning rate {} must be positive", self.lr)));
+        }
+        Ok(())
+    }
+}
+
+/// Settings of one session of a run that do not change what it computes.
+#[derive(Debug, Clone)]
+pub struct Session {
+    /// Write a checkpoint after this much time since the last one.
+    pub checkpoint_every: Duration,
+    /// Checkpoints kept.
+    pub keep: usize,
+    /// Validate every this many steps (0 = never) on `val_samples` fixed samples.
+    pub val_every: u64,
+    pub val_samples: usize,
+    /// Where validation samples come from (`None`: the val split synthesized like the data).
+    pub val_data: Option<DataSpec>,
+    /// Stop (with a checkpoint) after this much time in this session.
+    pub time_limit: Option<Duration>,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+impl Default for Session {
+    fn default() -> Self {
+        Self {
+            checkpoint_every: Duration::from_secs(300),
+            keep: 2,
+            val_every: 250,
+            val_samples: 4,
+            val_data: None,
+            time_limit: None,
+            progress: true,
+        }
+    }
+}
+
+/// Why training stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("training configuration: {0}")]
+    Config(String),
+    #[error(transparent)]
+    Sample(#[from] SampleError),
+    #[error("step {step} ({scene}): {source}")]
+    Step { step: u64, scene: String, source: StepError },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("semantic teacher: {0}")]
+    Text(#[from] inssplat_text::TextError),
+    #[error("{path}: {problem}")]
+    Io { path: PathBuf, problem: String },
+    #[error("step {step}: the loss is not finite ({values:?}); lower the learning rate or check the data")]
+    Diverged { step: u64, values: LossValues },
+    #[error("{0} already holds a run (checkpoints/latest); pass --resume to continue it or choose another folder")]
+    Exists(PathBuf),
+    #[error("{0} has no checkpoint to resume")]
+    NoCheckpoint(PathBuf),
+}
+
+/// How a session ended.
+#[derive(Debug, Clone)]
+pub struct Summary {
+    pub first_step: u64,
+    /// Steps done in total.
+    pub steps: u64,
+    /// Mean loss of the first and last (up to) 20 steps of this session.
+    pub first_loss: f32,
+    pub last_loss: f32,
+    pub last_val: Option<LossValues>,
+    /// Median step time of this session.
+    pub median_step: Duration,
+    pub checkpoint: Option<PathBuf>,
+}
+
+/// Starts a new run in `run` (an error if it already has a checkpoint).
+pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session) -> Result<Summary, TrainError> {
+    config.validate()?;
+    if checkpoint::latest(run)?.is_some() {
+        return Err(TrainError::Exists(run.to_path_buf()));
+    }
+    let device = Device::flex().autodiff();
+    let net = seeded_init(&config.model, config.seed, &device).map_err(|e| TrainError::Config(e.to_string()))?;
+    let optim = optimizer(&config);
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data };
+    run_loop(run, net, optim, state, session, &device)
+}
+
+/// Continues the newest checkpoint of `run`; `steps` extends (or shortens) the run's length.
+pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summary, TrainError> {
+    let dir = checkpoint::latest(run)?.ok_or_else(|| TrainError::NoCheckpoint(run.to_path_buf()))?;
+    let mut state = checkpoint::read_state(&dir)?;
+    let device = Device::flex().autodiff();
+    let net = checkpoint::load_model(&dir, &state, &device)?;
+    let optim = checkpoint::load_optimizer(&dir, optimizer(&state.config))?;
+    if let Some(steps) = steps {
+        state.config.steps = steps;
+    }
+    state.config.validate()?;
+    run_loop(run, net, optim, state, session, &device)
+}
+
+/// A fresh network whose weights depend only on `seed`. The backend's random generator is
+/// process-wide, so seeding and drawing happen under one lock: two runs started in one process
+/// (tests) cannot interleave their draws.
+pub fn seeded_init(model: &ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, crate::model::ModelError> {
+    static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+    device.seed(seed);
+    model.init(device)
+}
+
+fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
+    let mut adam = AdamWConfig::new().with_weight_decay(config.weight_decay as f32);
+    if config.grad_clip > 0.0 {
+        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(config.grad_clip as f32)));
+    }
+    adam.init()
+}
+
+fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
+    TrainError::Io { path: path.to_path_buf(), problem: e.to_string() }
+}
+
+/// The MiniLM label cache the semantic teacher reads.
+pub fn label_cache() -> Result<Arc<LabelCache>, TrainError> {
+    Ok(Arc::new(LabelCache::new(TextEmbedder::from_env()?)))
+}
+
+/// One optimizer update of `net` from the gradients of `loss`: the transformer blocks at
+/// `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the output
+/// layer of the dense decoder and Φ_sem move.
+pub fn update(
+    net: InsSplatNet,
+    optim: &mut ModuleOptimizer,
+    loss: Tensor<1>,
+    lr: f64,
+    config: &TrainConfig,
+) -> InsSplatNet {
+    let mut grads = loss.backward();
+    if config.loss.gaussians == GaussianTraining::Frozen {
+        let mut ids = ParamIds(Vec::new());
+        net.decoder.out.visit(&mut ids);
+        net.sem_proj.visit(&mut ids);
+        let heads = GradientsParams::from_params(&mut grads, &net, &ids.0);
+        return optim.step(lr, net, heads);
+    }
+    if (config.backbone_lr_scale - 1.0).abs() < f64::EPSILON {
+        let grads = GradientsParams::from_grads(grads, &net);
+        return optim.step(lr, net, grads);
+    }
+    let backbone = GradientsParams::from_module(&mut grads, &net.blocks);
+    let rest = GradientsParams::from_grads(grads, &net);
+    let net = optim.step(lr * config.backbone_lr_scale, net, backbone);
+    optim.step(lr, net, rest)
+}
+
+/// Collects the ids of the float parameters of a module.
+struct ParamIds(Vec<ParamId>);
+
+impl ModuleVisitor for ParamIds {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.0.push(param.id);
+    }
+}
+
+/// The validation loss: mean over fixed samples, without gradients.
+fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig) -> Result<LossValues, StepError> {
+    let plain = net.valid();
+    let device = Device::flex();
+    let mut sum = LossValues::default();
+    for s in samples {
+        let v = objective(&plain, s, loss, &device)?.values();
+        sum.total += v.total;
+        sum.rgb += v.rgb;
+        sum.geometry += v.geometry;
+        sum.instance += v.instance;
+        sum.semantic += v.semantic;
+        sum.boundary += v.boundary;
+    }
+    let n = samples.len().max(1) as f32;
+    Ok(LossValues {
+        total: sum.total / n,
+        rgb: sum.rgb / n,
+        geometry: sum.geometry / n,
+        instance: sum.instance / n,
+        semantic: sum.semantic / n,
+        boundary: sum.boundary / n,
+    })
+}
+
+fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>) -> Result<Vec<Sample>, TrainError> {
+    if session.val_every == 0 || session.val_samples == 0 {
+        return Ok(Vec::new());
+    }
+    let spec = match (&session.val_data, &state.data) {
+        (Some(spec), _) => spec.clone(),
+        (None, DataSpec::Synth { furniture_dir, size, .. }) => {
+            DataSpec::Synth { split: crate::synth::Split::Val, furniture_dir: furniture_dir.clone(), size: *size }
+        }
+        (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
+    };
+    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1 };
+    let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
+    Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
+}
+
+fn progress_bar(state: &CheckpointState, session: &Session) -> ProgressBar {
+    let bar = ProgressBar::new(state.config.steps);
+    if !session.progress {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} step {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}")
+            .expect("progress template"),
+    );
+    bar.set_position(state.step);
+    bar.reset_eta();
+    bar
+}
+
+fn run_loop(
+    run: &Path,
+    mut net: InsSplatNet,
+    mut optim: ModuleOptimizer,
+    mut state: CheckpointState,
+    session: &Session,
+    device: &Device,
+) -> Result<Summary, TrainError> {
+    std::fs::create_dir_all(run).map_err(|e| io_error(run, e))?;
+    let labels = label_cache()?;
+    let sampler = Sampler { source: Source::open(&state.data)?, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
+    let val = val_samples(&state, session, &labels)?;
+    let first_step = state.step;
+    let (train_csv, val_csv, chart) = (run.join("train_log.csv"), run.join("val_log.csv"), run.join("loss.png"));
+    let mut train_log = CsvLog::open(&train_csv, TRAIN_HEADER, first_step).map_err(|e| io_error(&train_csv, e))?;
+    let mut val_log = CsvLog::open(&val_csv, VAL_HEADER, first_step).map_err(|e| io_error(&val_csv, e))?;
+    let schedule = state.config.schedule();
+    let bar = progress_bar(&state, session);
+    let prefetch = Prefetcher::start(sampler, first_step, state.config.steps, 3);
+    let session_start = Instant::now();
+    let base_elapsed = state.elapsed_s;
+    let mut last_checkpoint = Instant::now();
+    let mut checkpoint_dir = None;
+    let mut totals = Vec::new();
+    let mut step_times = Vec::new();
+    let mut last_val = None;
+    loop {
+        let wait = Instant::now();
+        let Some((step, sample)) = prefetch.next() else { break };
+        let data_wait = wait.elapsed();
+        let sample = sample?;
+        let t0 = Instant::now();
+        let lr = schedule.lr(step);
+        let obj = objective(&net, &sample, &state.config.loss, device)
+            .map_err(|source| TrainError::Step { step, scene: sample.scene.clone(), source })?;
+        let values = obj.values();
+        if !values.total.is_finite() {
+            return Err(TrainError::Diverged { step, values });
+        }
+        let t_backward = Instant::now();
+        net = update(net, &mut optim, obj.total, lr, &state.config);
+        let backward = t_backward.elapsed();
+        let step_time = t0.elapsed();
+        state.step = step + 1;
+        state.elapsed_s = base_elapsed + session_start.elapsed().as_secs_f64();
+        totals.push(values.total);
+        step_times.push(step_time);
+        let mut row = vec![step.to_string(), format!("{lr:.3e}")];
+        row.extend(loss_cells(&values));
+        row.extend(
+            [step_time, obj.forward_time, obj.render_time, backward, data_wait]
+                .iter()
+                .map(|d| format!("{:.3}", d.as_secs_f64())),
+        );
+        row.push(format!("{:.1}", state.elapsed_s));
+        train_log.row(&row).map_err(|e| io_error(train_log.path(), e))?;
+        bar.set_position(state.step);
+        bar.set_message(format!(
+            "loss {:.4} rgb {:.4} geom {:.3} ins {:.3} sem {:.3} bd {:.3} | {:.2} s/step",
+            values.total,
+            values.rgb,
+            values.geometry,
+            values.instance,
+            values.semantic,
+            values.boundary,
+            step_time.as_secs_f64()
+        ));
+        let validate_now = session.val_every > 0 && state.step.is_multiple_of(session.val_every) && !val.is_empty();
+        if validate_now {
+            let v = validate(&net, &val, &state.config.loss)
+                .map_err(|source| TrainError::Step { step, scene: "validation".into(), source })?;
+            let mut row = vec![state.step.to_string()];
+            row.extend(loss_cells(&v));
+            val_log.row(&row).map_err(|e| io_error(val_log.path(), e))?;
+            bar.println(format!("step {}: val loss {:.4} (rgb {:.4}, geom {:.3}, ins {:.3}, sem {:.3})", state.step, v.total, v.rgb, v.geometry, v.instance, v.semantic));
+            last_val = Some(v);
+        }
+        let out_of_time = session.time_limit.is_some_and(|limit| session_start.elapsed() >= limit);
+        let done = state.step >= state.config.steps;
+        if last_checkpoint.elapsed() >= session.checkpoint_every || out_of_time || done {
+            checkpoint_dir = Some(checkpoint::save(run, &net, &optim, &state, session.keep)?);
+            let _ = log::draw_chart(&train_csv, &val_csv, &chart);
+            last_checkpoint = Instant::now();
+        }
+        if out_of_time {
+            bar.println(format!("time limit reached at step {}; resume with --resume", state.step));
+            break;
+        }
+    }
+    bar.finish();
+    drop(prefetch);
+    let mean = |xs: &[f32]| if xs.is_empty() { f32::NAN } else { xs.iter().sum::<f32>() / xs.len() as f32 };
+    let k = totals.len().min(20);
+    step_times.sort();
+    Ok(Summary {
+        first_step,
+        steps: state.step,
+        first_loss: mean(&totals[..k]),
+        last_loss: mean(&totals[totals.len() - k..]),
+        last_val,
+        median_step: step_times.get(step_times.len() / 2).copied().unwrap_or_default(),
+        checkpoint: checkpoint_dir,
+    })
+}

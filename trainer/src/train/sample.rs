@@ -1,0 +1,300 @@
+//! Training samples: which scene and which views each step sees, read from a folder of scenes
+//! in the DATASET.md format or synthesized on the fly, and turned into host arrays the step
+//! feeds to the network and the losses.
+//!
+//! A sample is a pure function of (seed, step): the scene is `offset + step / reuse` (a scene
+//! serves `reuse` consecutive steps with different views), the view count and the views come
+//! from a ChaCha RNG seeded with the seed and the step. Resuming at step s therefore sees
+//! exactly the data an uninterrupted run would have seen. [`Prefetcher`] builds the samples of
+//! the coming steps on a background thread, so data never stalls the step.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::thread::JoinHandle;
+
+use inssplat_proto::dataset::Scene;
+use inssplat_proto::signature::TEXT_DIM;
+use inssplat_proto::Camera;
+use inssplat_text::LabelCache;
+use rand::seq::index::sample as sample_indices;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::loss::camera_targets;
+use crate::synth::{self, Furniture, Split, SynthConfig};
+
+/// Where scenes come from. Serialized into checkpoints so that `--resume` reads the same data.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum DataSpec {
+    /// Scene folders (each with a `transforms.json`) directly inside this folder.
+    Folder(PathBuf),
+    /// Scenes of a split generated on demand; `furniture_dir` `None` = primitives only.
+    Synth { split: Split, furniture_dir: Option<PathBuf>, size: u32 },
+}
+
+/// Why samples cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum SampleError {
+    #[error("--data {dir}: {problem}")]
+    Folder { dir: PathBuf, problem: String },
+    #[error(transparent)]
+    Dataset(#[from] inssplat_proto::dataset::DatasetError),
+    #[error(transparent)]
+    Synth(#[from] synth::SynthError),
+    #[error("scene {scene}: {problem}")]
+    Scene { scene: String, problem: String },
+    #[error("semantic teacher: {0}")]
+    Text(#[from] inssplat_text::TextError),
+}
+
+/// An opened [`DataSpec`].
+#[derive(Debug, Clone)]
+pub enum Source {
+    Folder(Arc<Vec<PathBuf>>),
+    Synth(Arc<SynthConfig>),
+}
+
+impl Source {
+    /// Opens `spec`: lists the scene folders (an error names the folder if there are none) or
+    /// checks the synthesis configuration.
+    pub fn open(spec: &DataSpec) -> Result<Self, SampleError> {
+        match spec {
+            DataSpec::Folder(dir) => {
+                let problem = |problem: String| SampleError::Folder { dir: dir.clone(), problem };
+                let entries = std::fs::read_dir(dir).map_err(|e| problem(format!("cannot read the folder: {e}")))?;
+                let mut scenes: Vec<PathBuf> = entries
+                    .filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.join("transforms.json").is_file())
+                    .collect();
+                if scenes.is_empty() {
+                    return Err(problem("no scene folders (sub-folders with a transforms.json) in it".into()));
+                }
+                scenes.sort();
+                Ok(Source::Folder(Arc::new(scenes)))
+            }
+            DataSpec::Synth { split, furniture_dir, size } => {
+                let furniture = match furniture_dir {
+                    Some(dir) => Furniture::Catalog(dir.clone()),
+                    None => Furniture::Primitives,
+                };
+                let mut cfg = SynthConfig::new(*split, furniture);
+                cfg.width = *size;
+                cfg.height = *size;
+                cfg.validate()?;
+                Ok(Source::Synth(Arc::new(cfg)))
+            }
+        }
+    }
+
+    /// Scene number `index` (folders wrap around).
+    pub fn scene(&self, index: u64) -> Result<Scene, SampleError> {
+        match self {
+            Source::Folder(paths) => Ok(Scene::load(&paths[(index % paths.len() as u64) as usize])?),
+            Source::Synth(cfg) => Ok(synth::generate_split(index, cfg)?.scene),
+        }
+    }
+
+    /// Number of distinct scenes (`None` for synthesis, which has no end).
+    pub fn len(&self) -> Option<usize> {
+        match self {
+            Source::Folder(paths) => Some(paths.len()),
+            Source::Synth(_) => None,
+        }
+    }
+}
+
+/// How views are drawn for a step.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ViewPlan {
+    /// Input views per step, drawn uniformly in `min..=max`.
+    pub min_views: usize,
+    pub max_views: usize,
+    /// Extra views rendered from the inputs' Gaussians and supervised, but never input.
+    pub targets: usize,
+    /// Consecutive steps that share one scene.
+    pub reuse: u64,
+}
+
+/// One step's data on the host. Views `0..inputs` are the network's input; the rest are
+/// render-only targets. All per-view arrays are view-major, `[V][..][H][W]`.
+#[derive(Debug, Clone)]
+pub struct Sample {
+    /// Where the views come from, for messages.
+    pub scene: String,
+    pub inputs: usize,
+    pub size: usize,
+    /// `[V, 3, H, W]` RGB in [0, 1].
+    pub images: Vec<f32>,
+    /// `[V][H][W]` metric depth, 0 = no surface.
+    pub depth: Vec<f32>,
+    /// `[V][H][W]` instance ids, 0 = background.
+    pub ids: Vec<u32>,
+    /// Ground-truth cameras with view 0 as the world frame (as the network predicts them).
+    pub cameras: Vec<Camera>,
+    /// `[rows, 384]`: row `id` is the MiniLM embedding of instance `id`'s label (row 0 zero).
+    pub teacher: Vec<f32>,
+}
+
+impl Sample {
+    /// Number of views (inputs and targets).
+    pub fn views(&self) -> usize {
+        self.cameras.len()
+    }
+
+    /// Rows of the teacher table.
+    pub fn teacher_rows(&self) -> usize {
+        self.teacher.len() / TEXT_DIM
+    }
+
+    /// The sample of `scene` for the views `order` (the first `inputs` of them are input).
+    pub fn from_scene(scene: &Scene, order: &[usize], inputs: usize, labels: &LabelCache) -> Result<Self, SampleError> {
+        let name = scene.dir.display().to_string();
+        let bad = |problem: String| SampleError::Scene { scene: name.clone(), problem };
+        let first = scene.frames.first().ok_or_else(|| bad("has no frames".into()))?;
+        let (w, h) = (first.width() as usize, first.height() as usize);
+        if let Some(f) = scene.frames.iter().position(|f| f.width() != first.width() || f.height() != first.height()) {
+            return Err(bad(format!("frame {f} differs in size from frame 0")));
+        }
+        if w != h {
+            return Err(bad(format!("frames are {w}×{h}; training needs square frames")));
+        }
+        let pixels = w * h;
+        let mut images = Vec::with_capacity(order.len() * 3 * pixels);
+        let mut depth = Vec::with_capacity(order.len() * pixels);
+        let mut ids = Vec::with_capacity(order.len() * pixels);
+        let mut cameras = Vec::with_capacity(order.len());
+        for &f in order {
+            let frame = &scene.frames[f];
+            for c in 0..3 {
+                images.extend(frame.rgb.chunks_exact(3).map(|px| f32::from(px[c]) / 255.0));
+            }
+            let frame_depth = frame.depth.as_ref().ok_or_else(|| bad(format!("frame {f} has no depth")))?;
+            depth.extend_from_slice(frame_depth);
+            let frame_ids = frame.instances.as_ref().ok_or_else(|| bad(format!("frame {f} has no instance map")))?;
+            ids.extend(frame_ids.iter().map(|&i| u32::from(i)));
+            cameras.push(frame.camera);
+        }
+        let cameras = in_reference_frame(&cameras);
+        let rows = ids.iter().copied().max().unwrap_or(0) as usize + 1;
+        let mut teacher = vec![0.0; rows * TEXT_DIM];
+        let present: Vec<(u32, &str)> = (1..rows as u32)
+            .filter_map(|id| scene.label_of(id as u16).map(|l| (id, l)))
+            .collect();
+        let embeddings = labels.embed(&present.iter().map(|(_, l)| *l).collect::<Vec<_>>())?;
+        for ((id, _), e) in present.iter().zip(embeddings) {
+            teacher[*id as usize * TEXT_DIM..(*id as usize + 1) * TEXT_DIM].copy_from_slice(&e);
+        }
+        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher })
+    }
+}
+
+/// `cameras` re-expressed with the first one as the world frame.
+pub fn in_reference_frame(cameras: &[Camera]) -> Vec<Camera> {
+    camera_targets(cameras)
+        .iter()
+        .zip(cameras)
+        .map(|(t, cam)| Camera {
+            intrinsics: cam.intrinsics,
+            rotation: glam::Quat::from_xyzw(t[4], t[5], t[6], t[3]),
+            translation: glam::Vec3::new(t[0], t[1], t[2]),
+        })
+        .collect()
+}
+
+/// Draws the views of one step: `inputs + targets` distinct frames of `frames`, in random
+/// order (the first is the reference view). Fewer frames than asked shrink the targets first.
+pub fn draw_views(frames: usize, plan: &ViewPlan, rng: &mut ChaCha8Rng) -> (Vec<usize>, usize) {
+    let inputs = rng.random_range(plan.min_views..=plan.max_views).min(frames);
+    let total = (inputs + plan.targets).min(frames);
+    (sample_indices(rng, frames, total).into_vec(), inputs)
+}
+
+/// Makes the samples of steps: scene choice and view draws as described in the module docs.
+#[derive(Clone)]
+pub struct Sampler {
+    pub source: Source,
+    pub plan: ViewPlan,
+    pub seed: u64,
+    pub labels: Arc<LabelCache>,
+}
+
+impl Sampler {
+    /// The sample of `step`.
+    pub fn sample(&self, step: u64) -> Result<Sample, SampleError> {
+        let scene = self.source.scene(step / self.plan.reuse.max(1))?;
+        self.sample_of(&scene, step)
+    }
+
+    /// The sample of `step` drawn from `scene`.
+    pub fn sample_of(&self, scene: &Scene, step: u64) -> Result<Sample, SampleError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ step.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        if scene.frames.len() < 2 {
+            return Err(SampleError::Scene { scene: scene.dir.display().to_string(), problem: "needs ≥ 2 frames".into() });
+        }
+        let (order, inputs) = draw_views(scene.frames.len(), &self.plan, &mut rng);
+        Sample::from_scene(scene, &order, inputs, &self.labels)
+    }
+}
+
+/// Builds the samples of steps `start..end` in order on a background thread, a few ahead.
+pub struct Prefetcher {
+    receiver: Receiver<(u64, Result<Sample, SampleError>)>,
+    worker: Option<JoinHandle<()>>,
+}
+
+impl Prefetcher {
+    /// Starts the worker; at most `ahead` samples wait.
+    pub fn start(sampler: Sampler, start: u64, end: u64, ahead: usize) -> Self {
+        let (sender, receiver): (SyncSender<_>, _) = sync_channel(ahead.max(1));
+        let worker = std::thread::Builder::new()
+            .name("inssplat-data".into())
+            .spawn(move || {
+                let mut cached: Option<(u64, Scene)> = None;
+                for step in start..end {
+                    let index = step / sampler.plan.reuse.max(1);
+                    let sample = match &cached {
+                        Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
+                        _ => sampler.source.scene(index).and_then(|scene| {
+                            let s = sampler.sample_of(&scene, step);
+                            cached = Some((index, scene));
+                            s
+                        }),
+                    };
+                    if sender.send((step, sample)).is_err() {
+                        return;
+                    }
+                }
+            })
+            .expect("spawn the data thread");
+        Self { receiver, worker: Some(worker) }
+    }
+
+    /// The next step's sample; `None` once `end` is reached.
+    pub fn next(&self) -> Option<(u64, Result<Sample, SampleError>)> {
+        self.receiver.recv().ok()
+    }
+}
+
+impl Drop for Prefetcher {
+    fn drop(&mut self) {
+        // Unblock the worker (its send fails once the receiver is gone) and let it finish.
+        let (_, dead) = sync_channel(0);
+        drop(std::mem::replace(&mut self.receiver, dead));
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
+}
+
+/// A short description of a data spec for logs.
+pub fn describe(spec: &DataSpec) -> String {
+    match spec {
+        DataSpec::Folder(dir) => format!("scenes in {}", dir.display()),
+        DataSpec::Synth { split, furniture_dir, size } => format!(
+            "{split} scenes synthesized on the fly at {size}² ({})",
+            furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!("furniture {}", d.display()))
+        ),
+    }
+}

@@ -1,0 +1,149 @@
+//! The training loop on real synthesized scenes with the real MiniLM teacher: a small network
+//! overfits one scene (the objective falls ≥ 10×), a run interrupted after every step and
+//! resumed ends with exactly the weights and log of an uninterrupted one, and bad data folders
+//! and checkpoints are clear errors that name the path.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use burn::module::Module;
+use burn::prelude::*;
+use inssplat_trainer::loss::LossConfig;
+use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::synth::Split;
+use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
+use inssplat_trainer::train::step::objective;
+use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint, label_cache, seeded_init, update};
+
+fn tiny_model() -> ModelConfig {
+    ModelConfig::new().with_image_size(32).with_patch(4).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32).with_sem_dim(8)
+}
+
+fn tiny_data() -> DataSpec {
+    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32 }
+}
+
+fn quiet_session() -> Session {
+    Session { checkpoint_every: Duration::from_secs(3600), val_every: 0, progress: false, ..Session::default() }
+}
+
+fn params(dir: &Path) -> Vec<f32> {
+    let state = checkpoint::read_state(dir).unwrap();
+    let net = checkpoint::load_model(dir, &state, &Device::flex()).unwrap();
+    let mut out = Vec::new();
+    net.visit(&mut Collect(&mut out));
+    out
+}
+
+struct Collect<'a>(&'a mut Vec<f32>);
+
+impl burn::module::ModuleVisitor for Collect<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+        self.0.extend(param.val().into_data().try_to_vec::<f32>().unwrap());
+    }
+}
+
+#[test]
+fn a_small_network_overfits_one_scene() {
+    // α = 0 drops the −α·log(conf) reward, so every term is ≥ 0 and "falls 10×" is meaningful.
+    let loss = LossConfig::new().with_depth_conf_alpha(0.0);
+    let config = TrainConfig::new(tiny_model(), loss.clone()).with_lr(3e-3).with_weight_decay(0.0).with_grad_clip(0.0);
+    let sampler = Sampler {
+        source: Source::open(&tiny_data()).unwrap(),
+        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
+        seed: 1,
+        labels: label_cache().unwrap(),
+    };
+    let sample = sampler.sample(5).unwrap();
+    let device = Device::flex().autodiff();
+    let mut net = seeded_init(&config.model, 3, &device).unwrap();
+    let mut optim = burn::optim::AdamWConfig::new().with_weight_decay(0.0).init();
+    let mut losses = Vec::new();
+    for _ in 0..150 {
+        let obj = objective(&net, &sample, &loss, &device).unwrap();
+        losses.push(obj.values().total);
+        net = update(net, &mut optim, obj.total, config.lr, &config);
+    }
+    let first = losses[0];
+    let last = losses[losses.len() - 5..].iter().sum::<f32>() / 5.0;
+    assert!(last * 10.0 <= first, "loss {first} -> {last} (every 10th: {:?})", losses.iter().step_by(10).collect::<Vec<_>>());
+}
+
+#[test]
+fn an_interrupted_run_resumes_exactly() {
+    let config = || TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_warmup(2).with_max_views(3).with_seed(9);
+    let straight = tempfile::tempdir().unwrap();
+    let s = train::train(straight.path(), config(), tiny_data(), &quiet_session()).unwrap();
+    assert_eq!(s.steps, 4);
+
+    // Stop after every step (time limit 0) and resume, three times.
+    let pieces = tempfile::tempdir().unwrap();
+    let stop_each_step = Session { time_limit: Some(Duration::ZERO), ..quiet_session() };
+    let s = train::train(pieces.path(), config(), tiny_data(), &stop_each_step).unwrap();
+    assert_eq!(s.steps, 1);
+    for expected in 2..=4 {
+        let s = train::resume(pieces.path(), None, &stop_each_step).unwrap();
+        assert_eq!((s.first_step, s.steps), (expected - 1, expected));
+    }
+    let a = params(&checkpoint::latest(straight.path()).unwrap().unwrap());
+    let b = params(&checkpoint::latest(pieces.path()).unwrap().unwrap());
+    assert_eq!(a.len(), b.len());
+    let max_diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(max_diff <= 1e-6, "resumed weights differ by {max_diff}");
+    // The logs agree step by step on the losses (timings differ).
+    let losses = |dir: &Path| -> Vec<String> {
+        std::fs::read_to_string(dir.join("train_log.csv"))
+            .unwrap()
+            .lines()
+            .map(|l| l.split(',').take(8).collect::<Vec<_>>().join(","))
+            .collect()
+    };
+    assert_eq!(losses(straight.path()).len(), 5, "header + 4 steps");
+    assert_eq!(losses(straight.path()), losses(pieces.path()));
+    assert!(pieces.path().join("loss.png").is_file());
+    // Only the newest `keep` checkpoints stay.
+    let kept = std::fs::read_dir(checkpoint::checkpoints_dir(pieces.path())).unwrap().filter(|e| {
+        e.as_ref().unwrap().file_name().to_string_lossy().starts_with("step_")
+    });
+    assert_eq!(kept.count(), 2);
+    // A second start in the same folder refuses to overwrite the run.
+    let again = train::train(pieces.path(), config(), tiny_data(), &quiet_session()).unwrap_err();
+    assert!(again.to_string().contains("--resume"), "{again}");
+}
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
+}
+
+fn failure(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(!out.status.success(), "expected failure: {}", String::from_utf8_lossy(&out.stdout));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn bad_data_and_checkpoints_are_named_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let run = tmp.path().join("run");
+    let err = failure(bin().args(["train", "--quiet", "--steps", "1", "--out"]).arg(&run).arg("--data").arg(&empty));
+    assert!(err.contains("--data") && err.contains(&*empty.to_string_lossy()) && err.contains("no scene folders"), "{err}");
+
+    let err = failure(bin().args(["train", "--quiet", "--resume", "--out"]).arg(&run));
+    assert!(err.contains("--resume") && err.contains("no checkpoint"), "{err}");
+
+    // A checkpoint whose state.json describes another network than its weights.
+    let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();
+    let dir = t.checkpoint.unwrap();
+    let state_path = dir.join("state.json");
+    let text = std::fs::read_to_string(&state_path).unwrap().replace("\"dim\": 32", "\"dim\": 48");
+    std::fs::write(&state_path, text).unwrap();
+    let err = failure(bin().arg("export").arg("--checkpoint").arg(&run).arg("--out").arg(tmp.path().join("m.onnx")));
+    assert!(err.contains("incompatible checkpoint") && err.contains("model.bpk"), "{err}");
+
+    std::fs::write(&state_path, "{ not json").unwrap();
+    let err = failure(bin().arg("export").arg("--checkpoint").arg(&dir).arg("--out").arg(tmp.path().join("m.onnx")));
+    assert!(err.contains("state.json") && err.contains("not a checkpoint state"), "{err}");
+}
