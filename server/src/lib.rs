@@ -4,6 +4,7 @@
 //! `render`, `eval`, `bench`, `serve`). It never trains.
 
 pub mod check;
+pub mod eval;
 pub mod inputs;
 pub mod output;
 pub mod pipeline;

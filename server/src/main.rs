@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct};
 use inssplat_server::runtime::Model;
-use inssplat_server::{check, inputs, output, vocab};
+use inssplat_server::{check, eval, inputs, output, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
 
 /// inssplat: instance-aware 3D Gaussians from a few unposed photos.
@@ -49,6 +49,41 @@ enum Command {
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
     },
+    /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
+    Eval {
+        /// A folder of test scenes (or one scene folder) with `eval` context/target sets.
+        #[arg(long)]
+        data: PathBuf,
+        /// View counts to evaluate, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
+        views: Vec<usize>,
+        /// Evaluate at most this many scenes (the first ones, sorted by name).
+        #[arg(long)]
+        max_scenes: Option<usize>,
+        /// Output folder for eval.json and eval.md (default: print the table only).
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        /// The network (ONNX file exported by inssplat-train).
+        #[arg(long, env = "INSSPLAT_MODEL", default_value = "models/inssplat-default.onnx")]
+        model: PathBuf,
+        /// Labels added to the scenes' own label vocabulary (file or comma-separated list).
+        #[arg(long)]
+        vocab: Option<String>,
+        /// Print the JSON report on stdout instead of the table.
+        #[arg(long, env = "INSSPLAT_JSON")]
+        json: bool,
+        /// Threads for ONNX Runtime (default: all cores).
+        #[arg(long, env = "INSSPLAT_THREADS")]
+        threads: Option<usize>,
+    },
+}
+
+fn default_threads(threads: Option<usize>) -> usize {
+    threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
+}
+
+fn text_labels() -> anyhow::Result<LabelCache> {
+    Ok(LabelCache::new(TextEmbedder::from_env().context("loading the text encoder")?))
 }
 
 fn main() -> anyhow::Result<()> {
@@ -68,9 +103,8 @@ fn main() -> anyhow::Result<()> {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
-            let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from));
-            let mut model = Model::load(&model, threads)?;
-            let labels = LabelCache::new(TextEmbedder::from_env().context("loading the text encoder")?);
+            let mut model = Model::load(&model, default_threads(threads))?;
+            let labels = text_labels()?;
             let rec = reconstruct(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default())?;
             let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
             output::write_reconstruction(&rec, &names, &out)?;
@@ -79,6 +113,32 @@ fn main() -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
                 eprintln!("{}", output::describe(&summary, &out));
+            }
+            Ok(())
+        }
+        Command::Eval { data, views, max_scenes, out, model, vocab, json, threads } => {
+            if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
+                anyhow::bail!("--views: {v} is outside 2-16");
+            }
+            let mut dirs = eval::scene_dirs(&data)?;
+            dirs.truncate(max_scenes.unwrap_or(usize::MAX));
+            let extra = match vocab.as_deref() {
+                Some(v) => vocab::vocabulary(Some(v))?,
+                None => Vec::new(),
+            };
+            let mut model = Model::load(&model, default_threads(threads))?;
+            let labels = text_labels()?;
+            let report = eval::evaluate(&mut model, &labels, &dirs, &views, &extra, &PipelineConfig::default(), !json)?;
+            let table = eval::markdown(&report);
+            if let Some(out) = &out {
+                std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;
+                output::write_atomic(&out.join("eval.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;
+                output::write_atomic(&out.join("eval.md"), table.as_bytes())?;
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                print!("{table}");
             }
             Ok(())
         }

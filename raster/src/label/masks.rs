@@ -2,7 +2,8 @@
 //! composites one one-hot channel per instance, and each pixel takes the channel of largest
 //! weight where the accumulated alpha exceeds 0.5 (else 0). Because ids live on the
 //! Gaussians, masks of any view, context or novel, agree by construction. Also the small maps
-//! built from an id map: a label map and the mask of a set of ids (a text query's answer).
+//! built from an id map: a label map and the mask of a set of ids (a text query's answer);
+//! and the scene's colour image from any camera (novel-view RGB for evaluation).
 
 use inssplat_proto::gaussian::LengthMismatch;
 use inssplat_proto::{Camera, GaussianScene};
@@ -59,6 +60,22 @@ pub fn render_instance_ids(scene: &GaussianScene, camera: &Camera, instances: us
             best
         })
         .collect())
+}
+
+/// The scene's colours (SH degree 0) seen by `camera` over black: planar `[3][H][W]`, not
+/// clamped (a metric clamps if it needs to).
+pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
+    scene.validate()?;
+    let colours: Vec<f32> = scene.sh_dc.iter().flat_map(|c| c.map(inssplat_proto::gaussian::sh_dc_to_rgb)).collect();
+    let splats = Splats {
+        means: &scene.means,
+        log_scales: &scene.log_scales,
+        rotations: &scene.rotations,
+        logit_opacity: &scene.logit_opacity,
+        features: &colours,
+        channels: 3,
+    };
+    Ok(render(&splats, camera, &[0.0; 3])?.0.features)
 }
 
 /// Label map of an id map: `label_of_id[id − 1]` per pixel, [`NO_LABEL`] for id 0, ids past
