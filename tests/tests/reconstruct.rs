@@ -3,15 +3,16 @@
 //! binary and the real ONNX Runtime. Also the CLI's errors for bad input, each naming the
 //! file at fault.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use burn::prelude::Device;
+mod support;
+
+use support::s;
+
 use inssplat_e2e::inssplat;
 use inssplat_proto::api::ReconstructResponse;
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_trainer::export::{ExportMeta, export_onnx};
-use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 
 /// A tiny exported network and a 4-view 32×32 scene, made once per test process.
@@ -19,16 +20,7 @@ fn fixtures() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
     static FIXTURES: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
     FIXTURES.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let config = ModelConfig::new()
-            .with_image_size(32)
-            .with_dim(32)
-            .with_depth(2)
-            .with_heads(2)
-            .with_decoder_dim(32)
-            .with_decoder_min_dim(16);
-        let net = config.init(&Device::flex()).unwrap();
-        let model = dir.path().join("tiny.onnx");
-        export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
+        let model = support::tiny_model(dir.path());
         let mut cfg = SynthConfig::new(Split::Val, Furniture::Primitives);
         (cfg.width, cfg.height, cfg.frames, cfg.objects) = (32, 32, (4, 4), (3, 5));
         let scene = synth::generate(11, &cfg).unwrap();
@@ -43,9 +35,6 @@ fn run(args: &[&str]) -> (bool, String, String) {
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 #[test]
 fn reconstructs_a_scene_and_writes_every_artefact() {

@@ -1,0 +1,56 @@
+//! `inssplat eval` end to end: a tiny exported network (random weights), one procedural
+//! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
+//! every metric of the protocol is reported within its range for each view count, that the
+//! JSON and markdown files are written, and that bad arguments are named errors.
+
+mod support;
+
+use inssplat_e2e::inssplat;
+use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use serde_json::Value;
+use support::s;
+
+#[test]
+fn eval_reports_every_metric_per_view_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
+    (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
+    let data = dir.path().join("test");
+    synth::generate_split(0, &cfg).unwrap().write(&data.join("scene_000000")).unwrap();
+    let out_dir = dir.path().join("eval");
+    let out = inssplat(&["eval", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let summaries = report["summaries"].as_array().unwrap();
+    assert_eq!(summaries.iter().map(|s| s["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
+    for summary in summaries {
+        assert_eq!(summary["scenes"], 1);
+        let m = &summary["metrics"];
+        for unit in ["semantic_miou", "semantic_macc", "instance_miou", "instance_acc25", "t_miou", "t_sr50", "ssim"] {
+            let v = m[unit][0].as_f64().unwrap_or_else(|| panic!("{unit} missing: {m}"));
+            assert!((0.0..=1.0).contains(&v), "{unit} = {v}");
+        }
+        for positive in ["psnr", "depth_abs_rel", "rotation_deg", "translation"] {
+            let v = m[positive][0].as_f64().unwrap_or_else(|| panic!("{positive} missing: {m}"));
+            assert!(v.is_finite() && v >= 0.0, "{positive} = {v}");
+        }
+    }
+    let scene = &report["scenes"][0];
+    assert!(scene["gaussians_kept"].as_u64().unwrap() > 0);
+    assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
+    let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
+    assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
+    assert!(out_dir.join("eval.json").is_file());
+}
+
+#[test]
+fn eval_names_bad_arguments() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = inssplat(&["eval", "--data", s(dir.path()), "--model", "/nonexistent.onnx"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--data") && err.contains("no scene folders"), "{err}");
+    let out = inssplat(&["eval", "--data", s(dir.path()), "--views", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--views: 1"), "{err}");
+}

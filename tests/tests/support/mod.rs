@@ -1,0 +1,28 @@
+//! Fixtures shared by the end-to-end tests: a tiny network exported by the trainer (random
+//! weights: these tests check plumbing, not accuracy) and procedural scenes.
+
+use std::path::{Path, PathBuf};
+
+use burn::prelude::Device;
+use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::model::ModelConfig;
+
+/// Exports a tiny random 32×32 network to `dir/tiny.onnx`.
+pub fn tiny_model(dir: &Path) -> PathBuf {
+    let config = ModelConfig::new()
+        .with_image_size(32)
+        .with_dim(32)
+        .with_depth(2)
+        .with_heads(2)
+        .with_decoder_dim(32)
+        .with_decoder_min_dim(16);
+    let net = config.init(&Device::flex()).unwrap();
+    let model = dir.join("tiny.onnx");
+    export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
+    model
+}
+
+/// A path as `&str` for command lines.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
