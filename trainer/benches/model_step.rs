@@ -1,6 +1,8 @@
 //! Throughput of the network on the CPU: one forward + backward pass of the default
 //! configuration (128×128, 4 views) on `Device::flex().autodiff()`, reported as time and
-//! effective GFLOP/s (analytic model FLOPs: backward counted as twice the forward), and — when
+//! effective GFLOP/s (analytic model FLOPs: backward counted as twice the forward); one full
+//! training step (forward, rendering of 4 input + 1 target views, the five losses, backward
+//! and the AdamW update) on a synthesized scene with the share of each part; and — when
 //! `ORT_DYLIB_PATH` is set — the exported graph's forward in ONNX Runtime at 8 and 16 views.
 //! Run with `cargo bench -p inssplat-trainer --bench model_step` (env `STEPS` = timed steps).
 
@@ -10,7 +12,13 @@ use burn::module::Module;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use inssplat_trainer::export::{ExportMeta, to_onnx_bytes};
+use burn::optim::AdamWConfig;
+use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
+use inssplat_trainer::synth::{Furniture, Split};
+use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
+use inssplat_trainer::train::step::objective;
+use inssplat_trainer::train::{TrainConfig, label_cache, update};
 
 fn median(mut times: Vec<Duration>) -> Duration {
     times.sort();
@@ -87,6 +95,55 @@ fn bench_train_step(config: &ModelConfig, views: usize, steps: usize) {
     );
 }
 
+/// One real training step at `views` input views + 1 target, median of `steps`.
+fn bench_objective_step(config: &ModelConfig, views: usize, steps: usize) {
+    let labels = match label_cache() {
+        Ok(l) => l,
+        Err(e) => return println!("full training step skipped: {e} (source .deps/env)"),
+    };
+    let furniture = match Furniture::from_env() {
+        Furniture::Catalog(dir) if dir.is_dir() => Some(dir),
+        _ => None,
+    };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32 };
+    let plan = ViewPlan { min_views: views, max_views: views, targets: 1, reuse: 1 };
+    let sampler = Sampler { source: Source::open(&data).expect("synth"), plan, seed: 0, labels };
+    let train = TrainConfig::new(config.clone(), LossConfig::new());
+    let device = Device::flex().autodiff();
+    let mut net = config.init(&device).expect("config");
+    let mut optim = AdamWConfig::new().init();
+    let mut rows = Vec::new();
+    for i in 0..=steps {
+        let sample = sampler.sample(i as u64).expect("sample");
+        let t = Instant::now();
+        let obj = objective(&net, &sample, &train.loss, &device).expect("objective");
+        let _ = obj.values();
+        let tb = Instant::now();
+        net = update(net, &mut optim, obj.total, 1e-4, &train);
+        let backward = tb.elapsed();
+        if i > 0 {
+            rows.push([t.elapsed(), obj.forward_time, obj.render_time, obj.loss_time, backward]);
+        }
+    }
+    rows.sort_by_key(|r| r[0]);
+    let [total, forward, render, loss, backward] = rows[rows.len() / 2];
+    let share = |d: Duration| 100.0 * d.as_secs_f64() / total.as_secs_f64();
+    let flops = 3 * net.forward_flops(views);
+    println!(
+        "full training step, {views} views + 1 target at {0}x{0}: median {1:.3} s over {steps} -> {2:.0} steps/hour; \
+         forward {3:.0}%, render {4:.0}%, losses {5:.0}%, backward+update {6:.0}% (render backward included); \
+         network {7:.1} GFLOP/s effective",
+        config.image_size,
+        total.as_secs_f64(),
+        3600.0 / total.as_secs_f64(),
+        share(forward),
+        share(render),
+        share(loss),
+        share(backward),
+        flops as f64 / 1e9 / total.as_secs_f64(),
+    );
+}
+
 fn bench_ort(config: &ModelConfig, steps: usize) {
     let Ok(path) = std::env::var("ORT_DYLIB_PATH") else {
         println!("ORT_DYLIB_PATH unset: skipping the ONNX Runtime timing (source .deps/env)");
@@ -138,5 +195,6 @@ fn main() {
         .unwrap_or(3);
     let config = ModelConfig::new();
     bench_train_step(&config, 4, steps);
+    bench_objective_step(&config, 4, steps);
     bench_ort(&config, steps);
 }
