@@ -74,6 +74,9 @@ pub struct TrainArgs {
     /// Width of the compact semantic feature.
     #[arg(long, default_value_t = 16)]
     sem_dim: usize,
+    /// w_ins, the weight of L_ins in the total (the paper's 0.01).
+    #[arg(long, default_value_t = 0.01)]
+    instance_weight: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -125,6 +128,7 @@ impl TrainArgs {
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim);
         let loss = LossConfig::new()
+            .with_instance_weight(self.instance_weight)
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
