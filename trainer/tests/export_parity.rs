@@ -54,15 +54,22 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_into_vec_as::<f32>().expect("f32 data")
 }
 
-fn session(bytes: &[u8]) -> Session {
-    let path = std::env::var("ORT_DYLIB_PATH")
-        .expect("ORT_DYLIB_PATH is unset: source .deps/env (scripts/setup writes it)");
-    let env = ort::init_from(&path)
-        .expect("load ONNX Runtime")
-        .with_name("inssplat-parity")
-        .build()
-        .expect("environment");
-    let builder = Session::builder(&env).expect("session builder");
+/// ONNX Runtime allows one environment per process; the tests share it.
+fn environment() -> &'static ort::environment::Environment {
+    static ENV: std::sync::OnceLock<ort::environment::Environment> = std::sync::OnceLock::new();
+    ENV.get_or_init(|| {
+        let path = std::env::var("ORT_DYLIB_PATH")
+            .expect("ORT_DYLIB_PATH is unset: source .deps/env (scripts/setup writes it)");
+        ort::init_from(&path)
+            .expect("load ONNX Runtime")
+            .with_name("inssplat-parity")
+            .build()
+            .expect("environment")
+    })
+}
+
+fn session_of(bytes: &[u8]) -> Session {
+    let builder = Session::builder(environment()).expect("session builder");
     let mut builder = builder.with_intra_threads(2).expect("thread count");
     builder
         .commit_from_memory(bytes)
@@ -165,7 +172,7 @@ fn export_matches_burn_forward_at_2_and_5_views() {
     };
     export_onnx(&net, &path, &meta).expect("export");
     let bytes = std::fs::read(&path).expect("read back");
-    let mut session = session(&bytes);
+    let mut session = session_of(&bytes);
     for views in [2, 5] {
         check_views(views, &net, &mut session, &device);
     }
@@ -184,6 +191,33 @@ fn export_matches_burn_forward_at_2_and_5_views() {
     );
     assert_eq!(metadata.custom(sig::META_SEM_DIM).as_deref(), Some("16"));
     assert_eq!(metadata.custom(sig::META_TRAIN_STEPS).as_deref(), Some("0"));
+}
+
+/// A network after three real training steps (synthesized scenes, every loss), saved to a
+/// checkpoint and loaded back as `inssplat-train export` does.
+#[test]
+fn a_briefly_trained_checkpoint_exports_with_parity() {
+    use inssplat_trainer::loss::LossConfig;
+    use inssplat_trainer::synth::Split;
+    use inssplat_trainer::train::sample::DataSpec;
+    use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
+
+    let run = tempfile::tempdir().expect("temp dir");
+    let config = TrainConfig::new(small_config(), LossConfig::new()).with_steps(3).with_warmup(1).with_max_views(3);
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32 };
+    let session = Session { val_every: 0, progress: false, ..Session::default() };
+    let summary = train::train(run.path(), config, data, &session).expect("train");
+    let dir = summary.checkpoint.expect("a checkpoint at the end");
+    let state = checkpoint::read_state(&dir).expect("state");
+    let device = Device::flex();
+    let net = checkpoint::load_model(&dir, &state, &device).expect("load");
+    let meta = ExportMeta { model_version: "parity-trained".into(), train_steps: state.step };
+    let bytes = inssplat_trainer::export::to_onnx_bytes(&net, &meta).expect("export");
+    let mut session = session_of(&bytes);
+    for views in [2, 5] {
+        check_views(views, &net, &mut session, &device);
+    }
+    assert_eq!(session.metadata().expect("metadata").custom(sig::META_TRAIN_STEPS).as_deref(), Some("3"));
 }
 
 #[test]
