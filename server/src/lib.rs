@@ -8,5 +8,7 @@ pub mod eval;
 pub mod inputs;
 pub mod output;
 pub mod pipeline;
+pub mod query;
 pub mod runtime;
+pub mod saved;
 pub mod vocab;

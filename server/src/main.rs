@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct};
 use inssplat_server::runtime::Model;
-use inssplat_server::{check, eval, inputs, output, vocab};
+use inssplat_server::{check, eval, inputs, output, query, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
 
 /// inssplat: instance-aware 3D Gaussians from a few unposed photos.
@@ -48,6 +48,16 @@ enum Command {
         /// Threads for ONNX Runtime (default: all cores).
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
+    },
+    /// Ask a reconstruction where something is: matching instances and their masks per view.
+    Query {
+        /// A folder written by `inssplat reconstruct`.
+        out: PathBuf,
+        /// What to look for, e.g. "the lamp".
+        text: String,
+        /// Print the answer as JSON.
+        #[arg(long, env = "INSSPLAT_JSON")]
+        json: bool,
     },
     /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
     Eval {
@@ -113,6 +123,25 @@ fn main() -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
                 eprintln!("{}", output::describe(&summary, &out));
+            }
+            Ok(())
+        }
+        Command::Query { out, text, json } => {
+            let saved = saved::Saved::load(&out)?;
+            let labels = text_labels()?;
+            let (answer, dir) = query::run_query(&saved, &labels, &text)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&answer)?);
+            } else {
+                for m in &answer.matches {
+                    let px: usize = m.masks.iter().map(|v| v.rle.decode().iter().filter(|b| **b).count()).sum();
+                    println!("#{:<3} {:<20} score {:.2}  {px} mask pixels over {} views", m.instance_id, m.label, m.score, m.masks.len());
+                }
+                if let Some(msg) = &answer.message {
+                    println!("{msg}");
+                } else {
+                    println!("masks in {}", dir.display());
+                }
             }
             Ok(())
         }

@@ -12,7 +12,7 @@ use image::{Rgb, RgbImage};
 use inssplat_proto::api::{CameraOut, InstanceOut, ReconstructResponse, RenderBackend};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::pipeline::reconstruct::Reconstruction;
 
@@ -44,13 +44,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     std::fs::rename(&tmp, path).with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
 }
 
-fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
+/// Encodes `img` as PNG and writes it atomically.
+pub fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, image::ImageFormat::Png)?;
     write_atomic(path, bytes.get_ref())
 }
 
-fn colour_map(width: u32, height: u32, values: &[u32], colour: impl Fn(u32) -> [u8; 3]) -> RgbImage {
+/// An id or label map coloured by `colour`.
+pub fn colour_map(width: u32, height: u32, values: &[u32], colour: impl Fn(u32) -> [u8; 3]) -> RgbImage {
     RgbImage::from_fn(width, height, |x, y| Rgb(colour(values[(y * width + x) as usize])))
 }
 
@@ -68,13 +70,24 @@ fn depth_image(width: u32, height: u32, depth: &[f32]) -> RgbImage {
 }
 
 /// The `instances.json` document.
-#[derive(Serialize)]
-struct InstancesDoc<'a> {
-    instances: &'a [InstanceOut],
-    vocabulary: &'a [String],
+#[derive(Debug, Serialize, Deserialize)]
+pub struct InstancesDoc {
+    pub instances: Vec<InstanceOut>,
+    pub vocabulary: Vec<String>,
     /// Colour of each instance id in `instances/NNN.png` and of each label in `labels/NNN.png`.
-    instance_colours: Vec<(u32, [u8; 3])>,
-    label_colours: Vec<(String, [u8; 3])>,
+    pub instance_colours: Vec<(u32, [u8; 3])>,
+    pub label_colours: Vec<(String, [u8; 3])>,
+    /// Each instance's semantic prototype in the text-embedding space (what `inssplat query`
+    /// compares query text with).
+    pub prototypes: Vec<PrototypeOut>,
+}
+
+/// One instance's semantic prototype.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct PrototypeOut {
+    pub id: u32,
+    pub embedding: Vec<f32>,
+    pub gaussians: usize,
 }
 
 /// The predicted cameras, nerfstudio convention, in the input photos' pixel units.
@@ -162,10 +175,15 @@ pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) 
     written.push(path);
 
     let doc = InstancesDoc {
-        instances: &rec.instances,
-        vocabulary: &rec.vocabulary,
+        instances: rec.instances.clone(),
+        vocabulary: rec.vocabulary.clone(),
         instance_colours: rec.instances.iter().map(|i| (i.id, palette(i.id))).collect(),
         label_colours: rec.vocabulary.iter().enumerate().map(|(l, name)| (name.clone(), palette(l as u32 + 1))).collect(),
+        prototypes: rec
+            .prototypes
+            .iter()
+            .map(|p| PrototypeOut { id: p.id, embedding: p.embedding.clone(), gaussians: p.gaussians })
+            .collect(),
     };
     let path = out.join("instances.json");
     write_atomic(&path, serde_json::to_string_pretty(&doc)?.as_bytes())?;

@@ -99,3 +99,36 @@ fn names_a_missing_and_an_incompatible_model() {
     let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o4")), "--model", s(&not_a_model)]);
     assert!(!ok && stderr.contains("garbage.onnx"), "{stderr}");
 }
+
+#[test]
+fn queries_a_saved_reconstruction() {
+    let (dir, model, scene) = fixtures();
+    let out = dir.path().join("oq");
+    let (ok, stdout, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
+    assert!(ok, "{stderr}");
+    let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+    let label = r.instances.first().map_or("chair", |i| i.label.as_str());
+    let (ok, stdout, stderr) = run(&["query", s(&out), label, "--json"]);
+    assert!(ok, "{stderr}");
+    let answer: inssplat_proto::api::QueryResponse = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(answer.text, label);
+    // Random weights may or may not clear the score threshold; either answer must be complete.
+    match answer.message {
+        Some(msg) => assert!(answer.matches.is_empty() && msg.contains("nothing in this scene matches"), "{msg}"),
+        None => {
+            assert!(!answer.matches.is_empty());
+            for m in &answer.matches {
+                assert!(r.instances.iter().any(|i| i.id == m.instance_id && i.label == m.label));
+                assert_eq!(m.masks.len(), 4);
+                for v in &m.masks {
+                    assert_eq!((v.rle.width, v.rle.height, v.rle.decode().len()), (32, 32, 1024));
+                    assert_eq!(image::open(&v.png_url).unwrap().width(), 32);
+                }
+            }
+        }
+    }
+    let (ok, _, stderr) = run(&["query", s(&out), "  "]);
+    assert!(!ok && stderr.contains("query text is empty"), "{stderr}");
+    let (ok, _, stderr) = run(&["query", s(dir.path()), "lamp"]);
+    assert!(!ok && stderr.contains("scene.ply"), "{stderr}");
+}
