@@ -9,6 +9,7 @@ pub mod inputs;
 pub mod output;
 pub mod pipeline;
 pub mod query;
+pub mod render_view;
 pub mod runtime;
 pub mod saved;
 pub mod vocab;

@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct};
 use inssplat_server::runtime::Model;
-use inssplat_server::{check, eval, inputs, output, query, saved, vocab};
+use inssplat_server::{check, eval, inputs, output, query, render_view, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
 
 /// inssplat: instance-aware 3D Gaussians from a few unposed photos.
@@ -58,6 +58,17 @@ enum Command {
         /// Print the answer as JSON.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
+    },
+    /// Render a reconstruction from new cameras: RGB, instance and label images.
+    Render {
+        /// A folder written by `inssplat reconstruct`.
+        out: PathBuf,
+        /// `interp:i,j,t` (a pose between input views i and j) or a transforms.json of cameras.
+        #[arg(long)]
+        camera: String,
+        /// Where the images go (default OUT/render).
+        #[arg(short = 'o', long = "to")]
+        to: Option<PathBuf>,
     },
     /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
     Eval {
@@ -143,6 +154,14 @@ fn main() -> anyhow::Result<()> {
                     println!("masks in {}", dir.display());
                 }
             }
+            Ok(())
+        }
+        Command::Render { out, camera, to } => {
+            let saved = saved::Saved::load(&out)?;
+            let cameras = render_view::cameras(&saved, &camera)?;
+            let dir = to.unwrap_or_else(|| out.join("render"));
+            let files = render_view::render_views(&saved, &cameras, &dir)?;
+            println!("{} images from {} camera(s) in {}", files.len(), cameras.len(), dir.display());
             Ok(())
         }
         Command::Eval { data, views, max_scenes, out, model, vocab, json, threads } => {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_proto::{Camera, GaussianScene, Intrinsics};
+use inssplat_proto::{Camera, GaussianScene};
 use inssplat_raster::label::InstancePrototype;
 
 use crate::output::InstancesDoc;
@@ -30,24 +30,7 @@ impl Saved {
         let json = dir.join("transforms.json");
         let text = std::fs::read_to_string(&json).with_context(|| format!("{}: cannot read", json.display()))?;
         let t: TransformsJson = serde_json::from_str(&text).with_context(|| format!("{}: not a transforms.json", json.display()))?;
-        let cameras = t
-            .frames
-            .iter()
-            .enumerate()
-            .map(|(i, f)| {
-                let field = |v: Option<f64>, name: &str| v.with_context(|| format!("{}: frames[{i}].{name} is missing", json.display()));
-                let (w, h) = (f.w.with_context(|| format!("{}: frames[{i}].w is missing", json.display()))?, f.h.with_context(|| format!("{}: frames[{i}].h is missing", json.display()))?);
-                let k = Intrinsics {
-                    fx: field(f.fl_x, "fl_x")? as f32,
-                    fy: field(f.fl_y, "fl_y")? as f32,
-                    cx: field(f.cx, "cx")? as f32,
-                    cy: field(f.cy, "cy")? as f32,
-                    width: w,
-                    height: h,
-                };
-                Camera::from_nerfstudio(k, &f.transform_matrix).with_context(|| format!("{}: frames[{i}].transform_matrix", json.display()))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
+        let cameras = t.cameras(&json)?;
         let path = dir.join("instances.json");
         let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
         let doc: InstancesDoc = serde_json::from_str(&text).with_context(|| format!("{}: not an instances.json", path.display()))?;

@@ -7,12 +7,13 @@ use std::path::Path;
 use anyhow::Context;
 
 /// Default labels: every category the training scenes use (catalog furniture and primitive
-/// objects of `inssplat-train synth`), so a user gets the names the model was taught.
+/// objects of `inssplat-train synth`, and the room shell: ceiling, floor, wall), so a user gets
+/// the names the model was taught.
 pub const DEFAULT_VOCABULARY: &[&str] = &[
-    "armchair", "ball", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "chair", "coffee table",
-    "computer", "desk", "dresser", "fan", "fireplace", "guitar", "lamp", "nightstand", "office chair", "oven",
+    "armchair", "ball", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "ceiling", "chair", "coffee table",
+    "computer", "desk", "dresser", "fan", "fireplace", "floor", "guitar", "lamp", "nightstand", "office chair", "oven",
     "piano", "picture", "plant", "pool table", "radiator", "refrigerator", "rug", "sink", "sofa", "speaker",
-    "stool", "table", "toilet", "trash can", "tv", "tv stand", "vase", "wardrobe", "washing machine",
+    "stool", "table", "toilet", "trash can", "tv", "tv stand", "vase", "wall", "wardrobe", "washing machine",
 ];
 
 /// The vocabulary from `--vocab`: a readable file means one label per line, anything else a

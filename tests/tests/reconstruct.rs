@@ -132,3 +132,25 @@ fn queries_a_saved_reconstruction() {
     let (ok, _, stderr) = run(&["query", s(dir.path()), "lamp"]);
     assert!(!ok && stderr.contains("scene.ply"), "{stderr}");
 }
+
+#[test]
+fn renders_a_saved_reconstruction_from_new_cameras() {
+    let (dir, model, scene) = fixtures();
+    let out = dir.path().join("or");
+    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model)]);
+    assert!(ok, "{stderr}");
+    let (ok, stdout, stderr) = run(&["render", s(&out), "--camera", "interp:0,3,0.5"]);
+    assert!(ok && stdout.contains("3 images from 1 camera"), "{stdout}{stderr}");
+    for kind in ["rgb", "instances", "labels"] {
+        let img = image::open(out.join(format!("render/{kind}_000.png"))).unwrap();
+        assert_eq!((img.width(), img.height()), (32, 32));
+    }
+    // The input cameras themselves, from the reconstruction's own transforms.json.
+    let again = dir.path().join("or_again");
+    let (ok, stdout, stderr) = run(&["render", s(&out), "--camera", s(&out.join("transforms.json")), "-o", s(&again)]);
+    assert!(ok && stdout.contains("12 images from 4 camera"), "{stdout}{stderr}");
+    let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,9,0.5"]);
+    assert!(!ok && stderr.contains("view 9 does not exist"), "{stderr}");
+    let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,2"]);
+    assert!(!ok && stderr.contains("outside 0-1"), "{stderr}");
+}

@@ -15,7 +15,7 @@ use inssplat_trainer::export::{ExportMeta, to_onnx_bytes};
 use burn::optim::AdamWConfig;
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
-use inssplat_trainer::synth::{Furniture, Split};
+use inssplat_trainer::synth::{Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{TrainConfig, label_cache, update};
@@ -105,7 +105,7 @@ fn bench_objective_step(config: &ModelConfig, views: usize, steps: usize) {
         Furniture::Catalog(dir) if dir.is_dir() => Some(dir),
         _ => None,
     };
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32 };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32, structure: Structure::Instances };
     let plan = ViewPlan { min_views: views, max_views: views, targets: 1, reuse: 1 };
     let sampler = Sampler { source: Source::open(&data).expect("synth"), plan, seed: 0, labels };
     let train = TrainConfig::new(config.clone(), LossConfig::new());

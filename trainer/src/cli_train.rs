@@ -9,7 +9,7 @@ use burn::prelude::*;
 use inssplat_trainer::export::{ExportMeta, export_onnx};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
-use inssplat_trainer::synth::{self, Split};
+use inssplat_trainer::synth::{self, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, describe};
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
@@ -30,6 +30,10 @@ pub struct TrainArgs {
     /// Sweet Home 3D furniture folder for synthesized scenes.
     #[arg(long, env = "INSSPLAT_FURNITURE_DIR", default_value = synth::DEFAULT_FURNITURE_DIR)]
     furniture_dir: PathBuf,
+    /// Synthesized walls, floor and ceiling as unlabelled background (default: instances
+    /// labelled wall/floor/ceiling, so the network separates and names them).
+    #[arg(long)]
+    shell_background: bool,
     /// Synthesize with furniture from primitives only.
     #[arg(long)]
     primitives_only: bool,
@@ -181,7 +185,12 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
     } else {
         let data = match &args.data {
             Some(dir) => DataSpec::Folder(dir.clone()),
-            None => DataSpec::Synth { split: Split::Train, furniture_dir: args.furniture()?, size: args.image_size as u32 },
+            None => DataSpec::Synth {
+                split: Split::Train,
+                furniture_dir: args.furniture()?,
+                size: args.image_size as u32,
+                structure: if args.shell_background { Structure::Background } else { Structure::Instances },
+            },
         };
         let config = args.config();
         let net = config.model.init(&Device::flex()).map_err(anyhow::Error::msg)?;

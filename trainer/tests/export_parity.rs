@@ -198,13 +198,13 @@ fn export_matches_burn_forward_at_2_and_5_views() {
 #[test]
 fn a_briefly_trained_checkpoint_exports_with_parity() {
     use inssplat_trainer::loss::LossConfig;
-    use inssplat_trainer::synth::Split;
+    use inssplat_trainer::synth::{Split, Structure};
     use inssplat_trainer::train::sample::DataSpec;
     use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
     let run = tempfile::tempdir().expect("temp dir");
     let config = TrainConfig::new(small_config(), LossConfig::new()).with_steps(3).with_warmup(1).with_max_views(3);
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32 };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let summary = train::train(run.path(), config, data, &session).expect("train");
     let dir = summary.checkpoint.expect("a checkpoint at the end");

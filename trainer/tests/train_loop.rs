@@ -11,7 +11,7 @@ use burn::module::Module;
 use burn::prelude::*;
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::ModelConfig;
-use inssplat_trainer::synth::Split;
+use inssplat_trainer::synth::{Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint, label_cache, seeded_init, update};
@@ -21,7 +21,7 @@ fn tiny_model() -> ModelConfig {
 }
 
 fn tiny_data() -> DataSpec {
-    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32 }
+    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances }
 }
 
 fn quiet_session() -> Session {

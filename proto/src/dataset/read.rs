@@ -99,6 +99,23 @@ fn validate_eval(eval: &EvalSplit, n_frames: usize) -> Result<(), (String, Strin
     Ok(())
 }
 
+impl TransformsJson {
+    /// The cameras of every frame, without reading any image (e.g. a reconstruction's
+    /// predicted cameras, or cameras to render from); `json_path` names the file in errors.
+    pub fn cameras(&self, json_path: &Path) -> Result<Vec<Camera>, DatasetError> {
+        self.frames
+            .iter()
+            .enumerate()
+            .map(|(index, f)| {
+                let k = frame_intrinsics(self, f, json_path, index)?;
+                Camera::from_nerfstudio(k, &f.transform_matrix).map_err(|e| {
+                    DatasetError::new(json_path, format!("frames[{index}].transform_matrix"), Problem::Transform(e))
+                })
+            })
+            .collect()
+    }
+}
+
 /// What loading one frame needs to know about its scene.
 struct FrameCtx<'a> {
     dir: &'a Path,
@@ -154,34 +171,7 @@ impl FrameCtx<'_> {
     }
 
     fn intrinsics(&self, t: &TransformsJson, f: &FrameJson) -> Result<Intrinsics, DatasetError> {
-        let float = |name: &str, frame: Option<f64>, top: Option<f64>| -> Result<f32, DatasetError> {
-            match frame.or(top) {
-                None => Err(self.json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
-                Some(v) if !v.is_finite() => Err(self.json_err(name, Problem::Invalid(format!("{v} is not finite")))),
-                Some(v) => Ok(v as f32),
-            }
-        };
-        let size = |name: &str, frame: Option<u32>, top: Option<u32>| -> Result<u32, DatasetError> {
-            match frame.or(top) {
-                None => Err(self.json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
-                Some(0) => Err(self.json_err(name, Problem::Invalid("image size must be positive".into()))),
-                Some(v) => Ok(v),
-            }
-        };
-        let k = Intrinsics {
-            fx: float("fl_x", f.fl_x, t.fl_x)?,
-            fy: float("fl_y", f.fl_y, t.fl_y)?,
-            cx: float("cx", f.cx, t.cx)?,
-            cy: float("cy", f.cy, t.cy)?,
-            width: size("w", f.w, t.w)?,
-            height: size("h", f.h, t.h)?,
-        };
-        for (name, v) in [("fl_x", k.fx), ("fl_y", k.fy)] {
-            if v <= 0.0 {
-                return Err(self.json_err(name, Problem::Invalid(format!("focal length {v} must be positive"))));
-            }
-        }
-        Ok(k)
+        frame_intrinsics(t, f, self.json_path, self.index)
     }
 
     /// Resolves `rel` inside the scene folder and decodes it.
@@ -235,4 +225,38 @@ impl FrameCtx<'_> {
             }
         }
     }
+}
+
+/// Intrinsics of frame `index` (per-frame values, else the top-level ones), checked; errors
+/// name `json_path` and the field.
+fn frame_intrinsics(t: &TransformsJson, f: &FrameJson, json_path: &Path, index: usize) -> Result<Intrinsics, DatasetError> {
+    let json_err = |name: &str, problem: Problem| DatasetError::new(json_path, format!("frames[{index}].{name}"), problem);
+    let float = |name: &str, frame: Option<f64>, top: Option<f64>| -> Result<f32, DatasetError> {
+        match frame.or(top) {
+            None => Err(json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
+            Some(v) if !v.is_finite() => Err(json_err(name, Problem::Invalid(format!("{v} is not finite")))),
+            Some(v) => Ok(v as f32),
+        }
+    };
+    let size = |name: &str, frame: Option<u32>, top: Option<u32>| -> Result<u32, DatasetError> {
+        match frame.or(top) {
+            None => Err(json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
+            Some(0) => Err(json_err(name, Problem::Invalid("image size must be positive".into()))),
+            Some(v) => Ok(v),
+        }
+    };
+    let k = Intrinsics {
+        fx: float("fl_x", f.fl_x, t.fl_x)?,
+        fy: float("fl_y", f.fl_y, t.fl_y)?,
+        cx: float("cx", f.cx, t.cx)?,
+        cy: float("cy", f.cy, t.cy)?,
+        width: size("w", f.w, t.w)?,
+        height: size("h", f.h, t.h)?,
+    };
+    for (name, v) in [("fl_x", k.fx), ("fl_y", k.fy)] {
+        if v <= 0.0 {
+            return Err(json_err(name, Problem::Invalid(format!("focal length {v} must be positive"))));
+        }
+    }
+    Ok(k)
 }

@@ -64,7 +64,8 @@ pub enum SynthError {
 }
 
 /// Whether walls, floor and ceiling are background (id 0) or instances of their own.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Structure {
     Background,
     Instances,

@@ -200,7 +200,19 @@ pub fn seeded_init(model: &ModelConfig, seed: u64, device: &Device) -> Result<In
     static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
     device.seed(seed);
-    model.init(device)
+    let net = model.init(device)?;
+    // burn initialises parameters lazily, on first use: draw them now, under the lock.
+    net.visit(&mut Materialize);
+    Ok(net)
+}
+
+/// Forces every lazily initialised float parameter to be drawn.
+struct Materialize;
+
+impl ModuleVisitor for Materialize {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let _ = param.val();
+    }
 }
 
 fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
@@ -288,9 +300,12 @@ fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCac
     }
     let spec = match (&session.val_data, &state.data) {
         (Some(spec), _) => spec.clone(),
-        (None, DataSpec::Synth { furniture_dir, size, .. }) => {
-            DataSpec::Synth { split: crate::synth::Split::Val, furniture_dir: furniture_dir.clone(), size: *size }
-        }
+        (None, DataSpec::Synth { furniture_dir, size, structure, .. }) => DataSpec::Synth {
+            split: crate::synth::Split::Val,
+            furniture_dir: furniture_dir.clone(),
+            size: *size,
+            structure: *structure,
+        },
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
     let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1 };

@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::loss::camera_targets;
-use crate::synth::{self, Furniture, Split, SynthConfig};
+use crate::synth::{self, Furniture, Split, Structure, SynthConfig};
 
 /// Where scenes come from. Serialized into checkpoints so that `--resume` reads the same data.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,7 +31,9 @@ pub enum DataSpec {
     /// Scene folders (each with a `transforms.json`) directly inside this folder.
     Folder(PathBuf),
     /// Scenes of a split generated on demand; `furniture_dir` `None` = primitives only.
-    Synth { split: Split, furniture_dir: Option<PathBuf>, size: u32 },
+    /// `structure` says whether walls, floor and ceiling are instances with labels (so the
+    /// network learns to name and separate them) or unlabelled background.
+    Synth { split: Split, furniture_dir: Option<PathBuf>, size: u32, structure: Structure },
 }
 
 /// Why samples cannot be made.
@@ -74,7 +76,7 @@ impl Source {
                 scenes.sort();
                 Ok(Source::Folder(Arc::new(scenes)))
             }
-            DataSpec::Synth { split, furniture_dir, size } => {
+            DataSpec::Synth { split, furniture_dir, size, structure } => {
                 let furniture = match furniture_dir {
                     Some(dir) => Furniture::Catalog(dir.clone()),
                     None => Furniture::Primitives,
@@ -82,6 +84,7 @@ impl Source {
                 let mut cfg = SynthConfig::new(*split, furniture);
                 cfg.width = *size;
                 cfg.height = *size;
+                cfg.structure = *structure;
                 cfg.validate()?;
                 Ok(Source::Synth(Arc::new(cfg)))
             }
@@ -292,8 +295,8 @@ impl Drop for Prefetcher {
 pub fn describe(spec: &DataSpec) -> String {
     match spec {
         DataSpec::Folder(dir) => format!("scenes in {}", dir.display()),
-        DataSpec::Synth { split, furniture_dir, size } => format!(
-            "{split} scenes synthesized on the fly at {size}² ({})",
+        DataSpec::Synth { split, furniture_dir, size, structure } => format!(
+            "{split} scenes synthesized on the fly at {size}², room shell as {structure:?} ({})",
             furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!("furniture {}", d.display()))
         ),
     }
