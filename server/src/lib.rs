@@ -3,6 +3,7 @@
 //! service and its job store, and the `inssplat` CLI (`check`, later `reconstruct`, `query`,
 //! `render`, `eval`, `bench`, `serve`). It never trains.
 
+pub mod bench;
 pub mod check;
 pub mod eval;
 pub mod inputs;

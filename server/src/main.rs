@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct};
 use inssplat_server::runtime::Model;
-use inssplat_server::{check, eval, inputs, output, query, render_view, saved, vocab};
+use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
 
 /// inssplat: instance-aware 3D Gaussians from a few unposed photos.
@@ -69,6 +69,24 @@ enum Command {
         /// Where the images go (default OUT/render).
         #[arg(short = 'o', long = "to")]
         to: Option<PathBuf>,
+    },
+    /// Time the pipeline per stage at several view counts on one scene.
+    Bench {
+        /// A dataset scene folder (or a folder of them: the first is used) with ≥ 16 frames.
+        #[arg(long)]
+        data: PathBuf,
+        #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
+        views: Vec<usize>,
+        /// Timed runs per view count (after one warm-up); medians are reported.
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        #[arg(long, env = "INSSPLAT_MODEL", default_value = "models/inssplat-default.onnx")]
+        model: PathBuf,
+        /// Print JSON instead of the table.
+        #[arg(long, env = "INSSPLAT_JSON")]
+        json: bool,
+        #[arg(long, env = "INSSPLAT_THREADS")]
+        threads: Option<usize>,
     },
     /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
     Eval {
@@ -162,6 +180,23 @@ fn main() -> anyhow::Result<()> {
             let dir = to.unwrap_or_else(|| out.join("render"));
             let files = render_view::render_views(&saved, &cameras, &dir)?;
             println!("{} images from {} camera(s) in {}", files.len(), cameras.len(), dir.display());
+            Ok(())
+        }
+        Command::Bench { data, views, runs, model, json, threads } => {
+            if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
+                anyhow::bail!("--views: {v} is outside 2-16");
+            }
+            let dir = eval::scene_dirs(&data)?.remove(0);
+            let scene = inssplat_proto::dataset::Scene::load(&dir).with_context(|| format!("loading {}", dir.display()))?;
+            let threads = default_threads(threads);
+            let mut model = Model::load(&model, threads)?;
+            let labels = text_labels()?;
+            let rows = bench::bench(&mut model, &labels, &scene, &views, runs, &vocab::vocabulary(None)?)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", bench::markdown(&rows, threads));
+            }
             Ok(())
         }
         Command::Eval { data, views, max_scenes, out, model, vocab, json, threads } => {

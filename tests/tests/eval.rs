@@ -1,7 +1,8 @@
 //! `inssplat eval` end to end: a tiny exported network (random weights), one procedural
 //! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
 //! every metric of the protocol is reported within its range for each view count, that the
-//! JSON and markdown files are written, and that bad arguments are named errors.
+//! JSON and markdown files are written, and that bad arguments are named errors. Also
+//! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
 
 mod support;
 
@@ -53,4 +54,32 @@ fn eval_names_bad_arguments() {
     let out = inssplat(&["eval", "--data", s(dir.path()), "--views", "1"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--views: 1"), "{err}");
+}
+
+#[test]
+fn bench_times_every_stage_per_view_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
+    (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
+    let scene = dir.path().join("scene");
+    synth::generate_split(1, &cfg).unwrap().write(&scene).unwrap();
+    let out = inssplat(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "2", "--model", s(&model), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.iter().map(|r| r["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
+    for r in rows {
+        let stages = r["stage_ms"].as_object().unwrap();
+        for stage in ["decode", "model", "backproject", "voxelize", "cluster", "label", "render"] {
+            assert!(stages[stage].as_f64().unwrap() >= 0.0, "{stage}");
+        }
+        let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
+        assert!(r["total_ms"].as_f64().unwrap() > 0.0 && sum > 0.0);
+        assert_eq!(r["gaussians_in"].as_u64().unwrap(), r["views"].as_u64().unwrap() * 32 * 32);
+        assert!(r["gaussians_kept"].as_u64().unwrap() <= r["gaussians_in"].as_u64().unwrap());
+    }
+    let table = inssplat(&["bench", "--data", s(&scene), "--views", "8,16", "--runs", "1", "--model", s(&model)]);
+    let text = String::from_utf8_lossy(&table.stdout);
+    assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
 }

@@ -1,0 +1,120 @@
+//! `inssplat bench`: the pipeline's speed on one test scene, per stage, at several view counts:
+//! median milliseconds of each stage over repeated runs, Gaussians in and kept, and the ratios
+//! that say how cost grows with views (16 vs 8 views per stage) and how post-processing compares
+//! with the network. One process, one run of the table, so ratios compare like with like.
+
+use std::collections::BTreeMap;
+use std::io::Cursor;
+
+use anyhow::Context;
+use image::{ImageFormat, RgbImage};
+use inssplat_proto::dataset::Scene;
+use inssplat_text::LabelCache;
+use serde::Serialize;
+
+use crate::pipeline::reconstruct::{InputImage, PipelineConfig, reconstruct};
+use crate::runtime::Model;
+
+/// Medians of one view count.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    pub views: usize,
+    pub runs: usize,
+    /// Stage → median milliseconds.
+    pub stage_ms: BTreeMap<String, f64>,
+    /// Median of the end-to-end time (sum of the stages).
+    pub total_ms: f64,
+    pub gaussians_in: usize,
+    pub gaussians_kept: usize,
+    pub instances: usize,
+}
+
+impl BenchRow {
+    /// Everything after the network.
+    pub fn post_ms(&self) -> f64 {
+        self.stage_ms.iter().filter(|(s, _)| !matches!(s.as_str(), "decode" | "model")).map(|(_, v)| v).sum()
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// Frames `0, n/v, 2n/v, ...` of `scene` as PNG-encoded inputs.
+fn inputs(scene: &Scene, views: usize) -> anyhow::Result<Vec<InputImage>> {
+    let n = scene.frames.len();
+    anyhow::ensure!(n >= views, "{}: {n} frames, fewer than {views} views", scene.dir.display());
+    (0..views)
+        .map(|i| {
+            let f = &scene.frames[i * n / views];
+            let img = RgbImage::from_raw(f.width(), f.height(), f.rgb.clone()).context("frame size")?;
+            let mut bytes = Cursor::new(Vec::new());
+            img.write_to(&mut bytes, ImageFormat::Png)?;
+            Ok(InputImage { name: format!("frame {}", i * n / views), bytes: bytes.into_inner() })
+        })
+        .collect()
+}
+
+/// Runs the pipeline `runs` times (after one warm-up) at each count in `views`.
+pub fn bench(model: &mut Model, labels: &LabelCache, scene: &Scene, views: &[usize], runs: usize, vocabulary: &[String]) -> anyhow::Result<Vec<BenchRow>> {
+    let config = PipelineConfig::default();
+    views
+        .iter()
+        .map(|&v| {
+            let images = inputs(scene, v)?;
+            reconstruct(model, labels, &images, vocabulary, &config)?;
+            let mut per_stage: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+            let (mut totals, mut last) = (Vec::new(), None);
+            for _ in 0..runs.max(1) {
+                let rec = reconstruct(model, labels, &images, vocabulary, &config)?;
+                totals.push(rec.timings.iter().map(|t| t.ms).sum());
+                for t in &rec.timings {
+                    per_stage.entry(t.stage.clone()).or_default().push(t.ms);
+                }
+                last = Some((rec.voxel.gaussians_in, rec.voxel.gaussians_out, rec.instances.len()));
+            }
+            let (gaussians_in, gaussians_kept, instances) = last.unwrap_or_default();
+            Ok(BenchRow {
+                views: v,
+                runs: runs.max(1),
+                stage_ms: per_stage.into_iter().map(|(s, t)| (s, median(t))).collect(),
+                total_ms: median(totals),
+                gaussians_in,
+                gaussians_kept,
+                instances,
+            })
+        })
+        .collect()
+}
+
+/// The table and the growth ratios, in markdown.
+pub fn markdown(rows: &[BenchRow], threads: usize) -> String {
+    let stages = ["decode", "model", "backproject", "voxelize", "cluster", "label", "render"];
+    let mut out = format!("Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads).\n\n| views |", rows.first().map_or(0, |r| r.runs));
+    for s in stages {
+        out += &format!(" {s} |");
+    }
+    out += " total | post / model | Gaussians in | kept | instances |\n|---|";
+    out += &"---|".repeat(stages.len() + 5);
+    out += "\n";
+    for r in rows {
+        out += &format!("| {} |", r.views);
+        for s in stages {
+            out += &format!(" {:.0} |", r.stage_ms.get(s).copied().unwrap_or(f64::NAN));
+        }
+        let model = r.stage_ms.get("model").copied().unwrap_or(f64::NAN);
+        out += &format!(" {:.0} | {:.2} | {} | {} | {} |\n", r.total_ms, r.post_ms() / model, r.gaussians_in, r.gaussians_kept, r.instances);
+    }
+    let find = |v: usize| rows.iter().find(|r| r.views == v);
+    if let (Some(a), Some(b)) = (find(8), find(16)) {
+        out += "\nGrowth from 8 to 16 views (time ratio):";
+        for s in stages {
+            if let (Some(x), Some(y)) = (a.stage_ms.get(s), b.stage_ms.get(s)) {
+                out += &format!(" {s} {:.2}×,", y / x);
+            }
+        }
+        out += &format!(" total {:.2}×; Gaussians kept {:.2}×.\n", b.total_ms / a.total_ms, b.gaussians_kept as f64 / a.gaussians_kept.max(1) as f64);
+    }
+    out
+}
