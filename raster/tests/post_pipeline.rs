@@ -83,7 +83,7 @@ fn ground_truth_inputs_recover_instances_and_labels() {
     );
 
     // Query "chair": exactly the two chairs' ids; the mask matches the chairs' union.
-    let hits = query(&prototypes, &text.vocabulary[label_index("chair")], &QueryRule::default()).unwrap();
+    let hits = query(&prototypes, &text.vocabulary[label_index("chair")], &[], &QueryRule::default()).unwrap();
     let mut hit_ids: Vec<u32> = hits.iter().map(|h| h.id).collect();
     hit_ids.sort_unstable();
     let mut chair_ids: Vec<u32> = scores.matches.iter().filter(|m| m.gt == 2 || m.gt == 3).map(|m| m.pred).collect();

@@ -30,7 +30,11 @@ pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Resu
     }
     let embedding = labels.embedder().embed_one(text).context("embedding the query text")?;
     let prototypes = saved.prototypes();
-    let hits = query(&prototypes, &embedding, &QueryRule::default())?;
+    let own_scores: Vec<f32> = prototypes
+        .iter()
+        .map(|p| saved.doc.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score))
+        .collect();
+    let hits = query(&prototypes, &embedding, &own_scores, &QueryRule::default())?;
     let dir = saved.dir.join("query").join(slug(text));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let k = saved.max_id();
@@ -56,15 +60,18 @@ pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Resu
         matches.push(QueryMatch { instance_id: hit.id, label: label_of(hit.id), score: hit.score, masks });
     }
     let message = matches.is_empty().then(|| {
+        let rule = QueryRule::default();
         let best = prototypes
             .iter()
-            .map(|p| (p.id, p.embedding.iter().zip(&embedding).map(|(a, b)| a * b).sum::<f32>()))
+            .zip(&own_scores)
+            .map(|(p, own)| (p.id, p.embedding.iter().zip(&embedding).map(|(a, b)| a * b).sum::<f32>(), *own))
             .max_by(|a, b| a.1.total_cmp(&b.1));
         match best {
-            Some((id, score)) => format!(
-                "nothing in this scene matches \"{text}\" (closest: instance {id} \"{}\" at {score:.2}, below the {:.2} needed)",
+            Some((id, score, own)) => format!(
+                "nothing in this scene matches \"{text}\": the closest, instance {id} \"{}\", scores {score:.2} (a match needs ≥ {:.2} and within {:.2} of its own label's {own:.2})",
                 label_of(id),
-                QueryRule::default().min_score
+                rule.min_score,
+                rule.label_margin,
             ),
             None => format!("nothing in this scene matches \"{text}\" (the scene has no instances)"),
         }

@@ -160,11 +160,14 @@ pub struct QueryRule {
     pub min_score: f32,
     /// An instance must also score within this of the best-scoring instance.
     pub margin: f32,
+    /// And within this of its own label's score: a text that another vocabulary label
+    /// describes much better ("banana" for an instance labelled "chair") does not name it.
+    pub label_margin: f32,
 }
 
 impl Default for QueryRule {
     fn default() -> Self {
-        Self { min_score: 0.3, margin: 0.1 }
+        Self { min_score: 0.3, margin: 0.1, label_margin: 0.15 }
     }
 }
 
@@ -175,15 +178,24 @@ pub struct QueryHit {
     pub score: f32,
 }
 
-/// Instances matching the query `text` under `rule`, best first.
-pub fn query(prototypes: &[InstancePrototype], text: &[f32], rule: &QueryRule) -> Result<Vec<QueryHit>, LabelError> {
+/// Instances matching the query `text` under `rule`, best first. `label_scores[i]` is the
+/// score of prototype i's own label (see [`assign_labels`]); an empty slice skips that test.
+pub fn query(
+    prototypes: &[InstancePrototype],
+    text: &[f32],
+    label_scores: &[f32],
+    rule: &QueryRule,
+) -> Result<Vec<QueryHit>, LabelError> {
     let t = normalized_texts(prototypes, &[text])?.remove(0);
-    let mut hits: Vec<QueryHit> =
-        prototypes.iter().map(|p| QueryHit { id: p.id, score: dot(&p.embedding, &t) }).collect();
-    hits.sort_by(|a, b| b.score.total_cmp(&a.score));
-    let best = hits.first().map_or(f32::MIN, |h| h.score);
-    hits.retain(|h| h.score >= rule.min_score && h.score >= best - rule.margin);
-    Ok(hits)
+    let mut hits: Vec<(QueryHit, f32)> = prototypes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (QueryHit { id: p.id, score: dot(&p.embedding, &t) }, label_scores.get(i).copied().unwrap_or(f32::MIN)))
+        .collect();
+    hits.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
+    let best = hits.first().map_or(f32::MIN, |h| h.0.score);
+    hits.retain(|(h, own)| h.score >= rule.min_score && h.score >= best - rule.margin && h.score >= own - rule.label_margin);
+    Ok(hits.into_iter().map(|(h, _)| h).collect())
 }
 
 fn dot(a: &[f32], b: &[f32]) -> f32 {

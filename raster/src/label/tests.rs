@@ -78,10 +78,14 @@ fn query_returns_instances_within_the_margin_of_the_best() {
         prototype(3, [0.0, 1.0, 0.0]),
         prototype(4, [1.0, 0.1, 0.0]),
     ];
-    let hits = query(&protos, &[2.0, 0.0, 0.0], &QueryRule::default()).unwrap();
+    let hits = query(&protos, &[2.0, 0.0, 0.0], &[], &QueryRule::default()).unwrap();
     assert_eq!(hits.iter().map(|h| h.id).collect::<Vec<_>>(), vec![1, 4]);
-    let wide = QueryRule { min_score: 0.3, margin: 0.25 };
-    assert_eq!(query(&protos, &[1.0, 0.0, 0.0], &wide).unwrap().len(), 3);
+    let wide = QueryRule { margin: 0.25, ..QueryRule::default() };
+    assert_eq!(query(&protos, &[1.0, 0.0, 0.0], &[], &wide).unwrap().len(), 3);
     // Nothing is close enough: no hit, even for the best.
-    assert!(query(&protos, &[0.0, 0.0, 1.0], &QueryRule::default()).unwrap().is_empty());
+    assert!(query(&protos, &[0.0, 0.0, 1.0], &[], &QueryRule::default()).unwrap().is_empty());
+    // Instance 4's own label scores 0.995 + 0.2: the query is far below it, so it is not named.
+    let own = [1.0, 0.8, 0.0, 1.2];
+    let hits = query(&protos, &[2.0, 0.0, 0.0], &own, &QueryRule::default()).unwrap();
+    assert_eq!(hits.iter().map(|h| h.id).collect::<Vec<_>>(), vec![1]);
 }

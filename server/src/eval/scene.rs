@@ -203,10 +203,12 @@ fn target_scores(
     // Text queries: each label present in the target views, its returned instances' mask vs
     // the union of that label's true instances.
     let present: std::collections::BTreeSet<u32> = gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
+    let own_scores: Vec<f32> =
+        rec.prototypes.iter().map(|p| rec.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score)).collect();
     let mut ious = Vec::new();
     for l in present {
         let text = labels.embed(&[vocabulary[l as usize].as_str()]).map_err(|e| err(&e))?.remove(0);
-        let hits: Vec<u32> = query(&rec.prototypes, &text, &QueryRule::default()).map_err(|e| err(&e))?.iter().map(|h| h.id).collect();
+        let hits: Vec<u32> = query(&rec.prototypes, &text, &own_scores, &QueryRule::default()).map_err(|e| err(&e))?.iter().map(|h| h.id).collect();
         let got = ids_mask(&pred_ids, &hits);
         let want: Vec<bool> = gt_labels.iter().map(|g| *g == l).collect();
         if let Some(iou) = mask_iou(&got, &want).map_err(|e| err(&e))? {
