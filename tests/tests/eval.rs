@@ -7,7 +7,6 @@
 mod support;
 
 use inssplat_e2e::inssplat;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use serde_json::Value;
 use support::s;
 
@@ -15,10 +14,8 @@ use support::s;
 fn eval_reports_every_metric_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = support::tiny_model(dir.path());
-    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
-    (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
     let data = dir.path().join("test");
-    synth::generate_split(0, &cfg).unwrap().write(&data.join("scene_000000")).unwrap();
+    support::test_scene(&data, 0);
     let out_dir = dir.path().join("eval");
     let out = inssplat(&["eval", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -60,10 +57,7 @@ fn eval_names_bad_arguments() {
 fn bench_times_every_stage_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = support::tiny_model(dir.path());
-    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
-    (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
-    let scene = dir.path().join("scene");
-    synth::generate_split(1, &cfg).unwrap().write(&scene).unwrap();
+    let scene = support::test_scene(dir.path(), 1);
     let out = inssplat(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "2", "--model", s(&model), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();

@@ -1,6 +1,9 @@
 //! Fixtures shared by the end-to-end tests: a tiny network exported by the trainer (random
 //! weights: these tests check plumbing, not accuracy) and procedural scenes.
 
+// Each test binary includes this module and uses part of it.
+#![allow(dead_code)]
+
 use std::path::{Path, PathBuf};
 
 use burn::prelude::Device;
@@ -20,6 +23,17 @@ pub fn tiny_model(dir: &Path) -> PathBuf {
     let model = dir.join("tiny.onnx");
     export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
     model
+}
+
+/// Writes test-split scene `index` (32×32, primitives, 3–5 objects, eval context/target sets)
+/// to `dir` and returns its folder.
+pub fn test_scene(dir: &Path, index: u64) -> PathBuf {
+    use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
+    (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
+    let scene = dir.join(format!("scene_{index:06}"));
+    synth::generate_split(index, &cfg).unwrap().write(&scene).unwrap();
+    scene
 }
 
 /// A path as `&str` for command lines.
