@@ -108,6 +108,9 @@ enum Command {
         /// Labels added to the scenes' own label vocabulary (file or comma-separated list).
         #[arg(long)]
         vocab: Option<String>,
+        /// Where instances are clustered: once on the Gaussians, or per view (the paper's mode).
+        #[arg(long, value_enum, default_value = "3d")]
+        cluster: eval::ClusterMode,
         /// Print the JSON report on stdout instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -199,7 +202,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Eval { data, views, max_scenes, out, model, vocab, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -211,7 +214,7 @@ fn main() -> anyhow::Result<()> {
             };
             let mut model = Model::load(&model, default_threads(threads))?;
             let labels = text_labels()?;
-            let report = eval::evaluate(&mut model, &labels, &dirs, &views, &extra, &PipelineConfig::default(), !json)?;
+            let report = eval::evaluate(&mut model, &labels, &dirs, &views, &extra, &PipelineConfig::default(), cluster, !json)?;
             let table = eval::markdown(&report);
             if let Some(out) = &out {
                 std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;

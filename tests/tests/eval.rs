@@ -40,6 +40,18 @@ fn eval_reports_every_metric_per_view_count() {
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(out_dir.join("eval.json").is_file());
+    assert_eq!(report["cluster"], "3d");
+
+    // The paper's mode: per-view 2D clustering, same metrics.
+    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["cluster"], "2d");
+    let m = &report["summaries"][0]["metrics"];
+    for unit in ["instance_miou", "t_miou", "semantic_miou"] {
+        let v = m[unit][0].as_f64().unwrap_or_else(|| panic!("{unit} missing: {m}"));
+        assert!((0.0..=1.0).contains(&v), "{unit} = {v}");
+    }
 }
 
 #[test]

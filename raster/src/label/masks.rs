@@ -78,6 +78,42 @@ pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>,
     Ok(render(&splats, camera, &[0.0; 3])?.0.features)
 }
 
+/// A scene's instance embedding and semantic feature rendered into one view.
+#[derive(Debug, Clone)]
+pub struct FeatureImage {
+    /// `[8][H][W]`.
+    pub instance: Vec<f32>,
+    /// `[d_s][H][W]`.
+    pub semantic: Vec<f32>,
+    /// `[H][W]` accumulated alpha.
+    pub alpha: Vec<f32>,
+}
+
+/// Renders the scene's instance embeddings and semantic features seen by `camera` (one pass,
+/// 8 + d_s channels), for clustering a view in 2D as the paper does.
+pub fn render_features(scene: &GaussianScene, camera: &Camera) -> Result<FeatureImage, MaskError> {
+    scene.validate()?;
+    let (e, ds) = (inssplat_proto::INSTANCE_DIM, scene.sem_dim);
+    let channels = e + ds;
+    let mut features = Vec::with_capacity(scene.len() * channels);
+    for i in 0..scene.len() {
+        features.extend_from_slice(&scene.instance_embedding[i]);
+        features.extend_from_slice(scene.semantic_of(i));
+    }
+    let splats = Splats {
+        means: &scene.means,
+        log_scales: &scene.log_scales,
+        rotations: &scene.rotations,
+        logit_opacity: &scene.logit_opacity,
+        features: &features,
+        channels,
+    };
+    let (mut image, _) = render(&splats, camera, &vec![0.0; channels])?;
+    let pixels = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
+    let semantic = image.features.split_off(e * pixels);
+    Ok(FeatureImage { instance: image.features, semantic, alpha: image.alpha })
+}
+
 /// Label map of an id map: `label_of_id[id − 1]` per pixel, [`NO_LABEL`] for id 0, ids past
 /// the table and unlabelled ids.
 pub fn label_map(ids: &[u32], label_of_id: &[Option<usize>]) -> Vec<u32> {

@@ -4,6 +4,7 @@
 //! JSON (`eval.json`, every scene's numbers included) and a markdown table (`eval.md`).
 
 pub mod scene;
+pub mod views;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -17,6 +18,7 @@ use serde::Serialize;
 use crate::pipeline::reconstruct::PipelineConfig;
 use crate::runtime::Model;
 use scene::{SceneScores, evaluate_scene};
+pub use views::ClusterMode;
 
 /// Scene folders to evaluate: `path` itself if it is a scene, else its sub-folders that are.
 pub fn scene_dirs(path: &Path) -> Result<Vec<PathBuf>> {
@@ -50,6 +52,7 @@ pub struct Report {
     pub model_version: String,
     pub data: String,
     pub vocabulary: Vec<String>,
+    pub cluster: ClusterMode,
     pub summaries: Vec<Summary>,
     pub scenes: Vec<SceneScores>,
     /// How target views were placed and what was aligned.
@@ -116,6 +119,7 @@ pub fn evaluate(
     views: &[usize],
     extra_vocab: &[String],
     config: &PipelineConfig,
+    mode: ClusterMode,
     progress: bool,
 ) -> Result<Report> {
     let scenes: Vec<Scene> =
@@ -129,7 +133,7 @@ pub fn evaluate(
     for &v in views {
         for scene in &scenes {
             bar.set_message(format!("{} views, {}", v, scene.dir.display()));
-            all.push(evaluate_scene(model, labels, scene, v, &vocabulary, config)?);
+            all.push(evaluate_scene(model, labels, scene, v, &vocabulary, config, mode)?);
             bar.inc(1);
         }
     }
@@ -139,9 +143,10 @@ pub fn evaluate(
         model_version: model.model_version.clone(),
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
         vocabulary,
+        cluster: mode,
         summaries,
         scenes: all,
-        protocol: "context views reconstructed; predicted context cameras aligned to the true ones by Umeyama on \
+        protocol: "context views reconstructed; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by Umeyama on \
                    camera centres (view 0 when degenerate); true target cameras mapped into the predicted frame and \
                    the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization"
             .into(),
@@ -159,7 +164,11 @@ fn num(v: Option<&(f64, usize)>, digits: usize) -> String {
 
 /// The markdown table of a report.
 pub fn markdown(r: &Report) -> String {
-    let mut out = format!("Model `{}`, {} scenes from `{}`.\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
+    let mode = match r.cluster {
+        ClusterMode::ThreeD => "instances clustered once in 3D",
+        ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)",
+    };
+    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summaries {

@@ -9,7 +9,8 @@ use std::time::Instant;
 
 use image::{ImageFormat, RgbImage};
 use inssplat_proto::dataset::{Frame, Scene};
-use inssplat_raster::label::masks::{ids_mask, label_map, render_colour, render_instance_ids};
+use inssplat_raster::cluster::ClusterParams;
+use inssplat_raster::label::masks::{ids_mask, render_colour};
 use inssplat_raster::label::{QueryRule, query};
 use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
 use inssplat_raster::metrics::pose::camera_errors;
@@ -19,6 +20,7 @@ use serde::Serialize;
 
 use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, reconstruct};
 use crate::runtime::Model;
+use super::views::{ClusterMode, segment};
 
 /// Every number of one (scene, view count); `None` where the scene cannot give it.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -90,6 +92,7 @@ pub fn evaluate_scene(
     views: usize,
     vocabulary: &[String],
     config: &PipelineConfig,
+    mode: ClusterMode,
 ) -> Result<SceneScores, SceneEvalError> {
     let name = scene.dir.file_name().map_or_else(|| scene.dir.display().to_string(), |n| n.to_string_lossy().into_owned());
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
@@ -116,28 +119,48 @@ pub fn evaluate_scene(
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
         ..SceneScores::default()
     };
-    context_scores(&mut s, scene, context, &rec).map_err(|e| bad(e))?;
-    target_scores(&mut s, scene, context, &eval.target, &rec, labels).map_err(|e| bad(e))?;
+    context_scores(&mut s, scene, context, &rec, labels, mode).map_err(&bad)?;
+    target_scores(&mut s, scene, context, &eval.target, &rec, labels, mode).map_err(&bad)?;
     Ok(s)
 }
 
-/// Depth, cameras and cross-view consistency on the context views.
-fn context_scores(s: &mut SceneScores, scene: &Scene, context: &[usize], rec: &Reconstruction) -> Result<(), String> {
+/// Depth, cameras and cross-view consistency on the context views (in 2D mode each view's
+/// ids are its own, kept distinct from other views').
+fn context_scores(
+    s: &mut SceneScores,
+    scene: &Scene,
+    context: &[usize],
+    rec: &Reconstruction,
+    labels: &LabelCache,
+    mode: ClusterMode,
+) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let (mut pred_depth, mut true_depth) = (Vec::new(), Vec::new());
-    let mut pairs: Vec<(&[u32], Vec<u32>)> = Vec::new();
-    for (view, &f) in rec.views.iter().zip(context) {
+    let mut pairs: Vec<(Vec<u32>, Vec<u32>)> = Vec::new();
+    let texts = match mode {
+        ClusterMode::ThreeD => Vec::new(),
+        ClusterMode::TwoD => labels.embed(&rec.vocabulary.iter().map(String::as_str).collect::<Vec<_>>()).map_err(|e| err(&e))?,
+    };
+    for (v, (view, &f)) in rec.views.iter().zip(context).enumerate() {
         let frame = &scene.frames[f];
         if let Some(d) = &frame.depth {
             pred_depth.extend_from_slice(&view.depth);
             true_depth.extend_from_slice(d);
         }
         if let Some(ids) = &frame.instances {
-            pairs.push((&view.instance_ids, ids.iter().map(|&i| u32::from(i)).collect()));
+            let pred = match mode {
+                ClusterMode::ThreeD => view.instance_ids.clone(),
+                ClusterMode::TwoD => {
+                    let seg = segment(rec, &view.camera, mode, &texts, &ClusterParams::default())?;
+                    let offset = (v as u32 + 1) << 16;
+                    seg.ids.iter().map(|&i| if i == 0 { 0 } else { i + offset }).collect()
+                }
+            };
+            pairs.push((pred, ids.iter().map(|&i| u32::from(i)).collect()));
         }
     }
     s.depth_abs_rel = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?.map(|d| d.abs_rel);
-    let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (*p, g.as_slice())).collect();
+    let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
     if let Some(c) = consistency_scores(&pairs).map_err(|e| err(&e))? {
         s.t_miou = Some(c.t_miou);
         s.t_sr50 = Some(c.t_sr);
@@ -146,6 +169,9 @@ fn context_scores(s: &mut SceneScores, scene: &Scene, context: &[usize], rec: &R
 }
 
 /// Novel-view semantic, instance and query scores and PSNR/SSIM on the target views.
+/// Instance mIoU pools every (target view, visible true instance) pair: each instance's best
+/// IoU with one predicted id of that view (the per-image OpenGaussian/LERF protocol, the same
+/// for both clustering modes; cross-view agreement is what T-mIoU measures).
 fn target_scores(
     s: &mut SceneScores,
     scene: &Scene,
@@ -153,6 +179,7 @@ fn target_scores(
     targets: &[usize],
     rec: &Reconstruction,
     labels: &LabelCache,
+    mode: ClusterMode,
 ) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let pred_cams: Vec<_> = rec.views.iter().map(|v| v.camera).collect();
@@ -164,30 +191,29 @@ fn target_scores(
     let to_pred = pose.alignment.inverse();
 
     let vocabulary = &rec.vocabulary;
-    let instances = rec.instances.iter().map(|i| i.id as usize).max().unwrap_or(0);
-    let mut label_of_id = vec![None; instances];
-    for i in &rec.instances {
-        label_of_id[i.id as usize - 1] = vocabulary.iter().position(|v| *v == i.label);
-    }
-    let (mut pred_ids, mut true_ids, mut pred_labels, mut gt_labels) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
+    let texts = labels.embed(&words).map_err(|e| err(&e))?;
+    let params = ClusterParams::default();
+    let (mut pred_labels, mut gt_labels, mut ious, mut segs, mut gts) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
     for &t in targets {
         let frame = &scene.frames[t];
         let camera = to_pred.map_camera(&frame.camera);
-        let ids = render_instance_ids(&rec.scene, &camera, instances).map_err(|e| err(&e))?;
         let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
-        let pixels = frame.rgb.len() / 3;
         let truth: Vec<f32> = (0..3).flat_map(|c| frame.rgb.iter().skip(c).step_by(3).map(|v| f32::from(*v) / 255.0)).collect();
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-        debug_assert_eq!(truth.len(), 3 * pixels);
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
-        if let Some(gt) = &frame.instances {
-            pred_labels.extend(label_map(&ids, &label_of_id));
-            gt_labels.extend(true_labels(scene, gt, vocabulary));
-            true_ids.extend(gt.iter().map(|&i| u32::from(i)));
-            pred_ids.extend(ids);
+        let Some(gt) = &frame.instances else { continue };
+        let seg = segment(rec, &camera, mode, &texts, &params)?;
+        let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
+        if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
+            ious.extend(ins.matches.iter().map(|m| m.iou));
         }
+        pred_labels.extend_from_slice(&seg.labels);
+        gt_labels.extend(true_labels(scene, gt, vocabulary));
+        segs.push(seg);
+        gts.push(gt_ids);
     }
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     s.psnr = mean(&psnrs);
@@ -196,25 +222,25 @@ fn target_scores(
         s.semantic_miou = Some(sem.miou);
         s.semantic_macc = Some(sem.macc);
     }
-    if let Some(ins) = instance_scores(&pred_ids, &true_ids).map_err(|e| err(&e))? {
-        s.instance_miou = Some(ins.miou);
-        s.instance_acc25 = Some(ins.acc_25);
-    }
-    // Text queries: each label present in the target views, its returned instances' mask vs
-    // the union of that label's true instances.
+    s.instance_miou = mean(&ious);
+    s.instance_acc25 = (!ious.is_empty()).then(|| ious.iter().filter(|&&x| x > 0.25).count() as f64 / ious.len() as f64);
+    // Text queries: each label present in the target views; per view its returned
+    // instances' mask, pooled over views, against the union of that label's true instances.
     let present: std::collections::BTreeSet<u32> = gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
-    let own_scores: Vec<f32> =
-        rec.prototypes.iter().map(|p| rec.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score)).collect();
-    let mut ious = Vec::new();
+    let mut query_ious = Vec::new();
     for l in present {
-        let text = labels.embed(&[vocabulary[l as usize].as_str()]).map_err(|e| err(&e))?.remove(0);
-        let hits: Vec<u32> = query(&rec.prototypes, &text, &own_scores, &QueryRule::default()).map_err(|e| err(&e))?.iter().map(|h| h.id).collect();
-        let got = ids_mask(&pred_ids, &hits);
+        let text = &texts[l as usize];
+        let mut got = Vec::with_capacity(gt_labels.len());
+        for seg in &segs {
+            let hits: Vec<u32> =
+                query(&seg.prototypes, text, &seg.own_scores, &QueryRule::default()).map_err(|e| err(&e))?.iter().map(|h| h.id).collect();
+            got.extend(ids_mask(&seg.ids, &hits));
+        }
         let want: Vec<bool> = gt_labels.iter().map(|g| *g == l).collect();
         if let Some(iou) = mask_iou(&got, &want).map_err(|e| err(&e))? {
-            ious.push(iou);
+            query_ious.push(iou);
         }
     }
-    s.query_iou = mean(&ious);
+    s.query_iou = mean(&query_ious);
     Ok(())
 }

@@ -71,6 +71,9 @@ pub struct Reconstruction {
     pub instances: Vec<InstanceOut>,
     pub prototypes: Vec<InstancePrototype>,
     pub vocabulary: Vec<String>,
+    /// Φ_sem of the network: weight `[384][d_s]` and bias `[384]`.
+    pub sem_proj_weight: Vec<f32>,
+    pub sem_proj_bias: Vec<f32>,
     pub voxel: VoxelReport,
     pub timings: Vec<StageTiming>,
 }
@@ -202,6 +205,8 @@ pub fn reconstruct(
         instances,
         prototypes,
         vocabulary: vocabulary.to_vec(),
+        sem_proj_weight: out.sem_proj_weight.clone(),
+        sem_proj_bias: out.sem_proj_bias.clone(),
         voxel,
         timings: clock.timings,
     })

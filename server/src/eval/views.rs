@@ -1,0 +1,97 @@
+//! How a view of a reconstruction is segmented for scoring, in either clustering mode:
+//! - 3D (inssplat): the ids clustered once on the Gaussians are rendered into the view; every
+//!   view shares the instances, their prototypes and labels.
+//! - 2D (the paper's): the view's instance features are rendered and clustered on their own
+//!   (HDBSCAN on the feature map), each cluster gets a semantic prototype from the rendered
+//!   semantic features and a label; ids mean nothing across views.
+
+use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM};
+use inssplat_raster::cluster::ClusterParams;
+use inssplat_raster::cluster::per_view::{FeatureMap, cluster_view};
+use inssplat_raster::label::masks::{label_map, render_features, render_instance_ids};
+use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
+
+use crate::pipeline::reconstruct::Reconstruction;
+
+/// Where instances are clustered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClusterMode {
+    /// Once, on the Gaussians (inssplat).
+    #[value(name = "3d")]
+    ThreeD,
+    /// On every view's rendered feature map separately (the paper).
+    #[value(name = "2d")]
+    TwoD,
+}
+
+/// One view's segmentation: ids, labels (vocabulary index or `NO_LABEL`) and the prototypes
+/// and own-label scores that text queries compare with.
+pub struct ViewSegmentation {
+    pub ids: Vec<u32>,
+    pub labels: Vec<u32>,
+    pub prototypes: Vec<InstancePrototype>,
+    pub own_scores: Vec<f32>,
+}
+
+/// Segments the view seen by `camera`; `texts` are the vocabulary's embeddings.
+pub fn segment(
+    rec: &Reconstruction,
+    camera: &Camera,
+    mode: ClusterMode,
+    texts: &[[f32; 384]],
+    params: &ClusterParams,
+) -> Result<ViewSegmentation, String> {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    match mode {
+        ClusterMode::ThreeD => {
+            let k = rec.instances.iter().map(|i| i.id as usize).max().unwrap_or(0);
+            let mut label_of_id = vec![None; k];
+            for i in &rec.instances {
+                label_of_id[i.id as usize - 1] = rec.vocabulary.iter().position(|v| *v == i.label);
+            }
+            let ids = render_instance_ids(&rec.scene, camera, k).map_err(|e| err(&e))?;
+            let own_scores = rec
+                .prototypes
+                .iter()
+                .map(|p| rec.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score))
+                .collect();
+            Ok(ViewSegmentation { labels: label_map(&ids, &label_of_id), ids, prototypes: rec.prototypes.clone(), own_scores })
+        }
+        ClusterMode::TwoD => {
+            let image = render_features(&rec.scene, camera).map_err(|e| err(&e))?;
+            let clustering =
+                cluster_view(&FeatureMap { features: &image.instance, alpha: &image.alpha }, params).map_err(|e| err(&e))?;
+            // Pixels as points of a scene, so the 3D mode's prototype code applies unchanged.
+            let pixels = image.alpha.len();
+            let sem_dim = rec.scene.sem_dim;
+            let mut points = GaussianScene::with_sem_dim(sem_dim);
+            let mut semantic = vec![0.0; sem_dim];
+            for (p, &id) in clustering.ids.iter().enumerate() {
+                for (k, s) in semantic.iter_mut().enumerate() {
+                    *s = image.semantic[k * pixels + p];
+                }
+                points.push(inssplat_proto::gaussian::Gaussian {
+                    mean: [0.0; 3],
+                    log_scale: [0.0; 3],
+                    rotation: [1.0, 0.0, 0.0, 0.0],
+                    logit_opacity: 0.0,
+                    sh_dc: [0.0; 3],
+                    confidence: 1.0,
+                    instance_embedding: [0.0; INSTANCE_DIM],
+                    semantic: &semantic,
+                    instance_id: id,
+                });
+            }
+            let projection = SemanticProjection { weight: &rec.sem_proj_weight, bias: &rec.sem_proj_bias };
+            let prototypes = semantic_prototypes(&points, &projection).map_err(|e| err(&e))?;
+            let matches = assign_labels(&prototypes, texts).map_err(|e| err(&e))?;
+            let mut label_of_id = vec![None; clustering.prototypes.len()];
+            for (p, m) in prototypes.iter().zip(&matches) {
+                label_of_id[p.id as usize - 1] = m.map(|m| m.label);
+            }
+            let own_scores = matches.iter().map(|m| m.map_or(f32::MIN, |m| m.score)).collect();
+            Ok(ViewSegmentation { labels: label_map(&clustering.ids, &label_of_id), ids: clustering.ids, prototypes, own_scores })
+        }
+    }
+}
