@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct};
+use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
@@ -147,7 +147,15 @@ fn main() -> anyhow::Result<()> {
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
             let mut model = Model::load(&model, default_threads(threads))?;
             let labels = text_labels()?;
-            let rec = reconstruct(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default())?;
+            let bar = if json { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new_spinner() };
+            bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
+            bar.enable_steady_tick(std::time::Duration::from_millis(100));
+            let views = photos.len();
+            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default(), &|stage| {
+                bar.set_message(format!("{views} views: {stage}"))
+            });
+            bar.finish_and_clear();
+            let rec = rec?;
             let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
             output::write_reconstruction(&rec, &names, &out)?;
             let summary = output::summary(&rec);

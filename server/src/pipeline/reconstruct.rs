@@ -78,14 +78,15 @@ pub struct Reconstruction {
     pub timings: Vec<StageTiming>,
 }
 
-/// Collects stage timings.
-#[derive(Default)]
-struct Stopwatch {
+/// Collects stage timings and tells an observer when each stage starts.
+struct Stopwatch<'a> {
     timings: Vec<StageTiming>,
+    on_stage: &'a dyn Fn(&str),
 }
 
-impl Stopwatch {
+impl Stopwatch<'_> {
     fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
+        (self.on_stage)(stage);
         let start = Instant::now();
         let out = f();
         self.timings.push(StageTiming { stage: stage.to_string(), ms: start.elapsed().as_secs_f64() * 1e3 });
@@ -122,13 +123,25 @@ pub fn reconstruct(
     vocabulary: &[String],
     config: &PipelineConfig,
 ) -> Result<Reconstruction, PipelineError> {
+    reconstruct_with(model, labels, images, vocabulary, config, &|_| {})
+}
+
+/// [`reconstruct`], calling `on_stage` with each stage's name as it starts (for progress).
+pub fn reconstruct_with(
+    model: &mut Model,
+    labels: &LabelCache,
+    images: &[InputImage],
+    vocabulary: &[String],
+    config: &PipelineConfig,
+    on_stage: &dyn Fn(&str),
+) -> Result<Reconstruction, PipelineError> {
     if !(MIN_VIEWS..=MAX_VIEWS).contains(&images.len()) {
         return Err(PipelineError::ViewCount(images.len()));
     }
     if vocabulary.is_empty() {
         return Err(PipelineError::EmptyVocabulary);
     }
-    let mut clock = Stopwatch::default();
+    let mut clock = Stopwatch { timings: Vec::new(), on_stage };
     let res = model.resolution;
     let decoded = clock.time("decode", || {
         images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32)).collect::<Result<Vec<_>, _>>()
