@@ -111,6 +111,10 @@ enum Command {
         /// Where instances are clustered: once on the Gaussians, or per view (the paper's mode).
         #[arg(long, value_enum, default_value = "3d")]
         cluster: eval::ClusterMode,
+        /// Robustness sweeps at 8 views (noise, blur, exposure, overlap, repeats), a table of
+        /// each metric against the strength, and the worst scenes' previews under --out.
+        #[arg(long, value_enum, value_delimiter = ',')]
+        perturb: Vec<eval::PerturbKind>,
         /// Print the JSON report on stdout instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -210,7 +214,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, perturb, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -222,7 +226,16 @@ fn main() -> anyhow::Result<()> {
             };
             let mut model = Model::load(&model, default_threads(threads))?;
             let labels = text_labels()?;
-            let report = eval::evaluate(&mut model, &labels, &dirs, &views, &extra, &PipelineConfig::default(), cluster, !json)?;
+            let request = eval::EvalRequest {
+                views,
+                extra_vocab: extra,
+                pipeline: PipelineConfig::default(),
+                cluster,
+                perturb,
+                out: out.clone(),
+                progress: !json,
+            };
+            let report = eval::evaluate(&mut model, &labels, &dirs, &request)?;
             let table = eval::markdown(&report);
             if let Some(out) = &out {
                 std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;

@@ -89,3 +89,31 @@ fn bench_times_every_stage_per_view_count() {
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
 }
+
+#[test]
+fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let data = dir.path().join("test");
+    support::test_scene(&data, 2);
+    let out_dir = dir.path().join("eval");
+    let out = inssplat(&[
+        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--perturb", "noise,overlap,repeats", "--out",
+        s(&out_dir), "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = report["robustness"].as_array().unwrap();
+    let kinds: Vec<(&str, f64)> = rows.iter().map(|r| (r["kind"].as_str().unwrap(), r["strength"].as_f64().unwrap())).collect();
+    assert_eq!(kinds.iter().filter(|k| k.0 == "noise").count(), 4, "{kinds:?}");
+    assert_eq!(kinds.iter().filter(|k| k.0 == "overlap").count(), 3, "{kinds:?}");
+    assert_eq!(kinds.iter().filter(|k| k.0 == "repeats").count(), 1, "one scene: one repeats bucket");
+    // Noise of strength 0 is no perturbation: the same scores as the plain 4-view run.
+    let plain = &report["summaries"][0]["metrics"]["instance_miou"][0];
+    assert_eq!(&rows[0]["summary"]["metrics"]["instance_miou"][0], plain);
+    let failure = &report["failures"][0];
+    assert_eq!(failure["scene"], "scene_000002");
+    assert!(std::path::Path::new(failure["preview"].as_str().unwrap()).is_file());
+    let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
+    assert!(table.contains("Robustness at 4 views") && table.contains("Worst scenes"), "{table}");
+}

@@ -3,6 +3,7 @@
 //! report averages every metric per view count over the scenes that have it, and is written as
 //! JSON (`eval.json`, every scene's numbers included) and a markdown table (`eval.md`).
 
+pub mod perturb;
 pub mod scene;
 pub mod views;
 
@@ -17,7 +18,9 @@ use serde::Serialize;
 
 use crate::pipeline::reconstruct::PipelineConfig;
 use crate::runtime::Model;
-use scene::{SceneScores, evaluate_scene};
+pub use perturb::{PerturbKind, Perturbation};
+use perturb::most_repeated;
+use scene::{SceneScores, Settings, evaluate_scene};
 pub use views::ClusterMode;
 
 /// Scene folders to evaluate: `path` itself if it is a scene, else its sub-folders that are.
@@ -54,6 +57,10 @@ pub struct Report {
     pub vocabulary: Vec<String>,
     pub cluster: ClusterMode,
     pub summaries: Vec<Summary>,
+    /// Robustness sweeps: metric means per perturbation and strength.
+    pub robustness: Vec<RobustRow>,
+    /// The worst scenes (with `--perturb`).
+    pub failures: Vec<Failure>,
     pub scenes: Vec<SceneScores>,
     /// How target views were placed and what was aligned.
     pub protocol: String,
@@ -111,46 +118,155 @@ fn summarize(views: usize, scores: &[&SceneScores]) -> Summary {
     }
 }
 
-/// Evaluates every scene in `dirs` at every count in `views`.
-pub fn evaluate(
-    model: &mut Model,
-    labels: &LabelCache,
-    dirs: &[PathBuf],
-    views: &[usize],
-    extra_vocab: &[String],
-    config: &PipelineConfig,
-    mode: ClusterMode,
-    progress: bool,
-) -> Result<Report> {
+/// What to evaluate and how.
+#[derive(Debug, Clone)]
+pub struct EvalRequest {
+    pub views: Vec<usize>,
+    /// Labels added to the scenes' own.
+    pub extra_vocab: Vec<String>,
+    pub pipeline: PipelineConfig,
+    pub cluster: ClusterMode,
+    /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
+    pub perturb: Vec<PerturbKind>,
+    /// Where failure previews go (with `perturb`).
+    pub out: Option<PathBuf>,
+    pub progress: bool,
+}
+
+impl EvalRequest {
+    /// The view count robustness is measured at: 8 if evaluated, else the first.
+    pub fn robust_views(&self) -> usize {
+        if self.views.contains(&8) { 8 } else { self.views[0] }
+    }
+}
+
+/// One row of the robustness table.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobustRow {
+    pub kind: PerturbKind,
+    pub strength: f32,
+    pub summary: Summary,
+}
+
+/// A scene among the worst, with where its reconstruction was written.
+#[derive(Debug, Clone, Serialize)]
+pub struct Failure {
+    pub scene: String,
+    pub instance_miou: Option<f64>,
+    pub semantic_miou: Option<f64>,
+    pub preview: Option<PathBuf>,
+}
+
+/// Evaluates every scene in `dirs` at every requested view count, then the robustness sweeps.
+pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &EvalRequest) -> Result<Report> {
     let scenes: Vec<Scene> =
         dirs.iter().map(|d| Scene::load(d).with_context(|| format!("loading {}", d.display()))).collect::<Result<_>>()?;
-    let mut vocabulary: Vec<String> = scenes.iter().flat_map(Scene::label_vocabulary).chain(extra_vocab.iter().cloned()).collect();
+    let mut vocabulary: Vec<String> = scenes.iter().flat_map(Scene::label_vocabulary).chain(req.extra_vocab.iter().cloned()).collect();
     vocabulary.sort();
     vocabulary.dedup();
-    let bar = if progress { ProgressBar::new((scenes.len() * views.len()) as u64) } else { ProgressBar::hidden() };
+    let image_sweeps: Vec<Perturbation> = req
+        .perturb
+        .iter()
+        .filter(|k| **k != PerturbKind::Repeats)
+        .flat_map(|&kind| kind.strengths().iter().map(move |&strength| Perturbation { kind, strength }))
+        .collect();
+    let runs = scenes.len() * (req.views.len() + image_sweeps.len());
+    let bar = if req.progress { ProgressBar::new(runs as u64) } else { ProgressBar::hidden() };
     bar.set_style(ProgressStyle::with_template("{spinner} eval {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
+    let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
+        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation };
+        scenes
+            .iter()
+            .map(|scene| {
+                bar.set_message(format!("{views} views{}, {}", perturbation.map_or(String::new(), |p| format!(", {:?} {}", p.kind, p.strength)), scene.dir.display()));
+                let s = evaluate_scene(model, labels, scene, views, &settings)?;
+                bar.inc(1);
+                Ok(s)
+            })
+            .collect()
+    };
     let mut all = Vec::new();
-    for &v in views {
-        for scene in &scenes {
-            bar.set_message(format!("{} views, {}", v, scene.dir.display()));
-            all.push(evaluate_scene(model, labels, scene, v, &vocabulary, config, mode)?);
-            bar.inc(1);
-        }
+    for &v in &req.views {
+        all.extend(run(v, None, model)?);
+    }
+    let rv = req.robust_views();
+    let mut robustness = Vec::new();
+    for p in &image_sweeps {
+        let scores = run(rv, Some(*p), model)?;
+        robustness.push(RobustRow { kind: p.kind, strength: p.strength, summary: summarize(rv, &scores.iter().collect::<Vec<_>>()) });
     }
     bar.finish_and_clear();
-    let summaries = views.iter().map(|&v| summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>())).collect();
+    let at_rv: Vec<&SceneScores> = all.iter().filter(|s| s.views == rv).collect();
+    let mut failures = Vec::new();
+    if req.perturb.contains(&PerturbKind::Repeats) {
+        for bucket in [1usize, 2, 3] {
+            let group: Vec<&SceneScores> = at_rv
+                .iter()
+                .zip(&scenes)
+                .filter(|(_, scene)| {
+                    let r = most_repeated(scene);
+                    if bucket == 3 { r >= 3 } else { r == bucket }
+                })
+                .map(|(s, _)| *s)
+                .collect();
+            if !group.is_empty() {
+                robustness.push(RobustRow { kind: PerturbKind::Repeats, strength: bucket as f32, summary: summarize(rv, &group) });
+            }
+        }
+    }
+    if !req.perturb.is_empty() {
+        failures = worst_scenes(model, labels, &scenes, &at_rv, &vocabulary, req)?;
+    }
+    let summaries = req.views.iter().map(|&v| summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>())).collect();
     Ok(Report {
         model_version: model.model_version.clone(),
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
         vocabulary,
-        cluster: mode,
+        cluster: req.cluster,
         summaries,
+        robustness,
+        failures,
         scenes: all,
         protocol: "context views reconstructed; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by Umeyama on \
                    camera centres (view 0 when degenerate); true target cameras mapped into the predicted frame and \
                    the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization"
             .into(),
     })
+}
+
+/// The five scenes with the lowest instance mIoU at the robustness view count; their
+/// reconstructions (with `preview.png`) go to `OUT/failures/<scene>/` when `out` is set.
+fn worst_scenes(
+    model: &mut Model,
+    labels: &LabelCache,
+    scenes: &[Scene],
+    scores: &[&SceneScores],
+    vocabulary: &[String],
+    req: &EvalRequest,
+) -> Result<Vec<Failure>> {
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    order.sort_by(|&a, &b| scores[a].instance_miou.unwrap_or(0.0).total_cmp(&scores[b].instance_miou.unwrap_or(0.0)));
+    order
+        .into_iter()
+        .take(5)
+        .map(|i| {
+            let preview = match &req.out {
+                Some(out) => {
+                    let dir = out.join("failures").join(&scores[i].scene);
+                    let (rec, names) = scene::reconstruct_context(model, labels, &scenes[i], req.robust_views(), vocabulary, &req.pipeline)?;
+                    crate::output::write_reconstruction(&rec, &names, &dir)?;
+                    Some(dir.join("preview.png"))
+                }
+                None => None,
+            };
+            Ok(Failure {
+                scene: scores[i].scene.clone(),
+                instance_miou: scores[i].instance_miou,
+                semantic_miou: scores[i].semantic_miou,
+                preview,
+            })
+        })
+        .collect()
 }
 
 /// Percent with one decimal, for IoU-like metrics.
@@ -191,6 +307,38 @@ pub fn markdown(r: &Report) -> String {
             s.seconds_median,
             s.gaussians_kept_mean
         );
+    }
+    if !r.robustness.is_empty() {
+        let views = r.robustness[0].summary.views;
+        out += &format!("\nRobustness at {views} views:\n\n| perturbation | strength | unit | inst mIoU | sem mIoU | T-mIoU | query IoU | PSNR | depth AbsRel | scenes |\n|---|---|---|---|---|---|---|---|---|---|\n");
+        for row in &r.robustness {
+            let m = |k: &str| row.summary.metrics.get(k);
+            out += &format!(
+                "| {:?} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                row.kind,
+                row.strength,
+                row.kind.unit(),
+                pct(m("instance_miou")),
+                pct(m("semantic_miou")),
+                pct(m("t_miou")),
+                pct(m("query_iou")),
+                num(m("psnr"), 2),
+                num(m("depth_abs_rel"), 3),
+                row.summary.scenes
+            );
+        }
+    }
+    if !r.failures.is_empty() {
+        out += "\nWorst scenes (instance mIoU):\n\n";
+        for f in &r.failures {
+            out += &format!(
+                "- {}: instance mIoU {}, semantic mIoU {}{}\n",
+                f.scene,
+                f.instance_miou.map_or("n/a".into(), |v| format!("{:.1}", 100.0 * v)),
+                f.semantic_miou.map_or("n/a".into(), |v| format!("{:.1}", 100.0 * v)),
+                f.preview.as_ref().map_or(String::new(), |p| format!(", preview {}", p.display()))
+            );
+        }
     }
     out += &format!("\nProtocol: {}.\n", r.protocol);
     out

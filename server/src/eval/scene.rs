@@ -8,7 +8,7 @@ use std::io::Cursor;
 use std::time::Instant;
 
 use image::{ImageFormat, RgbImage};
-use inssplat_proto::dataset::{Frame, Scene};
+use inssplat_proto::dataset::Scene;
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::masks::{ids_mask, render_colour};
 use inssplat_raster::label::{QueryRule, query};
@@ -20,6 +20,7 @@ use serde::Serialize;
 
 use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, reconstruct};
 use crate::runtime::Model;
+use super::perturb::{self, Perturbation};
 use super::views::{ClusterMode, segment};
 
 /// Every number of one (scene, view count); `None` where the scene cannot give it.
@@ -59,8 +60,8 @@ pub enum SceneEvalError {
     Pipeline { scene: String, source: crate::pipeline::reconstruct::PipelineError },
 }
 
-fn png(frame: &Frame) -> Vec<u8> {
-    let img = RgbImage::from_raw(frame.width(), frame.height(), frame.rgb.clone()).expect("frame rgb is w·h·3");
+fn png(width: u32, height: u32, rgb: Vec<u8>) -> Vec<u8> {
+    let img = RgbImage::from_raw(width, height, rgb).expect("frame rgb is w·h·3");
     let mut out = Cursor::new(Vec::new());
     img.write_to(&mut out, ImageFormat::Png).expect("PNG encoding to memory");
     out.into_inner()
@@ -84,30 +85,81 @@ fn true_labels(scene: &Scene, ids: &[u16], vocabulary: &[String]) -> Vec<u32> {
         .collect()
 }
 
-/// Scores `scene` reconstructed from its `views`-view context set.
-pub fn evaluate_scene(
+/// How each scene is evaluated.
+pub struct Settings<'a> {
+    pub vocabulary: &'a [String],
+    pub pipeline: &'a PipelineConfig,
+    pub cluster: ClusterMode,
+    pub perturbation: Option<Perturbation>,
+}
+
+fn scene_name(scene: &Scene) -> String {
+    scene.dir.file_name().map_or_else(|| scene.dir.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// The context frames of `scene` for `views` views (after an overlap perturbation), checked.
+fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation>, resolution: usize) -> Result<Vec<usize>, String> {
+    let eval = scene.eval.as_ref().ok_or("transforms.json has no `eval` split (synthesize with --split test)")?;
+    let context = eval.context_for(views).ok_or_else(|| format!("no {views}-view context set in `eval.context`"))?;
+    let res = resolution as u32;
+    if scene.frames.iter().any(|f| f.width() != res || f.height() != res) {
+        return Err(format!("frames must be {res}×{res}, the model resolution (synthesize with --size {res})"));
+    }
+    Ok(match perturbation {
+        Some(p) => p.context(context, &eval.target, scene.frames.len(), views),
+        None => context.to_vec(),
+    })
+}
+
+/// The (perturbed) context photos of `scene`, PNG-encoded, and their names.
+fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturbation>) -> Vec<InputImage> {
+    let name = scene_name(scene);
+    context
+        .iter()
+        .map(|&i| {
+            let frame = &scene.frames[i];
+            let mut rgb = frame.rgb.clone();
+            if let Some(p) = perturbation {
+                p.apply(&mut rgb, frame.width() as usize, frame.height() as usize, perturb::seed(&name, i));
+            }
+            InputImage { name: format!("{name}/frame {i}"), bytes: png(frame.width(), frame.height(), rgb) }
+        })
+        .collect()
+}
+
+/// Reconstructs `scene` from its `views`-view context set (for failure previews).
+pub fn reconstruct_context(
     model: &mut Model,
     labels: &LabelCache,
     scene: &Scene,
     views: usize,
     vocabulary: &[String],
     config: &PipelineConfig,
-    mode: ClusterMode,
+) -> anyhow::Result<(Reconstruction, Vec<String>)> {
+    let context = context_frames(scene, views, None, model.resolution).map_err(anyhow::Error::msg)?;
+    let images = context_images(scene, &context, None);
+    let names = images.iter().map(|i| i.name.clone()).collect();
+    Ok((reconstruct(model, labels, &images, vocabulary, config)?, names))
+}
+
+/// Scores `scene` reconstructed from its `views`-view context set.
+pub fn evaluate_scene(
+    model: &mut Model,
+    labels: &LabelCache,
+    scene: &Scene,
+    views: usize,
+    settings: &Settings<'_>,
 ) -> Result<SceneScores, SceneEvalError> {
-    let name = scene.dir.file_name().map_or_else(|| scene.dir.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let name = scene_name(scene);
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
-    let eval = scene.eval.as_ref().ok_or_else(|| bad("transforms.json has no `eval` split (synthesize with --split test)".into()))?;
-    let context = eval.context_for(views).ok_or_else(|| bad(format!("no {views}-view context set in `eval.context`")))?;
-    let res = model.resolution as u32;
-    if scene.frames.iter().any(|f| f.width() != res || f.height() != res) {
-        return Err(bad(format!("frames must be {res}×{res}, the model resolution (synthesize with --size {res})")));
-    }
-    let images: Vec<InputImage> =
-        context.iter().map(|&i| InputImage { name: format!("{name}/frame {i}"), bytes: png(&scene.frames[i]) }).collect();
+    let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
+    let images = context_images(scene, &context, settings.perturbation);
     let start = Instant::now();
-    let rec = reconstruct(model, labels, &images, vocabulary, config)
+    let rec = reconstruct(model, labels, &images, settings.vocabulary, settings.pipeline)
         .map_err(|source| SceneEvalError::Pipeline { scene: name.clone(), source })?;
     let seconds = start.elapsed().as_secs_f64();
+    let targets = scene.eval.as_ref().map(|e| e.target.clone()).unwrap_or_default();
+    let mode = settings.cluster;
     let mut s = SceneScores {
         scene: name.clone(),
         views,
@@ -119,8 +171,8 @@ pub fn evaluate_scene(
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
         ..SceneScores::default()
     };
-    context_scores(&mut s, scene, context, &rec, labels, mode).map_err(&bad)?;
-    target_scores(&mut s, scene, context, &eval.target, &rec, labels, mode).map_err(&bad)?;
+    context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
+    target_scores(&mut s, scene, &context, &targets, &rec, labels, mode).map_err(&bad)?;
     Ok(s)
 }
 
