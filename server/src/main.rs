@@ -115,6 +115,10 @@ enum Command {
         /// each metric against the strength, and the worst scenes' previews under --out.
         #[arg(long, value_enum, value_delimiter = ',')]
         perturb: Vec<eval::PerturbKind>,
+        /// Run every speed/accuracy knob (views × voxel size × clustering subsample) through the
+        /// evaluation and draw OUT/sweep.png and sweep.svg (needs --out).
+        #[arg(long, requires = "out")]
+        sweep: bool,
         /// Print the JSON report on stdout instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -214,7 +218,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, perturb, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -235,6 +239,16 @@ fn main() -> anyhow::Result<()> {
                 out: out.clone(),
                 progress: !json,
             };
+            if sweep {
+                let out = out.as_deref().expect("clap requires --out with --sweep");
+                let points = eval::run_sweep(&mut model, &labels, &dirs, &request, out)?;
+                output::write_atomic(&out.join("sweep.json"), serde_json::to_string_pretty(&points)?.as_bytes())?;
+                let table = eval::sweep_markdown(&points);
+                output::write_atomic(&out.join("sweep.md"), table.as_bytes())?;
+                print!("{table}");
+                println!("chart: {} and sweep.svg", out.join("sweep.png").display());
+                return Ok(());
+            }
             let report = eval::evaluate(&mut model, &labels, &dirs, &request)?;
             let table = eval::markdown(&report);
             if let Some(out) = &out {

@@ -117,3 +117,24 @@ fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("Robustness at 4 views") && table.contains("Worst scenes"), "{table}");
 }
+
+#[test]
+fn sweep_draws_the_speed_accuracy_chart() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let data = dir.path().join("test");
+    support::test_scene(&data, 3);
+    let out_dir = dir.path().join("sweep");
+    let out = inssplat(&["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--sweep", "--out", s(&out_dir)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let points: Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap()).unwrap();
+    let points = points.as_array().unwrap();
+    assert_eq!(points.len(), 6, "3 voxel sizes × 2 subsample sizes");
+    assert!(points.iter().any(|p| p["pareto_instance"] == true) && points.iter().any(|p| p["pareto_psnr"] == true));
+    let png = image::open(out_dir.join("sweep.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (1200, 520));
+    assert!(std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap().contains("<svg"));
+    // --sweep without --out is refused by the argument parser, naming the flag.
+    let out = inssplat(&["eval", "--data", s(&data), "--sweep"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--out"));
+}

@@ -5,6 +5,7 @@
 
 pub mod perturb;
 pub mod scene;
+pub mod sweep;
 pub mod views;
 
 use std::collections::BTreeMap;
@@ -267,6 +268,57 @@ fn worst_scenes(
             })
         })
         .collect()
+}
+
+/// Runs the sweep grid over `req.views` (each configuration a full evaluation of `dirs`),
+/// marks the Pareto fronts and draws the chart into `out`.
+pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &EvalRequest, out: &Path) -> Result<Vec<sweep::SweepPoint>> {
+    let grid = sweep::grid(&req.views);
+    let bar = if req.progress { ProgressBar::new(grid.len() as u64) } else { ProgressBar::hidden() };
+    bar.set_style(ProgressStyle::with_template("{spinner} sweep {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
+    let mut points = Vec::with_capacity(grid.len());
+    for knobs in grid {
+        bar.set_message(knobs.label());
+        let mut pipeline = req.pipeline.clone();
+        pipeline.voxel.extent_fraction = knobs.voxel_fraction;
+        pipeline.cluster.max_samples = knobs.cluster_samples;
+        let one = EvalRequest { views: vec![knobs.views], pipeline, perturb: Vec::new(), progress: false, ..req.clone() };
+        let report = evaluate(model, labels, dirs, &one)?;
+        let s = &report.summaries[0];
+        points.push(sweep::SweepPoint {
+            knobs,
+            seconds: s.seconds_median,
+            instance_miou: s.metrics.get("instance_miou").map(|m| m.0),
+            psnr: s.metrics.get("psnr").map(|m| m.0),
+            pareto_instance: false,
+            pareto_psnr: false,
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    sweep::mark_pareto(&mut points);
+    std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;
+    sweep::chart(&points, out)?;
+    Ok(points)
+}
+
+/// The sweep as a markdown table.
+pub fn sweep_markdown(points: &[sweep::SweepPoint]) -> String {
+    let mut out = String::from("| views | voxel | HDBSCAN samples | s/scene | inst mIoU | PSNR | Pareto (mIoU / PSNR) |\n|---|---|---|---|---|---|---|\n");
+    for p in points {
+        out += &format!(
+            "| {} | 1/{:.0} of extent | {} | {:.2} | {} | {} | {} / {} |\n",
+            p.knobs.views,
+            1.0 / p.knobs.voxel_fraction,
+            p.knobs.cluster_samples,
+            p.seconds,
+            p.instance_miou.map_or("n/a".into(), |v| format!("{:.1}", 100.0 * v)),
+            p.psnr.map_or("n/a".into(), |v| format!("{v:.2}")),
+            if p.pareto_instance { "yes" } else { "no" },
+            if p.pareto_psnr { "yes" } else { "no" },
+        );
+    }
+    out
 }
 
 /// Percent with one decimal, for IoU-like metrics.
