@@ -17,6 +17,8 @@ use serde::Serialize;
 use std::time::Instant;
 
 use inssplat_raster::cluster::ClusterParams;
+use inssplat_raster::label::masks::render_instance_ids_on;
+use inssplat_raster::render::GpuRenderer;
 
 use crate::eval::views::{ClusterMode, segment};
 use crate::pipeline::reconstruct::{InputImage, PipelineConfig, reconstruct};
@@ -37,6 +39,8 @@ pub struct BenchRow {
     /// The paper's mode on the same views: render each view's feature map and cluster it in
     /// 2D (median ms), against inssplat's cluster-once + render-ids (`cluster` + `render`).
     pub cluster_2d_ms: f64,
+    /// The render stage's id maps on the GPU adapter (median ms), if there is one.
+    pub render_gpu_ms: Option<f64>,
 }
 
 impl BenchRow {
@@ -66,8 +70,17 @@ fn inputs(scene: &Scene, views: usize) -> anyhow::Result<Vec<InputImage>> {
         .collect()
 }
 
-/// Runs the pipeline `runs` times (after one warm-up) at each count in `views`.
-pub fn bench(model: &mut Model, labels: &LabelCache, scene: &Scene, views: &[usize], runs: usize, vocabulary: &[String]) -> anyhow::Result<Vec<BenchRow>> {
+/// Runs the pipeline `runs` times (after one warm-up) at each count in `views` (rendering on
+/// the CPU), and times the render stage again on `gpu` when given.
+pub fn bench(
+    model: &mut Model,
+    labels: &LabelCache,
+    scene: &Scene,
+    views: &[usize],
+    runs: usize,
+    vocabulary: &[String],
+    gpu: Option<&GpuRenderer>,
+) -> anyhow::Result<Vec<BenchRow>> {
     let config = PipelineConfig::default();
     views
         .iter()
@@ -98,6 +111,20 @@ pub fn bench(model: &mut Model, labels: &LabelCache, scene: &Scene, views: &[usi
                     Ok(start.elapsed().as_secs_f64() * 1e3)
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
+            let k = rec.instances.iter().map(|i| i.id as usize).max().unwrap_or(0);
+            let render_gpu = gpu
+                .map(|gpu| {
+                    (0..runs.max(1))
+                        .map(|_| -> anyhow::Result<f64> {
+                            let start = Instant::now();
+                            for view in &rec.views {
+                                render_instance_ids_on(Some(gpu), &rec.scene, &view.camera, k)?;
+                            }
+                            Ok(start.elapsed().as_secs_f64() * 1e3)
+                        })
+                        .collect::<anyhow::Result<Vec<_>>>()
+                })
+                .transpose()?;
             Ok(BenchRow {
                 views: v,
                 runs: runs.max(1),
@@ -107,20 +134,25 @@ pub fn bench(model: &mut Model, labels: &LabelCache, scene: &Scene, views: &[usi
                 gaussians_kept,
                 instances,
                 cluster_2d_ms: median(cluster_2d),
+                render_gpu_ms: render_gpu.map(median),
             })
         })
         .collect()
 }
 
 /// The table and the growth ratios, in markdown.
-pub fn markdown(rows: &[BenchRow], threads: usize) -> String {
+pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
     let stages = ["decode", "model", "backproject", "voxelize", "cluster", "label", "render"];
-    let mut out = format!("Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads).\n\n| views |", rows.first().map_or(0, |r| r.runs));
+    let mut out = format!(
+        "Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads; stages on the CPU; GPU: {}).\n\n| views |",
+        rows.first().map_or(0, |r| r.runs),
+        gpu.unwrap_or("no adapter")
+    );
     for s in stages {
         out += &format!(" {s} |");
     }
-    out += " total | post / model | Gaussians in | kept | instances | 3D: cluster + render | 2D: per-view render + cluster |\n|---|";
-    out += &"---|".repeat(stages.len() + 7);
+    out += " total | post / model | Gaussians in | kept | instances | 3D: cluster + render | 2D: per-view render + cluster | render on GPU |\n|---|";
+    out += &"---|".repeat(stages.len() + 8);
     out += "\n";
     for r in rows {
         out += &format!("| {} |", r.views);
@@ -130,13 +162,14 @@ pub fn markdown(rows: &[BenchRow], threads: usize) -> String {
         let model = r.stage_ms.get("model").copied().unwrap_or(f64::NAN);
         let three_d = r.stage_ms.get("cluster").copied().unwrap_or(0.0) + r.stage_ms.get("render").copied().unwrap_or(0.0);
         out += &format!(
-            " {:.0} | {:.2} | {} | {} | {} | {three_d:.0} | {:.0} |\n",
+            " {:.0} | {:.2} | {} | {} | {} | {three_d:.0} | {:.0} | {} |\n",
             r.total_ms,
             r.post_ms() / model,
             r.gaussians_in,
             r.gaussians_kept,
             r.instances,
-            r.cluster_2d_ms
+            r.cluster_2d_ms,
+            r.render_gpu_ms.map_or("n/a".into(), |v| format!("{v:.0}"))
         );
     }
     let find = |v: usize| rows.iter().find(|r| r.views == v);

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
+use inssplat_raster::render::GpuRenderer;
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
@@ -48,6 +49,10 @@ enum Command {
         /// Threads for ONNX Runtime (default: all cores).
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
+        /// Where to render the masks: a hardware GPU if one is found (auto), the CPU, or the
+        /// GPU (any adapter, software included; an error if there is none).
+        #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
+        render: RenderChoice,
     },
     /// Ask a reconstruction where something is: matching instances and their masks per view.
     Query {
@@ -128,6 +133,23 @@ enum Command {
     },
 }
 
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum RenderChoice {
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+/// The GPU renderer `choice` asks for: auto takes a hardware adapter only (a software one such
+/// as lavapipe is slower than the CPU path).
+fn gpu_renderer(choice: RenderChoice) -> anyhow::Result<Option<std::sync::Arc<GpuRenderer>>> {
+    Ok(match choice {
+        RenderChoice::Cpu => None,
+        RenderChoice::Auto => GpuRenderer::new().ok().filter(|g| !g.is_software()).map(std::sync::Arc::new),
+        RenderChoice::Gpu => Some(std::sync::Arc::new(GpuRenderer::new().context("--render gpu: no GPU adapter")?)),
+    })
+}
+
 fn default_threads(threads: Option<usize>) -> usize {
     threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
 }
@@ -149,7 +171,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Reconstruct { inputs, out, model, vocab, json, threads } => {
+        Command::Reconstruct { inputs, out, model, vocab, json, threads, render } => {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
@@ -159,7 +181,8 @@ fn main() -> anyhow::Result<()> {
             bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
-            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default(), &|stage| {
+            let config = PipelineConfig { gpu: gpu_renderer(render)?, ..PipelineConfig::default() };
+            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
                 bar.set_message(format!("{views} views: {stage}"))
             });
             bar.finish_and_clear();
@@ -210,11 +233,13 @@ fn main() -> anyhow::Result<()> {
             let threads = default_threads(threads);
             let mut model = Model::load(&model, threads)?;
             let labels = text_labels()?;
-            let rows = bench::bench(&mut model, &labels, &scene, &views, runs, &vocab::vocabulary(None)?)?;
+            let gpu = GpuRenderer::new().ok();
+            let rows = bench::bench(&mut model, &labels, &scene, &views, runs, &vocab::vocabulary(None)?, gpu.as_ref())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&rows)?);
             } else {
-                print!("{}", bench::markdown(&rows, threads));
+                let adapter = gpu.as_ref().map(|g| format!("{}{}", g.adapter(), if g.is_software() { " (software)" } else { "" }));
+                print!("{}", bench::markdown(&rows, threads, adapter.as_deref()));
             }
             Ok(())
         }

@@ -198,7 +198,10 @@ pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
         cameras: cameras_out(rec),
         instances: rec.instances.clone(),
         timings: rec.timings.clone(),
-        render_backend: RenderBackend::Cpu,
+        render_backend: match rec.render_backend {
+            inssplat_raster::render::Backend::Cpu => RenderBackend::Cpu,
+            inssplat_raster::render::Backend::Wgpu => RenderBackend::Wgpu,
+        },
         gaussians_in: rec.voxel.gaussians_in,
         gaussians_kept: rec.voxel.gaussians_out,
     }

@@ -154,3 +154,24 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,2"]);
     assert!(!ok && stderr.contains("outside 0-1"), "{stderr}");
 }
+
+#[test]
+fn renders_masks_on_the_gpu_when_asked_and_says_so() {
+    // `scripts/setup` installs Mesa's lavapipe, so a Vulkan adapter exists here and in CI.
+    let (dir, model, scene) = fixtures();
+    let backend = |choice: &str, out: &str| -> (String, image::RgbImage) {
+        let out = dir.path().join(out);
+        let (ok, stdout, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json", "--render", choice]);
+        assert!(ok, "{stderr}");
+        let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+        let backend = serde_json::to_value(r.render_backend).unwrap().as_str().unwrap().to_string();
+        (backend, image::open(out.join("instances/000.png")).unwrap().to_rgb8())
+    };
+    let (cpu, cpu_mask) = backend("cpu", "o_cpu");
+    let (gpu, gpu_mask) = backend("gpu", "o_gpu");
+    assert_eq!((cpu.as_str(), gpu.as_str()), ("cpu", "wgpu"));
+    // The same instance in (nearly) every pixel: the two rasterizers agree within tolerance,
+    // so only pixels where two instances nearly tie may differ.
+    let same = cpu_mask.pixels().zip(gpu_mask.pixels()).filter(|(a, b)| a == b).count();
+    assert!(same as f64 >= 0.95 * (32.0 * 32.0), "{same} of 1024 pixels agree");
+}

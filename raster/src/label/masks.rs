@@ -9,7 +9,7 @@ use inssplat_proto::gaussian::LengthMismatch;
 use inssplat_proto::{Camera, GaussianScene};
 
 use crate::metrics::NO_LABEL;
-use crate::render::{RenderError, Splats, render};
+use crate::render::{Backend, GpuRenderer, RenderError, Splats, render, render_any};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MaskError {
@@ -23,12 +23,22 @@ pub enum MaskError {
 pub const MASK_ALPHA: f32 = 0.5;
 
 /// Renders `scene.instance_id` (ids 1..=`instances`; others count as none) seen by `camera`
-/// into an id map, row-major `[H][W]`, 0 = none.
+/// into an id map, row-major `[H][W]`, 0 = none, on the CPU.
 pub fn render_instance_ids(scene: &GaussianScene, camera: &Camera, instances: usize) -> Result<Vec<u32>, MaskError> {
+    render_instance_ids_on(None, scene, camera, instances).map(|(ids, _)| ids)
+}
+
+/// [`render_instance_ids`] on `gpu` when given and working (else the CPU); says which ran.
+pub fn render_instance_ids_on(
+    gpu: Option<&GpuRenderer>,
+    scene: &GaussianScene,
+    camera: &Camera,
+    instances: usize,
+) -> Result<(Vec<u32>, Backend), MaskError> {
     scene.validate()?;
     let pixels = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
     if instances == 0 {
-        return Ok(vec![0; pixels]);
+        return Ok((vec![0; pixels], Backend::Cpu));
     }
     let mut one_hot = vec![0.0f32; scene.len() * instances];
     for (g, &id) in scene.instance_id.iter().enumerate() {
@@ -44,8 +54,8 @@ pub fn render_instance_ids(scene: &GaussianScene, camera: &Camera, instances: us
         features: &one_hot,
         channels: instances,
     };
-    let (image, _) = render(&splats, camera, &vec![0.0; instances])?;
-    Ok((0..pixels)
+    let (image, backend) = render_any(gpu, &splats, camera, &vec![0.0; instances])?;
+    let ids = (0..pixels)
         .map(|p| {
             if image.alpha[p] <= MASK_ALPHA {
                 return 0;
@@ -59,7 +69,8 @@ pub fn render_instance_ids(scene: &GaussianScene, camera: &Camera, instances: us
             }
             best
         })
-        .collect())
+        .collect();
+    Ok((ids, backend))
 }
 
 /// The scene's colours (SH degree 0) seen by `camera` over black: planar `[3][H][W]`, not

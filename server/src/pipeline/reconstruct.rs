@@ -2,6 +2,7 @@
 //! → cluster once in 3D → semantic prototypes → text labels → per-view instance and label
 //! maps rendered from the clustered Gaussians. Every stage is timed.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
@@ -10,7 +11,8 @@ use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, M
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::label::masks::{label_map, render_instance_ids};
+use inssplat_raster::label::masks::{label_map, render_instance_ids_on};
+use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
@@ -42,6 +44,8 @@ fn stage_err(stage: &'static str) -> impl Fn(&dyn std::fmt::Display) -> Pipeline
 pub struct PipelineConfig {
     pub voxel: VoxelParams,
     pub cluster: ClusterParams,
+    /// Render the views' id maps here (falls back to the CPU if it fails); `None`: CPU.
+    pub gpu: Option<Arc<GpuRenderer>>,
 }
 
 /// One input photo.
@@ -74,6 +78,8 @@ pub struct Reconstruction {
     /// Φ_sem of the network: weight `[384][d_s]` and bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
     pub sem_proj_bias: Vec<f32>,
+    /// Where the id maps were rendered.
+    pub render_backend: Backend,
     pub voxel: VoxelReport,
     pub timings: Vec<StageTiming>,
 }
@@ -194,10 +200,14 @@ pub fn reconstruct_with(
     scene.meta.up_axis = Some("-y".into());
     let instances = instance_table(&scene, &prototypes, &matches, vocabulary);
 
-    let id_maps = clock.time("render", || {
-        cameras.par_iter().map(|c| render_instance_ids(&scene, c, k)).collect::<Result<Vec<_>, _>>()
+    let rendered = clock.time("render", || match config.gpu.as_deref() {
+        // One device queue: views in turn.
+        Some(gpu) => cameras.iter().map(|c| render_instance_ids_on(Some(gpu), &scene, c, k)).collect::<Result<Vec<_>, _>>(),
+        None => cameras.par_iter().map(|c| render_instance_ids_on(None, &scene, c, k)).collect::<Result<Vec<_>, _>>(),
     });
-    let id_maps = id_maps.map_err(|e| stage_err("render")(&e))?;
+    let rendered = rendered.map_err(|e| stage_err("render")(&e))?;
+    let render_backend = if rendered.iter().all(|(_, b)| *b == Backend::Wgpu) { Backend::Wgpu } else { Backend::Cpu };
+    let id_maps: Vec<Vec<u32>> = rendered.into_iter().map(|(ids, _)| ids).collect();
     let views = decoded
         .into_iter()
         .zip(id_maps)
@@ -220,6 +230,7 @@ pub fn reconstruct_with(
         vocabulary: vocabulary.to_vec(),
         sem_proj_weight: out.sem_proj_weight.clone(),
         sem_proj_bias: out.sem_proj_bias.clone(),
+        render_backend,
         voxel,
         timings: clock.timings,
     })
