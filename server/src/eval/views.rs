@@ -15,13 +15,14 @@ use crate::pipeline::reconstruct::Reconstruction;
 
 /// Where instances are clustered.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
 pub enum ClusterMode {
     /// Once, on the Gaussians (inssplat).
     #[value(name = "3d")]
+    #[serde(rename = "3d")]
     ThreeD,
     /// On every view's rendered feature map separately (the paper).
     #[value(name = "2d")]
+    #[serde(rename = "2d")]
     TwoD,
 }
 
