@@ -6,10 +6,7 @@
 //! with like.
 
 use std::collections::BTreeMap;
-use std::io::Cursor;
 
-use anyhow::Context;
-use image::{ImageFormat, RgbImage};
 use inssplat_proto::dataset::Scene;
 use inssplat_text::LabelCache;
 use serde::Serialize;
@@ -21,7 +18,8 @@ use inssplat_raster::label::masks::render_instance_ids_on;
 use inssplat_raster::render::GpuRenderer;
 
 use crate::eval::views::{ClusterMode, segment};
-use crate::pipeline::reconstruct::{InputImage, PipelineConfig, reconstruct};
+use crate::eval::scene::context_images;
+use crate::pipeline::reconstruct::{InputImage, PipelineConfig, max_instance_id, reconstruct};
 use crate::runtime::Model;
 
 /// Medians of one view count.
@@ -59,15 +57,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn inputs(scene: &Scene, views: usize) -> anyhow::Result<Vec<InputImage>> {
     let n = scene.frames.len();
     anyhow::ensure!(n >= views, "{}: {n} frames, fewer than {views} views", scene.dir.display());
-    (0..views)
-        .map(|i| {
-            let f = &scene.frames[i * n / views];
-            let img = RgbImage::from_raw(f.width(), f.height(), f.rgb.clone()).context("frame size")?;
-            let mut bytes = Cursor::new(Vec::new());
-            img.write_to(&mut bytes, ImageFormat::Png)?;
-            Ok(InputImage { name: format!("frame {}", i * n / views), bytes: bytes.into_inner() })
-        })
-        .collect()
+    let frames: Vec<usize> = (0..views).map(|i| i * n / views).collect();
+    Ok(context_images(scene, &frames, None))
 }
 
 /// Runs the pipeline `runs` times (after one warm-up) at each count in `views` (rendering on
@@ -95,10 +86,9 @@ pub fn bench(
                 for t in &rec.timings {
                     per_stage.entry(t.stage.clone()).or_default().push(t.ms);
                 }
-                last = Some((rec.voxel.gaussians_in, rec.voxel.gaussians_out, rec.instances.len()));
+                last = Some(rec);
             }
-            let (gaussians_in, gaussians_kept, instances) = last.unwrap_or_default();
-            let rec = reconstruct(model, labels, &images, vocabulary, &config)?;
+            let rec = last.expect("at least one timed run");
             let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
             let texts = labels.embed(&words)?;
             let params = ClusterParams::default();
@@ -111,7 +101,7 @@ pub fn bench(
                     Ok(start.elapsed().as_secs_f64() * 1e3)
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            let k = rec.instances.iter().map(|i| i.id as usize).max().unwrap_or(0);
+            let k = max_instance_id(&rec.instances);
             let render_gpu = gpu
                 .map(|gpu| {
                     (0..runs.max(1))
@@ -130,9 +120,9 @@ pub fn bench(
                 runs: runs.max(1),
                 stage_ms: per_stage.into_iter().map(|(s, t)| (s, median(t))).collect(),
                 total_ms: median(totals),
-                gaussians_in,
-                gaussians_kept,
-                instances,
+                gaussians_in: rec.voxel.gaussians_in,
+                gaussians_kept: rec.voxel.gaussians_out,
+                instances: rec.instances.len(),
                 cluster_2d_ms: median(cluster_2d),
                 render_gpu_ms: render_gpu.map(median),
             })

@@ -44,11 +44,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     std::fs::rename(&tmp, path).with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
 }
 
+/// `img` encoded as PNG in memory.
+pub fn png_bytes(img: &RgbImage) -> Vec<u8> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, image::ImageFormat::Png).expect("PNG encoding into memory cannot fail");
+    bytes.into_inner()
+}
+
 /// Encodes `img` as PNG and writes it atomically.
 pub fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut bytes, image::ImageFormat::Png)?;
-    write_atomic(path, bytes.get_ref())
+    write_atomic(path, &png_bytes(img))
 }
 
 /// An id or label map coloured by `colour`.

@@ -14,6 +14,7 @@ use inssplat_text::LabelCache;
 use rayon::prelude::*;
 
 use crate::output::write_atomic;
+use crate::pipeline::reconstruct::{max_instance_id, own_label_scores};
 use crate::saved::Saved;
 
 /// A file-name-safe form of the query text.
@@ -30,14 +31,11 @@ pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Resu
     }
     let embedding = labels.embedder().embed_one(text).context("embedding the query text")?;
     let prototypes = saved.prototypes();
-    let own_scores: Vec<f32> = prototypes
-        .iter()
-        .map(|p| saved.doc.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score))
-        .collect();
+    let own_scores = own_label_scores(&prototypes, &saved.doc.instances);
     let hits = query(&prototypes, &embedding, &own_scores, &QueryRule::default())?;
     let dir = saved.dir.join("query").join(slug(text));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let k = saved.max_id();
+    let k = max_instance_id(&saved.doc.instances);
     let maps: Vec<Vec<u32>> = saved
         .cameras
         .par_iter()

@@ -15,6 +15,7 @@ use inssplat_raster::label::masks::{label_map, render_colour, render_instance_id
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 
 use crate::output::{colour_map, palette, save_png};
+use crate::pipeline::reconstruct::label_table;
 use crate::saved::Saved;
 
 /// Parses `--camera`: `interp:i,j,t` or a path to a transforms.json.
@@ -47,12 +48,8 @@ pub fn cameras(saved: &Saved, spec: &str) -> anyhow::Result<Vec<Camera>> {
 /// Renders every camera into `out`; returns the files written.
 pub fn render_views(saved: &Saved, cameras: &[Camera], out: &Path) -> anyhow::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out).with_context(|| format!("-o: cannot create {}", out.display()))?;
-    let k = saved.max_id();
-    let vocabulary = &saved.doc.vocabulary;
-    let mut label_of_id = vec![None; k];
-    for i in &saved.doc.instances {
-        label_of_id[i.id as usize - 1] = vocabulary.iter().position(|v| *v == i.label);
-    }
+    let label_of_id = label_table(&saved.doc.instances, &saved.doc.vocabulary);
+    let k = label_of_id.len();
     let mut written = Vec::new();
     for (v, camera) in cameras.iter().enumerate() {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);

@@ -44,9 +44,4 @@ impl Saved {
     pub fn prototypes(&self) -> Vec<InstancePrototype> {
         self.doc.prototypes.iter().map(|p| InstancePrototype { id: p.id, embedding: p.embedding.clone(), gaussians: p.gaussians }).collect()
     }
-
-    /// Largest instance id.
-    pub fn max_id(&self) -> usize {
-        self.doc.instances.iter().map(|i| i.id as usize).max().unwrap_or(0)
-    }
 }

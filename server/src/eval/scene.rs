@@ -4,10 +4,9 @@
 //! every target camera mapped into the predicted frame, and compare with the ground truth.
 
 use std::collections::BTreeMap;
-use std::io::Cursor;
 use std::time::Instant;
 
-use image::{ImageFormat, RgbImage};
+use image::RgbImage;
 use inssplat_proto::dataset::Scene;
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::masks::{ids_mask, render_colour};
@@ -19,6 +18,7 @@ use inssplat_text::LabelCache;
 use serde::Serialize;
 
 use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, reconstruct};
+use crate::output::png_bytes;
 use crate::runtime::Model;
 use super::perturb::{self, Perturbation};
 use super::views::{ClusterMode, segment};
@@ -58,13 +58,6 @@ pub enum SceneEvalError {
     Scene { scene: String, problem: String },
     #[error("{scene}: {source}")]
     Pipeline { scene: String, source: crate::pipeline::reconstruct::PipelineError },
-}
-
-fn png(width: u32, height: u32, rgb: Vec<u8>) -> Vec<u8> {
-    let img = RgbImage::from_raw(width, height, rgb).expect("frame rgb is w·h·3");
-    let mut out = Cursor::new(Vec::new());
-    img.write_to(&mut out, ImageFormat::Png).expect("PNG encoding to memory");
-    out.into_inner()
 }
 
 /// Ground-truth label map of a frame: vocabulary index of each pixel's instance label.
@@ -111,8 +104,8 @@ fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation
     })
 }
 
-/// The (perturbed) context photos of `scene`, PNG-encoded, and their names.
-fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturbation>) -> Vec<InputImage> {
+/// The frames `context` of `scene` (perturbed if asked) as PNG-encoded photos.
+pub fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturbation>) -> Vec<InputImage> {
     let name = scene_name(scene);
     context
         .iter()
@@ -122,7 +115,8 @@ fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturb
             if let Some(p) = perturbation {
                 p.apply(&mut rgb, frame.width() as usize, frame.height() as usize, perturb::seed(&name, i));
             }
-            InputImage { name: format!("{name}/frame {i}"), bytes: png(frame.width(), frame.height(), rgb) }
+            let img = RgbImage::from_raw(frame.width(), frame.height(), rgb).expect("frame rgb is w·h·3");
+            InputImage { name: format!("{name}/frame {i}"), bytes: png_bytes(&img) }
         })
         .collect()
 }

@@ -11,7 +11,7 @@ use inssplat_raster::cluster::per_view::{FeatureMap, cluster_view};
 use inssplat_raster::label::masks::{label_map, render_features, render_instance_ids};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 
-use crate::pipeline::reconstruct::Reconstruction;
+use crate::pipeline::reconstruct::{Reconstruction, label_table, own_label_scores};
 
 /// Where instances are clustered.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -46,17 +46,9 @@ pub fn segment(
     let err = |e: &dyn std::fmt::Display| e.to_string();
     match mode {
         ClusterMode::ThreeD => {
-            let k = rec.instances.iter().map(|i| i.id as usize).max().unwrap_or(0);
-            let mut label_of_id = vec![None; k];
-            for i in &rec.instances {
-                label_of_id[i.id as usize - 1] = rec.vocabulary.iter().position(|v| *v == i.label);
-            }
-            let ids = render_instance_ids(&rec.scene, camera, k).map_err(|e| err(&e))?;
-            let own_scores = rec
-                .prototypes
-                .iter()
-                .map(|p| rec.instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score))
-                .collect();
+            let label_of_id = label_table(&rec.instances, &rec.vocabulary);
+            let ids = render_instance_ids(&rec.scene, camera, label_of_id.len()).map_err(|e| err(&e))?;
+            let own_scores = own_label_scores(&rec.prototypes, &rec.instances);
             Ok(ViewSegmentation { labels: label_map(&ids, &label_of_id), ids, prototypes: rec.prototypes.clone(), own_scores })
         }
         ClusterMode::TwoD => {

@@ -236,6 +236,27 @@ pub fn reconstruct_with(
     })
 }
 
+/// Largest instance id of an instance table (0 when it is empty): the channel count of
+/// `render_instance_ids`.
+pub fn max_instance_id(instances: &[InstanceOut]) -> usize {
+    instances.iter().map(|i| i.id as usize).max().unwrap_or(0)
+}
+
+/// Vocabulary index of each instance's label at index id − 1, as `label_map` takes it (`None`
+/// for a label outside the vocabulary, such as "unknown").
+pub fn label_table(instances: &[InstanceOut], vocabulary: &[String]) -> Vec<Option<usize>> {
+    let mut table = vec![None; max_instance_id(instances)];
+    for i in instances {
+        table[i.id as usize - 1] = vocabulary.iter().position(|v| *v == i.label);
+    }
+    table
+}
+
+/// Each prototype's own-label score (its instance's `score`), as `query` takes it.
+pub fn own_label_scores(prototypes: &[InstancePrototype], instances: &[InstanceOut]) -> Vec<f32> {
+    prototypes.iter().map(|p| instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score)).collect()
+}
+
 /// Id, label, score, Gaussian count and bounding box of every instance.
 fn instance_table(
     scene: &GaussianScene,
