@@ -224,9 +224,14 @@ pub struct Sampler {
 }
 
 impl Sampler {
+    /// The scene `step` draws from.
+    pub fn scene_index(&self, step: u64) -> u64 {
+        step / self.plan.reuse.max(1)
+    }
+
     /// The sample of `step`.
     pub fn sample(&self, step: u64) -> Result<Sample, SampleError> {
-        let scene = self.source.scene(step / self.plan.reuse.max(1))?;
+        let scene = self.source.scene(self.scene_index(step))?;
         self.sample_of(&scene, step)
     }
 
@@ -256,7 +261,7 @@ impl Prefetcher {
             .spawn(move || {
                 let mut cached: Option<(u64, Scene)> = None;
                 for step in start..end {
-                    let index = step / sampler.plan.reuse.max(1);
+                    let index = sampler.scene_index(step);
                     let sample = match &cached {
                         Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
                         _ => sampler.source.scene(index).and_then(|scene| {
