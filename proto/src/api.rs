@@ -1,11 +1,13 @@
 //! HTTP request and response bodies (serde), shared by the server, its tests and any Rust
 //! client. Also the shape of the CLI's `--json` output and `instances.json`, so a scene
-//! reads the same whichever way it was made.
+//! reads the same whichever way it was made. With the `openapi` feature every type also
+//! describes itself as an OpenAPI schema (the server's `/openapi.json`).
 
 use serde::{Deserialize, Serialize};
 
 /// The one error shape of every non-2xx response.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ErrorBody {
     pub error: String,
     /// snake_case kind: `validation`, `payload_too_large`, `overloaded`, ...
@@ -14,6 +16,7 @@ pub struct ErrorBody {
 
 /// Which rasterizer rendered the outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum RenderBackend {
     Cpu,
@@ -22,6 +25,7 @@ pub enum RenderBackend {
 
 /// A predicted camera, nerfstudio convention (OpenGL camera-to-world, row-major).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct CameraOut {
     pub view: usize,
     pub transform_matrix: [[f64; 4]; 4],
@@ -35,6 +39,7 @@ pub struct CameraOut {
 
 /// An instance of the reconstructed scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct InstanceOut {
     pub id: u32,
     pub label: String,
@@ -47,12 +52,14 @@ pub struct InstanceOut {
 
 /// Wall time of one pipeline stage.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct StageTiming {
     pub stage: String,
     pub ms: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ReconstructResponse {
     pub scene_id: String,
     pub cameras: Vec<CameraOut>,
@@ -65,6 +72,8 @@ pub struct ReconstructResponse {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
 pub struct QueryRequest {
     pub text: String,
 }
@@ -72,6 +81,7 @@ pub struct QueryRequest {
 /// A binary mask, run-length encoded in row-major order starting with a run of zeros
 /// (COCO-style counts, but row-major).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RleMask {
     pub width: u32,
     pub height: u32,
@@ -105,6 +115,7 @@ impl RleMask {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ViewMask {
     pub view: usize,
     pub png_url: String,
@@ -112,6 +123,7 @@ pub struct ViewMask {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct QueryMatch {
     pub instance_id: u32,
     pub label: String,
@@ -120,6 +132,7 @@ pub struct QueryMatch {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct QueryResponse {
     pub text: String,
     /// Empty when nothing in the scene matches; `message` then says so.
@@ -128,6 +141,7 @@ pub struct QueryResponse {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
     Queued,
@@ -138,23 +152,46 @@ pub enum JobState {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobSceneStatus {
     pub index: usize,
     pub name: String,
     pub state: JobState,
     pub scene_id: Option<String>,
     pub error: Option<String>,
-    /// Evaluation metrics when the scene carried ground truth.
+    /// Evaluation metrics when the scene carried ground truth (the `inssplat eval` scene
+    /// record: semantic/instance mIoU, query IoU, T-mIoU, PSNR, SSIM, depth, cameras, time).
+    #[cfg_attr(feature = "openapi", schema(value_type = Option<Object>))]
     pub metrics: Option<serde_json::Value>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct JobStatus {
     pub job_id: String,
     pub state: JobState,
     pub done: usize,
     pub total: usize,
     pub scenes: Vec<JobSceneStatus>,
+}
+
+/// The answer to a job submission.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct JobAccepted {
+    pub job_id: String,
+    /// Scenes in the job, each a named set of photos or a dataset scene folder.
+    pub scenes: Vec<String>,
+}
+
+/// `/health` and `/ready`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct ServiceStatus {
+    /// `ok`, `ready` or `warming_up`.
+    pub status: String,
+    /// The loaded network's version, once it is loaded.
+    pub model_version: Option<String>,
 }
 
 #[cfg(test)]

@@ -93,6 +93,14 @@ enum Command {
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
     },
+    /// Run the HTTP service: reconstruct, query, batch jobs (see /docs once it runs).
+    Serve {
+        #[command(flatten)]
+        args: inssplat_server::http::ServeArgs,
+        /// Where to render the masks (as for `reconstruct`).
+        #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
+        render: RenderChoice,
+    },
     /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
     Eval {
         /// A folder of test scenes (or one scene folder) with `eval` context/target sets.
@@ -243,6 +251,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
+        Command::Serve { args, render } => inssplat_server::http::serve(args, gpu_renderer(render)?),
         Command::Eval { data, views, max_scenes, out, model, vocab, cluster, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");

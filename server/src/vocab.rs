@@ -28,11 +28,23 @@ pub fn vocabulary(arg: Option<&str>) -> anyhow::Result<Vec<String>> {
             .collect(),
         Some(a) => a.split(',').map(str::to_string).collect(),
     };
+    let v = normalize(raw);
+    anyhow::ensure!(!v.is_empty(), "--vocab {}: no labels in it", arg.unwrap_or(""));
+    Ok(v)
+}
+
+/// A vocabulary sent as text (over HTTP): labels separated by commas or new lines, never a
+/// file name. Empty when the text names no label.
+pub fn from_list(text: &str) -> Vec<String> {
+    normalize(text.split([',', '\n']).map(str::to_string).collect())
+}
+
+/// Trimmed, non-empty, sorted, de-duplicated labels.
+fn normalize(raw: Vec<String>) -> Vec<String> {
     let mut v: Vec<String> = raw.into_iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
     v.sort();
     v.dedup();
-    anyhow::ensure!(!v.is_empty(), "--vocab {}: no labels in it", arg.unwrap_or(""));
-    Ok(v)
+    v
 }
 
 #[cfg(test)]
@@ -48,5 +60,7 @@ mod tests {
         assert_eq!(vocabulary(Some(f.to_str().unwrap())).unwrap(), ["bed", "sofa"]);
         assert!(vocabulary(Some(" , ")).is_err());
         assert!(vocabulary(None).unwrap().len() >= 20);
+        assert_eq!(from_list("lamp\r\nsofa, lamp"), ["lamp", "sofa"]);
+        assert!(from_list(" ,\n").is_empty());
     }
 }

@@ -144,6 +144,18 @@ pub fn evaluate_scene(
     views: usize,
     settings: &Settings<'_>,
 ) -> Result<SceneScores, SceneEvalError> {
+    evaluate_scene_keeping(model, labels, scene, views, settings).map(|(scores, _, _)| scores)
+}
+
+/// [`evaluate_scene`], also returning the reconstruction and its input names (a batch job
+/// keeps it as the scene's result).
+pub fn evaluate_scene_keeping(
+    model: &mut Model,
+    labels: &LabelCache,
+    scene: &Scene,
+    views: usize,
+    settings: &Settings<'_>,
+) -> Result<(SceneScores, Reconstruction, Vec<String>), SceneEvalError> {
     let name = scene_name(scene);
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
     let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
@@ -167,7 +179,8 @@ pub fn evaluate_scene(
     };
     context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
     target_scores(&mut s, scene, &context, &targets, &rec, labels, mode).map_err(&bad)?;
-    Ok(s)
+    let names = images.into_iter().map(|i| i.name).collect();
+    Ok((s, rec, names))
 }
 
 /// Depth, cameras and cross-view consistency on the context views (in 2D mode each view's

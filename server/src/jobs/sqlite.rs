@@ -1,0 +1,263 @@
+//! The SQLite job store: one file in the data directory, WAL journal, `synchronous=FULL` so a
+//! commit survives a killed process (and a power cut). Two tables: `jobs` (id, vocabulary,
+//! cancelled) and `job_scenes` (state, scene id, error, metrics per scene). A job's own state
+//! is derived from its scenes' on every read, so the two can never disagree.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::Context;
+use inssplat_proto::api::{JobSceneStatus, JobState, JobStatus};
+use rusqlite::{Connection, OptionalExtension, Transaction, TransactionBehavior, params};
+
+use super::{JobStore, NewJob, SceneOutcome, SceneTask, job_state};
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS jobs (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    vocabulary TEXT,
+    cancelled INTEGER NOT NULL DEFAULT 0,
+    created_at INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS job_scenes (
+    job_id TEXT NOT NULL REFERENCES jobs(id),
+    idx INTEGER NOT NULL,
+    name TEXT NOT NULL,
+    input TEXT NOT NULL,
+    state TEXT NOT NULL,
+    scene_id TEXT,
+    error TEXT,
+    metrics TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY (job_id, idx)
+);
+CREATE INDEX IF NOT EXISTS job_scenes_state ON job_scenes (state);
+";
+
+/// The job store in one SQLite file.
+pub struct SqliteStore {
+    conn: Mutex<Connection>,
+}
+
+fn state_name(s: JobState) -> &'static str {
+    match s {
+        JobState::Queued => "queued",
+        JobState::Running => "running",
+        JobState::Done => "done",
+        JobState::Failed => "failed",
+        JobState::Cancelled => "cancelled",
+    }
+}
+
+fn parse_state(s: &str) -> rusqlite::Result<JobState> {
+    Ok(match s {
+        "queued" => JobState::Queued,
+        "running" => JobState::Running,
+        "done" => JobState::Done,
+        "failed" => JobState::Failed,
+        "cancelled" => JobState::Cancelled,
+        other => return Err(rusqlite::Error::InvalidColumnType(0, format!("job state `{other}`"), rusqlite::types::Type::Text)),
+    })
+}
+
+impl SqliteStore {
+    /// Opens (creating) the store at `path`.
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let conn = Connection::open(path).with_context(|| format!("cannot open the job store {}", path.display()))?;
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        conn.pragma_update(None, "synchronous", "FULL")?;
+        conn.pragma_update(None, "foreign_keys", true)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        conn.execute_batch(SCHEMA).with_context(|| format!("{}: cannot create the job tables", path.display()))?;
+        Ok(Self { conn: Mutex::new(conn) })
+    }
+
+    /// Runs `f` in an immediate transaction and commits.
+    fn write<T>(&self, f: impl FnOnce(&Transaction<'_>) -> rusqlite::Result<T>) -> anyhow::Result<T> {
+        let mut conn = self.conn.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
+        let out = f(&tx)?;
+        tx.commit()?;
+        Ok(out)
+    }
+}
+
+fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobStatus>> {
+    let Some(cancelled) =
+        conn.query_row("SELECT cancelled FROM jobs WHERE id = ?1", [job_id], |r| r.get::<_, bool>(0)).optional()?
+    else {
+        return Ok(None);
+    };
+    let mut stmt = conn.prepare("SELECT idx, name, state, scene_id, error, metrics FROM job_scenes WHERE job_id = ?1 ORDER BY idx")?;
+    let scenes = stmt
+        .query_map([job_id], |r| {
+            let metrics: Option<String> = r.get(5)?;
+            Ok(JobSceneStatus {
+                index: r.get::<_, i64>(0)? as usize,
+                name: r.get(1)?,
+                state: parse_state(&r.get::<_, String>(2)?)?,
+                scene_id: r.get(3)?,
+                error: r.get(4)?,
+                metrics: metrics.and_then(|m| serde_json::from_str(&m).ok()),
+            })
+        })?
+        .collect::<rusqlite::Result<Vec<_>>>()?;
+    let states: Vec<JobState> = scenes.iter().map(|s| s.state).collect();
+    Ok(Some(JobStatus {
+        job_id: job_id.to_string(),
+        state: job_state(cancelled, &states),
+        done: scenes.iter().filter(|s| matches!(s.state, JobState::Done | JobState::Failed)).count(),
+        total: scenes.len(),
+        scenes,
+    }))
+}
+
+impl JobStore for SqliteStore {
+    fn create(&self, job: &NewJob) -> anyhow::Result<()> {
+        let vocabulary = job.vocabulary.as_ref().map(serde_json::to_string).transpose()?;
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
+        self.write(|tx| {
+            tx.execute("INSERT INTO jobs (id, vocabulary, created_at) VALUES (?1, ?2, ?3)", params![job.id, vocabulary, now])?;
+            for (i, (name, input)) in job.scenes.iter().enumerate() {
+                tx.execute(
+                    "INSERT INTO job_scenes (job_id, idx, name, input, state) VALUES (?1, ?2, ?3, ?4, 'queued')",
+                    params![job.id, i as i64, name, input.to_string_lossy()],
+                )?;
+            }
+            Ok(())
+        })
+    }
+
+    fn status(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>> {
+        let conn = self.conn.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        Ok(read_status(&conn, job_id)?)
+    }
+
+    fn claim(&self) -> anyhow::Result<Option<SceneTask>> {
+        self.write(|tx| {
+            let row = tx
+                .query_row(
+                    "SELECT s.job_id, s.idx, s.name, s.input, s.scene_id, j.vocabulary FROM job_scenes s JOIN jobs j ON j.id = s.job_id
+                     WHERE s.state = 'queued' AND j.cancelled = 0 ORDER BY j.seq, s.idx LIMIT 1",
+                    [],
+                    |r| {
+                        Ok((
+                            r.get::<_, String>(0)?,
+                            r.get::<_, i64>(1)?,
+                            r.get::<_, String>(2)?,
+                            r.get::<_, String>(3)?,
+                            r.get::<_, Option<String>>(4)?,
+                            r.get::<_, Option<String>>(5)?,
+                        ))
+                    },
+                )
+                .optional()?;
+            let Some((job_id, index, name, input, scene_id, vocabulary)) = row else { return Ok(None) };
+            let scene_id = scene_id.unwrap_or_else(|| crate::scene_store::SceneId::new().to_string());
+            tx.execute(
+                "UPDATE job_scenes SET state = 'running', scene_id = ?3, attempts = attempts + 1 WHERE job_id = ?1 AND idx = ?2",
+                params![job_id, index, scene_id],
+            )?;
+            Ok(Some(SceneTask {
+                job_id,
+                index: index as usize,
+                name,
+                input: PathBuf::from(input),
+                scene_id,
+                vocabulary: vocabulary.and_then(|v| serde_json::from_str(&v).ok()),
+            }))
+        })
+    }
+
+    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()> {
+        let (state, error, metrics) = match outcome {
+            SceneOutcome::Done { metrics } => (JobState::Done, None, metrics.as_ref().map(serde_json::Value::to_string)),
+            SceneOutcome::Failed { error } => (JobState::Failed, Some(error.as_str()), None),
+        };
+        self.write(|tx| {
+            tx.execute(
+                "UPDATE job_scenes SET state = ?3, error = ?4, metrics = ?5 WHERE job_id = ?1 AND idx = ?2 AND state = 'running'",
+                params![task.job_id, task.index as i64, state_name(state), error, metrics],
+            )
+        })?;
+        Ok(())
+    }
+
+    fn cancel(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>> {
+        self.write(|tx| {
+            if tx.execute("UPDATE jobs SET cancelled = 1 WHERE id = ?1", [job_id])? == 0 {
+                return Ok(None);
+            }
+            tx.execute("UPDATE job_scenes SET state = 'cancelled' WHERE job_id = ?1 AND state = 'queued'", [job_id])?;
+            read_status(tx, job_id)
+        })
+    }
+
+    fn requeue_interrupted(&self) -> anyhow::Result<usize> {
+        self.write(|tx| tx.execute("UPDATE job_scenes SET state = 'queued' WHERE state = 'running'", []))
+    }
+
+    fn count_by_state(&self) -> anyhow::Result<Vec<(JobState, usize)>> {
+        let conn = self.conn.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut stmt = conn.prepare("SELECT id FROM jobs")?;
+        let ids = stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
+        let mut counts: Vec<(JobState, usize)> =
+            [JobState::Queued, JobState::Running, JobState::Done, JobState::Failed, JobState::Cancelled].map(|s| (s, 0)).to_vec();
+        for id in ids {
+            if let Some(status) = read_status(&conn, &id)? {
+                counts.iter_mut().filter(|(s, _)| *s == status.state).for_each(|(_, n)| *n += 1);
+            }
+        }
+        Ok(counts)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn job(id: &str, scenes: usize) -> NewJob {
+        NewJob { id: id.into(), scenes: (0..scenes).map(|i| (format!("s{i}"), PathBuf::from(format!("/in/{i}")))).collect(), vocabulary: None }
+    }
+
+    #[test]
+    fn scenes_run_in_order_and_an_interrupted_one_reruns_under_its_id() {
+        let dir = tempfile::tempdir().unwrap();
+        let db = dir.path().join("jobs.sqlite");
+        let store = SqliteStore::open(&db).unwrap();
+        store.create(&job("a", 2)).unwrap();
+        let first = store.claim().unwrap().unwrap();
+        assert_eq!((first.job_id.as_str(), first.index), ("a", 0));
+        store.finish(&first, &SceneOutcome::Done { metrics: Some(serde_json::json!({"psnr": 20.0})) }).unwrap();
+        let second = store.claim().unwrap().unwrap();
+        assert_eq!(store.status("a").unwrap().unwrap().state, JobState::Running);
+        drop(store); // the process dies with scene 1 running
+
+        let store = SqliteStore::open(&db).unwrap();
+        assert_eq!(store.requeue_interrupted().unwrap(), 1);
+        let again = store.claim().unwrap().unwrap();
+        assert_eq!((again.index, &again.scene_id), (1, &second.scene_id));
+        store.finish(&again, &SceneOutcome::Failed { error: "bad photo".into() }).unwrap();
+        assert!(store.claim().unwrap().is_none());
+        let s = store.status("a").unwrap().unwrap();
+        assert_eq!((s.state, s.done, s.total), (JobState::Done, 2, 2));
+        assert_eq!(s.scenes[0].metrics.as_ref().unwrap()["psnr"], 20.0);
+        assert_eq!(s.scenes[1].error.as_deref(), Some("bad photo"));
+    }
+
+    #[test]
+    fn cancel_stops_queued_scenes() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SqliteStore::open(&dir.path().join("jobs.sqlite")).unwrap();
+        store.create(&job("a", 3)).unwrap();
+        let running = store.claim().unwrap().unwrap();
+        let s = store.cancel("a").unwrap().unwrap();
+        assert_eq!(s.state, JobState::Cancelled);
+        assert_eq!(s.scenes.iter().map(|s| s.state).collect::<Vec<_>>(), [JobState::Running, JobState::Cancelled, JobState::Cancelled]);
+        assert!(store.claim().unwrap().is_none());
+        store.finish(&running, &SceneOutcome::Done { metrics: None }).unwrap();
+        assert!(store.cancel("nope").unwrap().is_none() && store.status("nope").unwrap().is_none());
+        assert!(store.count_by_state().unwrap().contains(&(JobState::Cancelled, 1)));
+    }
+}
