@@ -42,8 +42,15 @@ pub fn valid_scene_name(name: &str) -> bool {
         && name.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b))
 }
 
-/// Writes each named photo set to `dest/NNN/` (photos renamed `NNN.<format>`) and returns the
-/// scenes (name, folder).
+/// The part of an uploaded file name kept on disk (so errors still name the photo): up to 40
+/// of `A-Za-z0-9_-` from its stem.
+fn file_stem(name: &str) -> String {
+    let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    stem.chars().filter(|c| c.is_ascii_alphanumeric() || "_-".contains(*c)).take(40).collect()
+}
+
+/// Writes each named photo set to `dest/NNN/` (photos renamed `NNN_<stem>.<format>`, in
+/// upload order) and returns the scenes (name, folder).
 pub fn write_photo_sets(sets: Vec<(String, Vec<Photo>)>, dest: &Path) -> Result<Vec<(String, PathBuf)>, IntakeError> {
     if sets.is_empty() {
         return Err(invalid("the job has no scenes: send photo sets (a file field per photo, named by its scene) or an `archive`"));
@@ -66,7 +73,7 @@ pub fn write_photo_sets(sets: Vec<(String, Vec<Photo>)>, dest: &Path) -> Result<
                 .and_then(|f| f.extensions_str().first().copied())
                 .filter(|e| ["png", "jpg", "webp"].contains(e))
                 .ok_or_else(|| invalid(format!("scene `{name}`: {}: not a PNG, JPEG or WebP image", photo.file_name)))?;
-            std::fs::write(dir.join(format!("{i:03}.{ext}")), &photo.bytes)?;
+            std::fs::write(dir.join(format!("{i:03}_{}.{ext}", file_stem(&photo.file_name))), &photo.bytes)?;
         }
         scenes.push((name, dir));
     }
@@ -266,7 +273,8 @@ mod tests {
         let err = write_photo_sets(vec![("x".into(), vec![photo(&png), photo(b"text")])], dir.path()).unwrap_err();
         assert!(err.to_string().contains("not a PNG"), "{err}");
         let ok = write_photo_sets(vec![("x".into(), vec![photo(&png), photo(&png)])], dir.path()).unwrap();
-        assert!(ok[0].1.join("001.png").is_file());
+        assert!(ok[0].1.join("001_p.png").is_file());
+        assert_eq!(file_stem("../../x y.png"), "xy");
         assert!(valid_scene_name("kitchen-2") && !valid_scene_name("../x") && !valid_scene_name(""));
     }
 }

@@ -1,0 +1,176 @@
+//! `inssplat serve` doing its job, end to end over loopback with the real binary, a tiny
+//! exported network and procedural scenes: a reconstruction and its artefacts, a query with
+//! its masks, a batch job of photo sets and of dataset scenes (tar) scored against their
+//! ground truth and followed by server-sent events, cancelling, the metrics, the OpenAPI
+//! document, and a graceful stop on SIGTERM.
+
+mod support;
+#[path = "support/http.rs"]
+mod http;
+
+use std::time::Duration;
+
+use http::{Server, multipart, png, scene_photos};
+use inssplat_proto::api::{JobAccepted, JobState, JobStatus, QueryResponse, ReconstructResponse};
+
+/// The shipped network (its labels are meaningful, so a query finds what it names).
+fn shipped_model() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx")
+}
+
+#[test]
+fn reconstructs_serves_artefacts_and_answers_queries() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = shipped_model();
+    let scene = support::test_scene(dir.path(), 3);
+    let server = Server::start(&model, &dir.path().join("data"), &[]);
+
+    let photos = scene_photos(&scene);
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(4).map(|p| ("images", Some("v.png"), p.as_slice())).collect();
+    parts.push(("vocab", None, b"chair, table\nlamp,wall,floor"));
+    let (ct, body) = multipart(&parts);
+    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 200, "{}", r.text());
+    let rec: ReconstructResponse = r.json();
+    assert_eq!(rec.scene_id.len(), 32);
+    assert_eq!(rec.cameras.len(), 4);
+    assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
+    assert!(rec.instances.iter().all(|i| ["chair", "table", "lamp", "wall", "floor", "unknown"].contains(&i.label.as_str())), "{:?}", rec.instances);
+
+    let base = format!("/v1/scenes/{}", rec.scene_id);
+    let ply = server.get(&format!("{base}/scene.ply"));
+    assert_eq!((ply.status, ply.header("content-type")), (200, Some("application/octet-stream")));
+    let gaussians = inssplat_proto::ply::read_ply(&mut std::io::Cursor::new(&ply.body)).unwrap();
+    assert_eq!(gaussians.len(), rec.gaussians_kept);
+    for v in 0..4 {
+        for kind in ["instances", "labels"] {
+            let img = server.get(&format!("{base}/views/{v}/{kind}.png"));
+            assert_eq!(img.status, 200, "{kind} {v}: {}", img.text());
+            let img = image::load_from_memory(&img.body).unwrap();
+            assert_eq!((img.width(), img.height()), (128, 128), "the model resolution");
+        }
+    }
+    let preview = server.get(&format!("{base}/preview.png"));
+    assert_eq!((preview.status, preview.header("content-type")), (200, Some("image/png")));
+    image::load_from_memory(&preview.body).unwrap();
+
+    // The label of the instance that fits its label best answers with a mask per view.
+    let best = rec.instances.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("instances");
+    let body = format!(r#"{{"text": "{}"}}"#, best.label);
+    let q = server.send("POST", &format!("{base}/query"), &[("Content-Type", "application/json")], body.as_bytes());
+    assert_eq!(q.status, 200, "{}", q.text());
+    let answer: QueryResponse = q.json();
+    assert!(answer.matches.iter().any(|m| m.instance_id == best.id), "{best:?}: {answer:?}");
+    for m in &answer.matches {
+        assert_eq!(m.masks.len(), 4);
+        for mask in &m.masks {
+            assert!(mask.png_url.starts_with(&format!("{base}/query/")), "{}", mask.png_url);
+            let png = server.get(&mask.png_url);
+            assert_eq!(png.status, 200, "{}", mask.png_url);
+            let img = image::load_from_memory(&png.body).unwrap().to_luma8();
+            let from_png: Vec<bool> = img.pixels().map(|p| p.0[0] > 127).collect();
+            assert_eq!(from_png, mask.rle.decode(), "the RLE and the PNG agree");
+        }
+    }
+
+    let metrics = server.get("/metrics").text();
+    for needle in [
+        "inssplat_http_requests_total{method=\"POST\",route=\"/v1/reconstruct\",status=\"200\"} 1",
+        "inssplat_stage_duration_seconds_count{stage=\"model\"} 1",
+        "inssplat_queue_depth 0",
+        "inssplat_ready 1",
+        "inssplat_jobs{state=\"running\"} 0",
+    ] {
+        assert!(metrics.contains(needle), "{needle} missing in\n{metrics}");
+    }
+    let doc: serde_json::Value = server.get("/openapi.json").json();
+    assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
+    for path in ["/v1/reconstruct", "/v1/scenes/{id}/query", "/v1/jobs", "/v1/jobs/{id}/events", "/ready"] {
+        assert!(doc["paths"][path].is_object(), "{path} missing from the OpenAPI document");
+    }
+    assert!(server.get("/docs").text().contains("/openapi.json"));
+}
+
+/// Follows a job's events until it ends; returns the states seen and the final status.
+fn follow(server: &Server, job: &str) -> (Vec<JobState>, JobStatus) {
+    let mut events = server.events(&format!("/v1/jobs/{job}/events"), &[]);
+    let mut seen = Vec::new();
+    let mut last = None;
+    while let Some((name, data)) = events.next_event() {
+        assert_eq!(name, "status");
+        let status: JobStatus = serde_json::from_str(&data).unwrap();
+        seen.push(status.state);
+        last = Some(status);
+    }
+    (seen, last.expect("at least one event"))
+}
+
+#[test]
+fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let data = dir.path().join("scenes");
+    let gt: Vec<_> = (0..2).map(|i| support::test_scene(&data, i)).collect();
+    let mut server = Server::start(&model, &dir.path().join("data"), &[]);
+
+    // A tar of two dataset scenes (with eval splits): reconstructed and scored.
+    let tar = dir.path().join("scenes.tar");
+    let ok = std::process::Command::new("tar").args(["-cf", tar.to_str().unwrap(), "-C", data.to_str().unwrap(), "."]).status().unwrap();
+    assert!(ok.success());
+    let r = server.send("POST", "/v1/jobs", &[("Content-Type", "application/x-tar")], &std::fs::read(&tar).unwrap());
+    assert_eq!(r.status, 202, "{}", r.text());
+    let job: JobAccepted = r.json();
+    assert_eq!(job.scenes, ["scene_000000", "scene_000001"]);
+    assert_eq!(r.header("location"), Some(format!("/v1/jobs/{}", job.job_id).as_str()));
+    let (seen, status) = follow(&server, &job.job_id);
+    assert_eq!(status.state, JobState::Done, "{status:?}");
+    assert_eq!(seen.last(), Some(&JobState::Done));
+    assert_eq!((status.done, status.total), (2, 2));
+    for s in &status.scenes {
+        assert_eq!(s.state, JobState::Done, "{s:?}");
+        let m = s.metrics.as_ref().expect("ground truth gives metrics");
+        for key in ["instance_miou", "semantic_miou", "psnr", "t_miou"] {
+            assert!(m[key].is_number(), "{key} in {m}");
+        }
+        let ply = server.get(&format!("/v1/scenes/{}/scene.ply", s.scene_id.as_ref().unwrap()));
+        assert_eq!(ply.status, 200);
+    }
+    assert_eq!(server.get(&format!("/v1/jobs/{}", job.job_id)).json::<JobStatus>(), status);
+
+    // Photo sets as multipart, one of them unusable: that scene fails, the job still ends done.
+    let photos = scene_photos(&gt[0]);
+    let junk = png(8, 8, 1);
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(3).map(|p| ("room-a", Some("a.png"), p.as_slice())).collect();
+    parts.extend([("room-b", Some("b.png"), junk.as_slice()), ("room-b", Some("c.png"), &junk[..junk.len() - 20])]);
+    let (ct, body) = multipart(&parts);
+    let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 202, "{}", r.text());
+    let job: JobAccepted = r.json();
+    let (_, status) = follow(&server, &job.job_id);
+    assert_eq!(status.state, JobState::Done, "{status:?}");
+    assert_eq!(status.scenes[0].state, JobState::Done);
+    assert!(status.scenes[0].metrics.is_none(), "photos carry no ground truth");
+    assert_eq!(status.scenes[1].state, JobState::Failed);
+    assert!(status.scenes[1].error.as_deref().unwrap().contains("c.png"), "{:?}", status.scenes[1].error);
+
+    // Cancelling: queued scenes never run.
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = Vec::new();
+    let names: Vec<String> = (0..12).map(|i| format!("s{i}")).collect();
+    for n in &names {
+        parts.extend(photos.iter().take(2).map(|p| (n.as_str(), Some("p.png"), p.as_slice())));
+    }
+    let (ct, body) = multipart(&parts);
+    let job: JobAccepted = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body).json();
+    let cancelled: JobStatus = server.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
+    assert_eq!(cancelled.state, JobState::Cancelled);
+    std::thread::sleep(Duration::from_millis(300));
+    let later: JobStatus = server.get(&format!("/v1/jobs/{}", job.job_id)).json();
+    let ran = later.scenes.iter().filter(|s| matches!(s.state, JobState::Done | JobState::Failed)).count();
+    assert!(ran <= 1, "at most the scene running at cancel time finishes: {later:?}");
+    assert!(later.scenes.iter().filter(|s| s.state == JobState::Cancelled).count() >= 11);
+    let metrics = server.get("/metrics").text();
+    assert!(metrics.contains("inssplat_jobs{state=\"done\"} 2") && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"), "{metrics}");
+
+    let code = server.terminate(Duration::from_secs(30));
+    assert!(code.success(), "SIGTERM ends the service cleanly: {code:?}\n{}", server.log_text());
+}
