@@ -6,7 +6,8 @@
 //! dilated by [`LOW_PASS`] = 0.3 px (the plain low-pass filter of gsplat and brush, without the
 //! Mip-Splatting opacity compensation); Gaussians are binned into [`TILE`]×[`TILE`] tiles,
 //! each tile's list sorted by camera depth; tiles are composited front to back in parallel
-//! (rayon) with the brush/gsplat constants of STYLE.md. A Gaussian whose centre is nearer
+//! (rayon), four pixels of a row at a time (SIMD lanes), with the brush/gsplat constants of
+//! STYLE.md. A Gaussian whose centre is nearer
 //! than [`NEAR_PLANE`], whose quaternion is (near) zero, that has any non-finite parameter
 //! or feature, or whose covariance overflows f32 (log-scales beyond ~20) is skipped: it draws
 //! nothing and gets zero gradient. Output never holds NaN for finite cameras and backgrounds,
@@ -31,6 +32,7 @@ mod backward;
 mod composite;
 #[cfg(feature = "gpu")]
 mod gpu;
+mod lanes;
 mod project;
 mod tiles;
 
@@ -253,24 +255,26 @@ pub fn render_with(
     let view = View::new(camera);
     let (projected, bins) = prepare(splats, &view, options.cutoff, width, height);
 
-    let tiles: Vec<composite::TileForward> = (0..bins.tile_count())
+    let tiles: Vec<(composite::TileCoverage, Vec<f32>, [f32; composite::TILE_PIXELS])> = (0..bins.tile_count())
         .into_par_iter()
         .map(|tile| {
             let origin = [(tile as u32 % bins.tiles_x) * TILE, (tile as u32 / bins.tiles_x) * TILE];
-            composite::composite_tile(
+            let mut sink = composite::FeatureSink::new(&bins.sorted_features, c);
+            let cov = composite::composite_tile(
                 bins.isects(tile),
                 &bins.sorted,
-                &bins.sorted_features,
-                c,
                 options.cutoff,
                 origin,
                 [width, height],
-            )
+                &mut sink,
+            );
+            let (features, depth) = sink.into_planes(&cov, &background);
+            (cov, features, depth)
         })
         .collect();
 
-    let (w, h) = (width as usize, height as usize);
-    let pixels = w * h;
+    let (w, pixels) = (width as usize, width as usize * height as usize);
+    let tiles_x = bins.tiles_x as usize;
     let mut image = Image {
         width,
         height,
@@ -281,23 +285,20 @@ pub fn render_with(
     };
     let mut transmittance = vec![1.0; pixels];
     let mut last = vec![0; pixels];
-    for (tile, out) in tiles.iter().enumerate() {
-        let tx = (tile % bins.tiles_x as usize) * TILE as usize;
-        let ty = (tile / bins.tiles_x as usize) * TILE as usize;
-        for ly in 0..(h - ty).min(TILE as usize) {
-            for lx in 0..(w - tx).min(TILE as usize) {
-                let (p, pix) = (ly * TILE as usize + lx, (ty + ly) * w + tx + lx);
-                let t = out.transmittance[p];
-                transmittance[pix] = t;
-                last[pix] = out.last[p];
-                image.alpha[pix] = 1.0 - t;
-                image.depth[pix] = out.depth_sum[p] / (1.0 - t).max(1e-10);
-                for (ch, bg) in background.iter().enumerate() {
-                    image.features[ch * pixels + pix] = out.features[p * c + ch] + t * bg;
-                }
-            }
-        }
-    }
+    let alphas: Vec<[f32; composite::TILE_PIXELS]> =
+        tiles.iter().map(|(cov, ..)| cov.transmittance.map(|t| 1.0 - t)).collect();
+    // One task per output plane: features, then depth, alpha and transmittance.
+    let mut planes: Vec<&mut [f32]> = image.features.chunks_exact_mut(pixels).collect();
+    planes.extend([&mut image.depth[..], &mut image.alpha[..], &mut transmittance[..]]);
+    planes.into_par_iter().enumerate().for_each(|(i, plane)| {
+        tiles::untile(plane, w, tiles_x, |t| match i.checked_sub(c) {
+            None => &tiles[t].1[i * composite::TILE_PIXELS..(i + 1) * composite::TILE_PIXELS],
+            Some(0) => &tiles[t].2,
+            Some(1) => &alphas[t],
+            Some(_) => &tiles[t].0.transmittance,
+        })
+    });
+    tiles::untile(&mut last, w, tiles_x, |t| &tiles[t].0.last);
     let state = ForwardState {
         view,
         width,

@@ -8,7 +8,8 @@ use glam::Mat3;
 use inssplat_proto::Camera;
 use rayon::prelude::*;
 
-use super::composite::{TILE_PIXELS, gaussian_value, row_span, span};
+use super::composite::{Ellipse, TILE_PIXELS, pixel_offset, span};
+use super::lanes::{LANES, chunk_starts, gaussian_values};
 use super::project::{ProjectedGrad, project_backward, quaternion_vjp};
 use super::{CameraGrad, ForwardState, SplatGrads, Splats, TILE};
 
@@ -97,54 +98,58 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
         let f = &state.bins.sorted_features[rank * c..(rank + 1) * c];
         let slot = &mut slots[k * stride..(k + 1) * stride];
         let [a, b, cc] = g.conic;
+        let ellipse = Ellipse::new(g);
         for (y, &row_end) in row_last.iter().enumerate().take(y1 + 1).skip(y0) {
             if k as u32 >= row_end {
                 continue;
             }
-            let dy = (origin[1] + y as u32) as f32 + 0.5 - g.xy[1];
-            let Some((x0, x1)) = row_span(g, dy, origin[0]) else { continue };
-            for x in x0..=x1 {
-                let p = y * TILE as usize + x;
-                if k as u32 >= last[p] {
-                    continue;
-                }
-                let dx = (origin[0] + x as u32) as f32 + 0.5 - g.xy[0];
-                let v = gaussian_value(g, dx, dy);
-                let (alpha, dalpha_dv) = state.cutoff.alpha(v);
-                if alpha <= 0.0 {
-                    continue;
-                }
-                // α ≤ 0.999, so 1/(1 − α) ≤ 1000.
-                let inv = 1.0 / (1.0 - alpha);
-                let t_k = t[p] * inv;
-                t[p] = t_k;
-                let weight = alpha * t_k;
-                let gf = &grads.features[p * c..(p + 1) * c];
-                let bp = &mut buf[p * c..(p + 1) * c];
-                // dF_c/dα = T_k f_c − (Σ_{later} w f_c + T_final bg_c) / (1 − α).
-                let (mut dot_f, mut dot_buf) = (0.0, 0.0);
-                for ((&gfc, bpc), (&fc, sc)) in gf.iter().zip(bp.iter_mut()).zip(f.iter().zip(&mut slot[GEOM..])) {
-                    dot_f += gfc * fc;
-                    dot_buf += gfc * *bpc;
-                    *bpc += weight * fc;
-                    *sc += gfc * weight;
-                }
-                let mut g_alpha = t_k * dot_f - inv * dot_buf;
-                g_alpha += grads.depth_sum[p] * (t_k * g.depth - buf_depth[p] * inv);
-                g_alpha += grads.alpha[p] * t_final[p] * inv;
-                buf_depth[p] += weight * g.depth;
-                slot[6] += grads.depth_sum[p] * weight;
+            let dy = pixel_offset(origin[1], y, g.xy[1]);
+            let Some((x0, x1)) = ellipse.row_span(dy, origin[0]) else { continue };
+            for base in chunk_starts(x0, x1) {
+                let values = gaussian_values(g, origin[0], base, dy).to_array();
+                for x in base.max(x0)..=(base + LANES - 1).min(x1) {
+                    let p = y * TILE as usize + x;
+                    if k as u32 >= last[p] {
+                        continue;
+                    }
+                    let dx = pixel_offset(origin[0], x, g.xy[0]);
+                    let v = values[x - base];
+                    let (alpha, dalpha_dv) = state.cutoff.alpha(v);
+                    if alpha <= 0.0 {
+                        continue;
+                    }
+                    // α ≤ 0.999, so 1/(1 − α) ≤ 1000.
+                    let inv = 1.0 / (1.0 - alpha);
+                    let t_k = t[p] * inv;
+                    t[p] = t_k;
+                    let weight = alpha * t_k;
+                    let gf = &grads.features[p * c..(p + 1) * c];
+                    let bp = &mut buf[p * c..(p + 1) * c];
+                    // dF_c/dα = T_k f_c − (Σ_{later} w f_c + T_final bg_c) / (1 − α).
+                    let (mut dot_f, mut dot_buf) = (0.0, 0.0);
+                    for ((&gfc, bpc), (&fc, sc)) in gf.iter().zip(bp.iter_mut()).zip(f.iter().zip(&mut slot[GEOM..])) {
+                        dot_f += gfc * fc;
+                        dot_buf += gfc * *bpc;
+                        *bpc += weight * fc;
+                        *sc += gfc * weight;
+                    }
+                    let mut g_alpha = t_k * dot_f - inv * dot_buf;
+                    g_alpha += grads.depth_sum[p] * (t_k * g.depth - buf_depth[p] * inv);
+                    g_alpha += grads.alpha[p] * t_final[p] * inv;
+                    buf_depth[p] += weight * g.depth;
+                    slot[6] += grads.depth_sum[p] * weight;
 
-                let g_v = g_alpha * dalpha_dv;
-                // v = o·exp(power): dv/do = v/o, dv/dpower = v.
-                slot[5] += g_v * v / g.opacity;
-                let g_power = g_v * v;
-                // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.
-                slot[0] += g_power * (a * dx + b * dy);
-                slot[1] += g_power * (b * dx + cc * dy);
-                slot[2] -= 0.5 * g_power * dx * dx;
-                slot[3] -= g_power * dx * dy;
-                slot[4] -= 0.5 * g_power * dy * dy;
+                    let g_v = g_alpha * dalpha_dv;
+                    // v = o·exp(power): dv/do = v/o, dv/dpower = v.
+                    slot[5] += g_v * v / g.opacity;
+                    let g_power = g_v * v;
+                    // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.
+                    slot[0] += g_power * (a * dx + b * dy);
+                    slot[1] += g_power * (b * dx + cc * dy);
+                    slot[2] -= 0.5 * g_power * dx * dx;
+                    slot[3] -= g_power * dx * dy;
+                    slot[4] -= 0.5 * g_power * dy * dy;
+                }
             }
         }
     }

@@ -1,11 +1,17 @@
 //! Front-to-back alpha compositing of one 16×16 tile (the forward pass), plus the per-pair
 //! alpha function and pixel spans both passes share. A tile walks its depth-sorted list once;
-//! for each Gaussian it visits only the still-compositing pixels inside the ellipse where its
-//! alpha can reach the cutoff, so work follows footprints rather than tiles. Pixels stop when the next Gaussian would take their
-//! transmittance below [`T_MIN`] (that Gaussian is not composited, as in gsplat); the tile
-//! stops when all its pixels have. Per pixel it keeps what the backward needs: the final
-//! transmittance and the number of list entries up to the last one that contributed.
+//! for each Gaussian it visits only the rows and columns inside the ellipse where its alpha
+//! can reach the cutoff, so work follows footprints rather than tiles. Columns are handled
+//! four at a time without branches (the loop vectorizes); a pixel's weight then goes to a
+//! [`TileSink`], which accumulates whatever the caller renders (feature channels and depth,
+//! or instance ids). Pixels stop when the next Gaussian would take their transmittance below
+//! [`T_MIN`] (that Gaussian is not composited, as in gsplat); the tile stops when all its
+//! pixels have. Per pixel it keeps what the backward needs: the final transmittance and the
+//! number of list entries up to the last one that contributed.
 
+use wide::{f32x4, u32x4};
+
+use super::lanes::{LANES, chunk_starts, gaussian_values, span_mask};
 use super::project::Projected;
 use super::{ALPHA_MAX, ALPHA_MIN, AlphaCutoff, T_MIN, TILE};
 
@@ -38,25 +44,6 @@ impl AlphaCutoff {
     }
 }
 
-/// e^x for x ≤ 0 (clamped below at −87, where it is already below f32's normal range), with
-/// a relative error of a few ulp: Cody–Waite range reduction and the Cephes polynomial.
-/// Written without calls or branches so the pixel loops vectorize.
-#[inline(always)]
-pub(crate) fn exp_neg(x: f32) -> f32 {
-    let x = x.clamp(-87.0, 0.0);
-    // Round to nearest with the 1.5·2²³ trick (valid for |n| < 2²²).
-    let n = (x * std::f32::consts::LOG2_E + 12_582_912.0) - 12_582_912.0;
-    let r = x - n * 0.693_359_4 + n * 2.121_944_4e-4;
-    let mut p = 1.987_569_1e-4_f32;
-    p = p * r + 1.398_199_9e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5;
-    let y = p * r * r + r + 1.0;
-    y * f32::from_bits(((n as i32 + 127) as u32) << 23)
-}
-
 /// Inclusive pixel range, relative to the tile origin `origin`, of centres within `extent`
 /// of `centre` along one axis; `None` when empty.
 #[inline]
@@ -73,107 +60,199 @@ pub(crate) fn span(centre: f32, extent: f32, origin: u32) -> Option<(usize, usiz
     (lo <= hi).then_some((lo, hi))
 }
 
-/// Tile-relative columns of the pixel row at vertical offset `dy` from the centre that lie
-/// inside the Gaussian's cutoff ellipse a·dx² + 2b·dx·dy + c·dy² ≤ k2, i.e.
-/// |dx + b·dy/a| ≤ √((k2 − dy²·(ac − b²)/a) / a). Outside it alpha is below the floor, so
-/// both passes visit exactly these pixels.
-#[inline]
-pub(crate) fn row_span(g: &Projected, dy: f32, origin_x: u32) -> Option<(usize, usize)> {
-    let [a, b, c] = g.conic;
-    let rest = g.k2 - (a * c - b * b) / a * dy * dy;
-    if rest.is_nan() || rest < 0.0 {
-        return None;
+/// A Gaussian's cutoff ellipse a·dx² + 2b·dx·dy + c·dy² ≤ k2, ready to be cut into rows:
+/// the row at vertical offset dy holds |dx + b·dy/a| ≤ √((k2 − dy²·(ac − b²)/a) / a).
+/// Outside it alpha is below the floor, so both passes visit exactly these pixels.
+pub(crate) struct Ellipse {
+    centre_x: f32,
+    k2: f32,
+    inv_a: f32,
+    b_over_a: f32,
+    det_over_a: f32,
+}
+
+impl Ellipse {
+    #[inline(always)]
+    pub fn new(g: &Projected) -> Self {
+        let [a, b, c] = g.conic;
+        let inv_a = 1.0 / a;
+        Self { centre_x: g.xy[0], k2: g.k2, inv_a, b_over_a: b * inv_a, det_over_a: (a * c - b * b) * inv_a }
     }
-    span(g.xy[0] - b * dy / a, (rest / a).sqrt(), origin_x)
+
+    /// Tile-relative columns of the row at vertical offset `dy` from the centre, in the tile
+    /// that starts at column `origin_x`.
+    #[inline(always)]
+    pub fn row_span(&self, dy: f32, origin_x: u32) -> Option<(usize, usize)> {
+        let rest = self.k2 - self.det_over_a * dy * dy;
+        if rest.is_nan() || rest < 0.0 {
+            return None;
+        }
+        span(self.centre_x - self.b_over_a * dy, (rest * self.inv_a).sqrt(), origin_x)
+    }
 }
 
-/// Opacity × Gaussian at pixel offset (dx, dy) from the centre.
-#[inline(always)]
-pub(crate) fn gaussian_value(g: &Projected, dx: f32, dy: f32) -> f32 {
-    let [a, b, c] = g.conic;
-    let power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy;
-    g.opacity * exp_neg(power)
+/// Receives a tile's contributions: for every (Gaussian, pixel) pair that composites, the
+/// Gaussian's depth rank and the pixel's weight w = α·T. Each pixel sees its Gaussians front
+/// to back, so sums come out in the same order whatever the sink.
+pub(crate) trait TileSink {
+    /// Gaussian `g` of depth rank `rank` contributes to each tile pixel of `taken` with its weight.
+    fn add(&mut self, g: &Projected, rank: usize, taken: &[(usize, f32)]);
 }
 
-/// One tile's forward result, tile-local (row-major 16×16).
-pub(crate) struct TileForward {
-    /// `[pixel][channel]` colour accumulated over Gaussians (no background yet).
+/// Feature channels and depth of one tile: Σ w·f per channel (`[pixel][channel]`, no
+/// background yet) and Σ w·z.
+pub(crate) struct FeatureSink<'a> {
+    /// Features of each depth rank, `[rank][channel]`.
+    sorted_features: &'a [f32],
+    channels: usize,
     pub features: Vec<f32>,
-    /// Σ w·z.
-    pub depth_sum: Vec<f32>,
-    pub transmittance: Vec<f32>,
-    /// One past the list index of the last Gaussian that contributed to the pixel.
-    pub last: Vec<u32>,
+    pub depth_sum: [f32; TILE_PIXELS],
 }
 
-/// Composites the depth ranks `ranks` (increasing) of `sorted` Gaussians with
-/// `sorted_features` over the tile whose top-left pixel is `origin`, inside an image of
-/// `size` (pixels past the border are never touched).
-pub(crate) fn composite_tile(
+impl<'a> FeatureSink<'a> {
+    pub fn new(sorted_features: &'a [f32], channels: usize) -> Self {
+        Self { sorted_features, channels, features: vec![0.0; channels * TILE_PIXELS], depth_sum: [0.0; TILE_PIXELS] }
+    }
+}
+
+impl TileSink for FeatureSink<'_> {
+    fn add(&mut self, g: &Projected, rank: usize, taken: &[(usize, f32)]) {
+        let c = self.channels;
+        let f = &self.sorted_features[rank * c..(rank + 1) * c];
+        for &(pixel, weight) in taken {
+            for (acc, &fc) in self.features[pixel * c..(pixel + 1) * c].iter_mut().zip(f) {
+                *acc += weight * fc;
+            }
+            self.depth_sum[pixel] += weight * g.depth;
+        }
+    }
+}
+
+impl FeatureSink<'_> {
+    /// The tile's feature planes over `background` (`[channel][pixel]`) and its expected depth.
+    pub fn into_planes(self, cov: &TileCoverage, background: &[f32]) -> (Vec<f32>, [f32; TILE_PIXELS]) {
+        let c = self.channels;
+        let mut planes = vec![0.0; c * TILE_PIXELS];
+        for (p, sums) in self.features.chunks_exact(c.max(1)).enumerate().take(TILE_PIXELS) {
+            let t = cov.transmittance[p];
+            for (ch, (&sum, &bg)) in sums.iter().zip(background).enumerate() {
+                planes[ch * TILE_PIXELS + p] = sum + t * bg;
+            }
+        }
+        let depth = std::array::from_fn(|p| self.depth_sum[p] / (1.0 - cov.transmittance[p]).max(1e-10));
+        (planes, depth)
+    }
+}
+
+/// What compositing leaves per pixel of a tile (row-major 16×16).
+pub(crate) struct TileCoverage {
+    pub transmittance: [f32; TILE_PIXELS],
+    /// One past the list index of the last Gaussian that contributed to the pixel.
+    pub last: [u32; TILE_PIXELS],
+}
+
+/// Offset from `centre` of the centre of pixel `origin + i` along one axis. Both passes
+/// compute it this way, so they see the same values.
+#[inline(always)]
+pub(crate) fn pixel_offset(origin: u32, i: usize, centre: f32) -> f32 {
+    (origin as i32 + i as i32) as f32 + 0.5 - centre
+}
+
+/// Composites the depth ranks `ranks` (increasing) of `sorted` Gaussians over the tile whose
+/// top-left pixel is `origin`, inside an image of `size` (pixels past the border are never
+/// touched), feeding every contribution to `sink`.
+pub(crate) fn composite_tile<S: TileSink>(
     ranks: &[u32],
     sorted: &[Projected],
-    sorted_features: &[f32],
-    channels: usize,
     cutoff: AlphaCutoff,
     origin: [u32; 2],
     size: [u32; 2],
-) -> TileForward {
-    let mut out = TileForward {
-        features: vec![0.0; channels * TILE_PIXELS],
-        depth_sum: vec![0.0; TILE_PIXELS],
-        transmittance: vec![1.0; TILE_PIXELS],
-        last: vec![0; TILE_PIXELS],
-    };
-    let cols = (size[0] - origin[0]).min(TILE);
+    sink: &mut S,
+) -> TileCoverage {
+    // One copy per cutoff, so the per-pixel alpha has no branch on it.
+    match cutoff {
+        AlphaCutoff::Hard => composite::<false, S>(ranks, sorted, origin, size, sink),
+        AlphaCutoff::Smooth => composite::<true, S>(ranks, sorted, origin, size, sink),
+    }
+}
+
+fn composite<const SMOOTH: bool, S: TileSink>(
+    ranks: &[u32],
+    sorted: &[Projected],
+    origin: [u32; 2],
+    size: [u32; 2],
+    sink: &mut S,
+) -> TileCoverage {
+    let cutoff = if SMOOTH { AlphaCutoff::Smooth } else { AlphaCutoff::Hard };
+    // Per-pixel state, with room for the lanes a group may reach past the tile's last pixel.
+    let mut transmittance = [1.0f32; TILE_PIXELS + LANES];
+    let mut last = [0u32; TILE_PIXELS + LANES];
+    let tile = TILE as usize;
+    let cols = (size[0] - origin[0]).min(TILE) as usize;
     let rows = (size[1] - origin[1]).min(TILE) as usize;
-    // Bit x of row y: pixel (x, y) still composites.
-    let mut alive = [0u16; TILE as usize];
-    alive[..rows].fill((((1u32 << cols) - 1) & 0xffff) as u16);
-    let mut alive_count = rows * cols as usize;
-    // Pixels the current Gaussian contributes to, and their weights.
-    let mut taken = Vec::with_capacity(TILE_PIXELS);
+    // Per pixel: all ones while it still composites, else zero (pixels past the border never do).
+    let mut live = [0u32; TILE_PIXELS + LANES];
+    for row in live.chunks_exact_mut(tile).take(rows) {
+        row[..cols].fill(u32::MAX);
+    }
+    let mut row_live = [0u32; TILE as usize];
+    row_live[..rows].fill(cols as u32);
+    let mut live_count = rows * cols;
+    // The pixels the current Gaussian contributes to and their weights (w = α·T); room for
+    // a whole tile plus the lanes written past the last one.
+    let mut taken = [(0usize, 0.0f32); TILE_PIXELS + LANES];
     for (k, &rank) in ranks.iter().enumerate() {
-        if alive_count == 0 {
+        if live_count == 0 {
             break;
         }
-        let g = &sorted[rank as usize];
+        let rank = rank as usize;
+        let g = &sorted[rank];
         let Some((y0, y1)) = span(g.xy[1], g.extent[1], origin[1]) else { continue };
-        taken.clear();
-        for (y, row_alive) in alive.iter_mut().enumerate().take(y1 + 1).skip(y0) {
-            if *row_alive == 0 {
+        let ellipse = Ellipse::new(g);
+        let stamp = u32x4::splat(k as u32 + 1);
+        let mut count = 0;
+        for (y, row_live) in row_live.iter_mut().enumerate().take(y1 + 1).skip(y0) {
+            if *row_live == 0 {
                 continue;
             }
-            let dy = (origin[1] + y as u32) as f32 + 0.5 - g.xy[1];
-            let Some((x0, x1)) = row_span(g, dy, origin[0]) else { continue };
-            for x in x0..=x1 {
-                if *row_alive & (1 << x) == 0 {
-                    continue;
+            let dy = pixel_offset(origin[1], y, g.xy[1]);
+            let Some((x0, x1)) = ellipse.row_span(dy, origin[0]) else { continue };
+            // All of the row's values first: independent chains the CPU overlaps.
+            let mut alphas = [f32x4::ZERO; TILE as usize / LANES];
+            for (alpha, base) in alphas.iter_mut().zip(chunk_starts(x0, x1)) {
+                *alpha = cutoff.alpha_lanes(gaussian_values(g, origin[0], base, dy));
+            }
+            for (&alpha, base) in alphas.iter().zip(chunk_starts(x0, x1)) {
+                let at = y * tile + base;
+                let lanes = at..at + LANES;
+                let t = f32x4::new(transmittance[lanes.clone()].try_into().unwrap());
+                let next = t * (f32x4::ONE - alpha);
+                let live_now = u32x4::new(live[lanes.clone()].try_into().unwrap());
+                let hit = f32x4::from_bits(live_now & span_mask(base, x0, x1)) & alpha.simd_gt(f32x4::ZERO);
+                let stop = hit & next.simd_lt(f32x4::splat(T_MIN));
+                let take = hit ^ stop;
+                transmittance[lanes.clone()].copy_from_slice(take.select(next, t).as_array());
+                let before = u32x4::new(last[lanes.clone()].try_into().unwrap());
+                last[lanes.clone()].copy_from_slice(take.to_bits().select(stamp, before).as_array());
+                live[lanes].copy_from_slice((live_now & !stop.to_bits()).as_array());
+                let stops = stop.to_bitmask().count_ones();
+                *row_live -= stops;
+                live_count -= stops as usize;
+                // Branch-free compaction of the contributing lanes.
+                let weight = (alpha * t).to_array();
+                let bits = take.to_bitmask();
+                for (l, &w) in weight.iter().enumerate() {
+                    taken[count] = (at + l, w);
+                    count += (bits >> l) as usize & 1;
                 }
-                let p = y * TILE as usize + x;
-                let dx = (origin[0] + x as u32) as f32 + 0.5 - g.xy[0];
-                let (alpha, _) = cutoff.alpha(gaussian_value(g, dx, dy));
-                if alpha <= 0.0 {
-                    continue;
-                }
-                let t = out.transmittance[p];
-                let next = t * (1.0 - alpha);
-                if next < T_MIN {
-                    *row_alive &= !(1 << x);
-                    alive_count -= 1;
-                    continue;
-                }
-                taken.push((p, alpha * t));
-                out.transmittance[p] = next;
-                out.last[p] = k as u32 + 1;
             }
         }
-        let f = &sorted_features[rank as usize * channels..(rank as usize + 1) * channels];
-        for &(p, w) in &taken {
-            for (acc, &fc) in out.features[p * channels..(p + 1) * channels].iter_mut().zip(f) {
-                *acc += w * fc;
-            }
-            out.depth_sum[p] += w * g.depth;
+        if count > 0 {
+            sink.add(g, rank, &taken[..count]);
         }
     }
-    out
+    TileCoverage {
+        transmittance: transmittance[..TILE_PIXELS].try_into().unwrap(),
+        last: last[..TILE_PIXELS].try_into().unwrap(),
+    }
 }

@@ -112,3 +112,21 @@ pub(crate) fn bin(
     }
     TileBins { tiles_x, tiles_y, tile_offsets, rank_from_isect, gid_from_rank, sorted, sorted_features }
 }
+
+/// Copies tile-local results (`tile_plane(t)`: tile `t`'s 16×16 values, row-major) into the
+/// row-major plane of an image `width` pixels wide; tiles past the border are cut.
+pub(crate) fn untile<'a, T: Copy + 'a>(
+    plane: &mut [T],
+    width: usize,
+    tiles_x: usize,
+    tile_plane: impl Fn(usize) -> &'a [T],
+) {
+    let tile = TILE as usize;
+    for (y, row) in plane.chunks_exact_mut(width).enumerate() {
+        let (ty, ly) = (y / tile, y % tile);
+        for (tx, dst) in row.chunks_mut(tile).enumerate() {
+            let src = &tile_plane(ty * tiles_x + tx)[ly * tile..];
+            dst.copy_from_slice(&src[..dst.len()]);
+        }
+    }
+}
