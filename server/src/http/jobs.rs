@@ -169,7 +169,7 @@ async fn current(state: &AppState, id: String) -> Result<JobStatus, ApiError> {
 
 /// A job's status and every scene's progress, result (scene id) and metrics.
 #[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs",
-    params(("id" = String, Path, description = "Job id (32 hex digits)")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "Status", body = JobStatus),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such job", body = ErrorBody)))]
 pub async fn status(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Json<JobStatus>, ApiError> {
@@ -178,7 +178,7 @@ pub async fn status(State(state): State<Arc<AppState>>, id: Result<Path<String>,
 
 /// Cancel the job's scenes that have not started (a running one finishes).
 #[utoipa::path(delete, path = "/v1/jobs/{id}", tag = "jobs",
-    params(("id" = String, Path, description = "Job id (32 hex digits)")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "Status after cancelling", body = JobStatus),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such job", body = ErrorBody)))]
 pub async fn cancel(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Json<JobStatus>, ApiError> {
@@ -236,7 +236,7 @@ impl Watch {
 /// The job's status as server-sent events (`event: status`, JSON data) each time it changes;
 /// the stream ends after the job does.
 #[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs",
-    params(("id" = String, Path, description = "Job id (32 hex digits)")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "text/event-stream of JobStatus", content_type = "text/event-stream", body = JobStatus),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such job", body = ErrorBody)))]
 pub async fn events(

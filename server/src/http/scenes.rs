@@ -41,7 +41,7 @@ async fn file(state: &AppState, id: &str, rel: &str, content_type: &'static str)
 
 /// The Gaussians of a scene (binary little-endian 3DGS PLY with inssplat's extras).
 #[utoipa::path(get, path = "/v1/scenes/{id}/scene.ply", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id (32 hex digits)")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id (32 hex digits)")),
     responses((status = 200, description = "PLY file", content_type = "application/octet-stream"),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such scene", body = ErrorBody)))]
 pub async fn ply(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Response, ApiError> {
@@ -50,7 +50,7 @@ pub async fn ply(State(state): State<Arc<AppState>>, id: Result<Path<String>, Pa
 
 /// Input | depth | instances | labels of every view, one row each.
 #[utoipa::path(get, path = "/v1/scenes/{id}/preview.png", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id (32 hex digits)")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id (32 hex digits)")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such scene", body = ErrorBody)))]
 pub async fn preview(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Response, ApiError> {
@@ -67,7 +67,7 @@ async fn view_png(state: &AppState, params: Result<Path<(String, String)>, PathR
 
 /// A view's instance map (a colour per instance id, black = none).
 #[utoipa::path(get, path = "/v1/scenes/{id}/views/{view}/instances.png", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
 pub async fn instances_png(State(state): State<Arc<AppState>>, params: Result<Path<(String, String)>, PathRejection>) -> Result<Response, ApiError> {
@@ -76,7 +76,7 @@ pub async fn instances_png(State(state): State<Arc<AppState>>, params: Result<Pa
 
 /// A view's label map (a colour per vocabulary label, black = none).
 #[utoipa::path(get, path = "/v1/scenes/{id}/views/{view}/labels.png", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
 pub async fn labels_png(State(state): State<Arc<AppState>>, params: Result<Path<(String, String)>, PathRejection>) -> Result<Response, ApiError> {
@@ -85,7 +85,7 @@ pub async fn labels_png(State(state): State<Arc<AppState>>, params: Result<Path<
 
 /// Which instances of the scene the text names, each with its mask in every view.
 #[utoipa::path(post, path = "/v1/scenes/{id}/query", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id")),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id")),
     request_body = QueryRequest,
     responses((status = 200, description = "Matches, best first (empty with a message when nothing matches)", body = QueryResponse),
         (status = 400, description = "Malformed id or JSON", body = ErrorBody), (status = 404, description = "No such scene", body = ErrorBody),
@@ -132,7 +132,7 @@ fn is_mask_name(file: &str) -> bool {
 
 /// A query's mask of one instance in one view (white = the instance).
 #[utoipa::path(get, path = "/v1/scenes/{id}/query/{slug}/{file}", tag = "scenes",
-    params(("id" = String, Path, description = "Scene id"), ("slug" = String, Path, description = "The query's folder, as in a query answer's png_url"),
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("slug" = String, Path, description = "The query's folder, as in a query answer's png_url"),
         ("file" = String, Path, description = "id<N>_view<NNN>.png")),
     responses((status = 200, description = "PNG mask", content_type = "image/png"),
         (status = 400, description = "Malformed parameter", body = ErrorBody), (status = 404, description = "No such scene or mask", body = ErrorBody)))]
