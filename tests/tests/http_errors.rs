@@ -239,3 +239,22 @@ fn malformed_requests_get_json_4xx_and_the_service_stays_up() {
     let health = server.get("/health");
     assert_eq!(health.status, 200, "health is open without the key");
 }
+
+#[test]
+fn a_request_over_the_timeout_gets_504_and_the_service_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let server = Server::start(&model, &dir.path().join("data"), &["--request-timeout-s", "1"]);
+    // A client that announces a body and sends only part of it holds the handler past the limit.
+    let (ct, body) = multipart(&[("images", Some("a.png"), &png(16, 16, 0)), ("images", Some("b.png"), &png(16, 16, 1))]);
+    let head = format!("POST /v1/reconstruct HTTP/1.1\r\nHost: x\r\nContent-Type: {ct}\r\nContent-Length: {}\r\n\r\n", body.len());
+    let mut raw = head.into_bytes();
+    raw.extend_from_slice(&body[..body.len() / 2]);
+    let start = std::time::Instant::now();
+    let r = server.try_raw(&raw).unwrap();
+    assert_eq!(r.status, 504, "{}", r.text());
+    assert_eq!(r.error().error_type, "timeout");
+    assert!(start.elapsed() < std::time::Duration::from_secs(10));
+    let ok = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
+    assert_eq!(ok.status, 200, "{}", ok.text());
+}
