@@ -29,7 +29,7 @@ pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Resu
     if text.trim().is_empty() {
         anyhow::bail!("the query text is empty");
     }
-    let embedding = labels.embedder().embed_one(text).context("embedding the query text")?;
+    let embedding = labels.embedder()?.embed_one(text).context("embedding the query text")?;
     let prototypes = saved.prototypes();
     let own_scores = own_label_scores(&prototypes, &saved.doc.instances);
     let hits = query(&prototypes, &embedding, &own_scores, &QueryRule::default())?;

@@ -100,7 +100,7 @@ fn main() {
     report(
         "40 labels + 1 query (cold, as a scene)",
         time(10, || {
-            let e = cache.embedder();
+            let e = cache.embedder().unwrap();
             (e.embed(&LABELS).unwrap(), e.embed_one(QUERY).unwrap())
         }),
     );

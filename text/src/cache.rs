@@ -2,18 +2,22 @@
 //! same label vocabulary and the trainer's semantic teacher embeds the same category names
 //! every step, so each distinct (trimmed) label is run through the network once and then
 //! served from memory. Query text, which rarely repeats, goes to the embedder directly.
+//! A cache can also be built from a saved table of label embeddings with no model loaded
+//! (a training machine that carries the table instead of the 90 MB weights); it then knows
+//! exactly the labels of the table.
 
 use std::collections::HashMap;
 use std::sync::RwLock;
 
 use crate::embedder::{Embedding, TextEmbedder, normalize_all};
-use crate::error::Result;
+use crate::error::{Result, TextError};
 
 /// A [`TextEmbedder`] with a memo of the labels it has embedded. Share one per process
 /// (`Send + Sync`; lookups take a read lock, new labels a short write lock).
 #[derive(Debug)]
 pub struct LabelCache {
-    embedder: TextEmbedder,
+    /// `None`: a table-only cache.
+    embedder: Option<TextEmbedder>,
     memo: RwLock<HashMap<String, Embedding>>,
 }
 
@@ -21,14 +25,33 @@ impl LabelCache {
     /// An empty cache around `embedder`.
     pub fn new(embedder: TextEmbedder) -> Self {
         Self {
-            embedder,
+            embedder: Some(embedder),
             memo: RwLock::new(HashMap::new()),
         }
     }
 
-    /// The embedder, for text that should not be memoized (queries).
-    pub fn embedder(&self) -> &TextEmbedder {
-        &self.embedder
+    /// A cache that knows exactly the labels of `table` (label → embedding, as
+    /// [`LabelCache::entries`] gave them) and has no model to embed others.
+    pub fn from_table(table: impl IntoIterator<Item = (String, Embedding)>) -> Self {
+        Self {
+            embedder: None,
+            memo: RwLock::new(table.into_iter().collect()),
+        }
+    }
+
+    /// Every memoized label with its embedding, sorted by label: what [`LabelCache::from_table`]
+    /// takes back.
+    pub fn entries(&self) -> Vec<(String, Embedding)> {
+        let memo = self.memo.read().unwrap_or_else(|e| e.into_inner());
+        let mut out: Vec<(String, Embedding)> = memo.iter().map(|(l, e)| (l.clone(), *e)).collect();
+        out.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+        out
+    }
+
+    /// The embedder, for text that should not be memoized (queries); an error for a
+    /// table-only cache.
+    pub fn embedder(&self) -> Result<&TextEmbedder> {
+        self.embedder.as_ref().ok_or_else(|| TextError::TableOnly { labels: vec![] })
     }
 
     /// Embeddings of `labels`, in order. Labels not seen before are embedded in one batch and
@@ -46,7 +69,10 @@ impl LabelCache {
         if !missing.is_empty() {
             missing.sort_unstable();
             missing.dedup();
-            let fresh = self.embedder.embed(&missing)?;
+            let embedder = self.embedder.as_ref().ok_or_else(|| TextError::TableOnly {
+                labels: missing.iter().map(|l| l.to_string()).collect(),
+            })?;
+            let fresh = embedder.embed(&missing)?;
             let mut memo = self.memo.write().unwrap_or_else(|e| e.into_inner());
             for (label, embedding) in missing.into_iter().zip(fresh) {
                 memo.insert(label.to_owned(), embedding);

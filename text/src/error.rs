@@ -42,6 +42,16 @@ pub enum TextError {
     /// The tensor library failed (loading weights or running the network).
     #[error("model: {0}")]
     Candle(#[from] candle_core::Error),
+    /// A cache built from a label table (no model loaded) was asked for other text.
+    #[error(
+        "no text model is loaded (the label cache was built from a table) and the table lacks {labels:?}; \
+         load the model with {env} instead",
+        env = crate::MODEL_ENV
+    )]
+    TableOnly {
+        /// The labels asked for that the table lacks (empty: free text such as a query).
+        labels: Vec<String>,
+    },
     /// An input text is empty once surrounding whitespace is trimmed.
     #[error("text #{index} is empty (after trimming whitespace); nothing to embed")]
     EmptyText {

@@ -14,7 +14,7 @@
 //! use inssplat_text::{LabelCache, TextEmbedder, cosine};
 //! let cache = LabelCache::new(TextEmbedder::from_env()?);
 //! let labels = cache.embed(&["chair", "table", "lamp"])?;
-//! let query = cache.embedder().embed_one("something to sit on")?;
+//! let query = cache.embedder()?.embed_one("something to sit on")?;
 //! let best = labels.iter().map(|l| cosine(l, &query)).fold(f32::MIN, f32::max);
 //! # Ok::<(), inssplat_text::TextError>(())
 //! ```

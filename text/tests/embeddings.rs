@@ -122,10 +122,25 @@ fn label_cache_embeds_each_label_once_and_agrees_with_the_embedder() {
     assert_eq!(cache.len(), 3);
     assert_eq!(second[0], first[1]);
     assert_eq!(second[2], first[0]);
-    let direct = cache.embedder().embed_one("window").unwrap();
+    let direct = cache.embedder().unwrap().embed_one("window").unwrap();
     assert!(max_abs_diff(&second[1], &direct) < 1e-5);
     assert!(matches!(
         cache.embed(&["bed", ""]),
         Err(TextError::EmptyText { index: 1 })
     ));
+}
+
+#[test]
+fn a_label_table_round_trips_without_the_model_and_names_what_it_lacks() {
+    let cache = LabelCache::new(embedder());
+    let want = cache.embed(&["chair", "lamp"]).unwrap();
+    let table = LabelCache::from_table(cache.entries());
+    assert_eq!(table.entries().len(), 2);
+    assert_eq!(table.embed(&["lamp", " chair"]).unwrap(), vec![want[1], want[0]]);
+    match table.embed(&["chair", "banana"]) {
+        Err(TextError::TableOnly { labels }) => assert_eq!(labels, vec!["banana".to_string()]),
+        other => panic!("expected TableOnly, got {other:?}"),
+    }
+    let err = table.embedder().unwrap_err().to_string();
+    assert!(err.contains(inssplat_text::MODEL_ENV), "{err}");
 }

@@ -24,6 +24,10 @@ pub struct TrainArgs {
     /// Folder of training scenes (DATASET.md format), instead of synthesizing them.
     #[arg(long, conflicts_with = "resume")]
     data: Option<PathBuf>,
+    /// Start from the weights of this run's newest checkpoint (or this checkpoint folder), with
+    /// a fresh optimizer and schedule; the network shape flags are then ignored.
+    #[arg(long, conflicts_with = "resume")]
+    init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
     #[arg(long)]
     val_data: Option<PathBuf>,
@@ -81,6 +85,9 @@ pub struct TrainArgs {
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
+    /// Weight of the camera term inside L_geom.
+    #[arg(long, default_value_t = 1.0)]
+    camera_weight: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -133,6 +140,7 @@ impl TrainArgs {
             .with_sem_dim(self.sem_dim);
         let loss = LossConfig::new()
             .with_instance_weight(self.instance_weight)
+            .with_camera_weight(self.camera_weight)
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
@@ -193,15 +201,20 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
             },
         };
         let config = args.config();
-        let net = config.model.init(&Device::flex()).map_err(anyhow::Error::msg)?;
-        eprintln!(
-            "new run in {}: {:.2} M parameters, {} steps, {}",
-            args.out.display(),
-            burn::module::Module::num_params(&net) as f64 / 1e6,
-            config.steps,
-            describe(&data)
-        );
-        train::train(&args.out, config, data, &session)?
+        if let Some(from) = &args.init_from {
+            eprintln!("new run in {} from the weights of {}: {} steps, {}", args.out.display(), from.display(), config.steps, describe(&data));
+            train::fine_tune(&args.out, config, data, from, &session).with_context(|| format!("--init-from {}", from.display()))?
+        } else {
+            let net = config.model.init(&Device::flex()).map_err(anyhow::Error::msg)?;
+            eprintln!(
+                "new run in {}: {:.2} M parameters, {} steps, {}",
+                args.out.display(),
+                burn::module::Module::num_params(&net) as f64 / 1e6,
+                config.steps,
+                describe(&data)
+            );
+            train::train(&args.out, config, data, &session)?
+        }
     };
     println!(
         "steps {}..{}: loss {:.4} -> {:.4} (mean of first/last 20), median {:.2} s/step{}",

@@ -27,6 +27,13 @@ enum Command {
     Train(Box<cli_train::TrainArgs>),
     /// Export a checkpoint's network to ONNX for the server.
     Export(cli_train::ExportArgs),
+    /// Write the MiniLM embeddings of every synthesizable label to a file, for training
+    /// without the text model (INSSPLAT_LABEL_TABLE=FILE).
+    LabelTable {
+        /// The JSON file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 mod cli_train;
@@ -137,6 +144,11 @@ fn main() -> Result<()> {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
         Command::Export(args) => cli_train::run_export(args),
+        Command::LabelTable { out } => {
+            let n = inssplat_trainer::train::labels::write_label_table(&out)?;
+            println!("wrote {} ({n} labels)", out.display());
+            Ok(())
+        }
     }
 }
 

@@ -112,6 +112,32 @@ fn an_interrupted_run_resumes_exactly() {
     assert!(again.to_string().contains("--resume"), "{again}");
 }
 
+#[test]
+fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
+    let source = tempfile::tempdir().unwrap();
+    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(4);
+    let s = train::train(source.path(), config, tiny_data(), &quiet_session()).unwrap();
+    let source_dir = s.checkpoint.unwrap();
+    // A different shape on the command line is replaced by the checkpoint's; a tiny learning
+    // rate keeps the one step from moving the weights measurably.
+    let other = TrainConfig::new(tiny_model().with_dim(48), LossConfig::new()).with_steps(1).with_warmup(0).with_lr(1e-12);
+    let tuned = tempfile::tempdir().unwrap();
+    let t = train::fine_tune(tuned.path(), other, tiny_data(), source.path(), &quiet_session()).unwrap();
+    let tuned_dir = t.checkpoint.unwrap();
+    let state = checkpoint::read_state(&tuned_dir).unwrap();
+    assert_eq!((state.step, state.config.model.dim), (1, 32));
+    let from = state.init_from.expect("init_from recorded");
+    assert_eq!((from.checkpoint, from.step), (source_dir.clone(), 2));
+    let (a, b) = (params(&source_dir), params(&tuned_dir));
+    let max_diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(max_diff <= 1e-6, "fine-tune moved from its source by {max_diff}");
+    // No checkpoint to start from: a named error.
+    let empty = tempfile::tempdir().unwrap();
+    let err = train::fine_tune(&empty.path().join("run"), TrainConfig::new(tiny_model(), LossConfig::new()), tiny_data(), empty.path(), &quiet_session())
+        .unwrap_err();
+    assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
+}
+
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
 }

@@ -269,6 +269,11 @@ const RULES: &[(&str, &[&str])] = &[
     ("box", &["box", "crate", "trunk", "trunck"]),
 ];
 
+/// Every label a catalog model can get.
+pub fn rule_labels() -> impl Iterator<Item = &'static str> {
+    RULES.iter().map(|(label, _)| *label)
+}
+
 /// Words that disqualify a model whatever else its name says (accessories, outdoor or wall
 /// items, things that are not furniture).
 const EXCLUDE: &[&str] = &[

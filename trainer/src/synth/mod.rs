@@ -42,6 +42,12 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 pub use catalog::{Catalog, Credit};
+
+/// Every label a synthesized scene can carry: catalog furniture, primitive furniture and the
+/// room shell.
+pub fn all_labels() -> std::collections::BTreeSet<&'static str> {
+    catalog::rule_labels().chain(primitives::LABELS.iter().copied()).chain(stats::SHELL_LABELS).collect()
+}
 pub use split::{Split, eval_split};
 pub use stats::DatasetStats;
 

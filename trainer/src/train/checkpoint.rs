@@ -29,6 +29,16 @@ pub struct CheckpointState {
     pub elapsed_s: f64,
     pub config: TrainConfig,
     pub data: DataSpec,
+    /// The checkpoint whose weights started this run (a fine-tune), if any.
+    #[serde(default)]
+    pub init_from: Option<InitFrom>,
+}
+
+/// Where a fine-tune's starting weights came from.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct InitFrom {
+    pub checkpoint: PathBuf,
+    pub step: u64,
 }
 
 /// Why a checkpoint could not be written or read.

@@ -9,6 +9,7 @@
 //! the configuration and data it was started with.
 
 pub mod checkpoint;
+pub mod labels;
 pub mod log;
 pub mod sample;
 pub mod schedule;
@@ -23,7 +24,8 @@ use burn::module::{ModuleVisitor, Param, ParamId};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use inssplat_text::{LabelCache, TextEmbedder};
+use inssplat_text::LabelCache;
+pub use labels::label_cache;
 
 use crate::loss::{GaussianTraining, LossConfig};
 use crate::model::{InsSplatNet, ModelConfig};
@@ -147,7 +149,7 @@ pub enum TrainError {
     Diverged { step: u64, values: LossValues },
     #[error("{0} already holds a run (checkpoints/latest); pass --resume to continue it or choose another folder")]
     Exists(PathBuf),
-    #[error("{0} has no checkpoint to resume")]
+    #[error("{0} has no checkpoint")]
     NoCheckpoint(PathBuf),
 }
 
@@ -175,7 +177,33 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
     let device = Device::flex().autodiff();
     let net = seeded_init(&config.model, config.seed, &device).map_err(|e| TrainError::Config(e.to_string()))?;
     let optim = optimizer(&config);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data };
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: None };
+    run_loop(run, net, optim, state, session, &device)
+}
+
+/// Starts a new run in `run` from the weights of the newest checkpoint of `from` (a run or a
+/// checkpoint folder) with a fresh optimizer and schedule: a fine-tune, or one arm of an
+/// ablation that all start from the same network. The network shape is the checkpoint's;
+/// `config.model` is replaced by it.
+pub fn fine_tune(
+    run: &Path,
+    mut config: TrainConfig,
+    data: DataSpec,
+    from: &Path,
+    session: &Session,
+) -> Result<Summary, TrainError> {
+    if checkpoint::latest(run)?.is_some() {
+        return Err(TrainError::Exists(run.to_path_buf()));
+    }
+    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+    let source = checkpoint::read_state(&dir)?;
+    config.model = source.config.model.clone();
+    config.validate()?;
+    let device = Device::flex().autodiff();
+    let net = checkpoint::load_model(&dir, &source, &device)?;
+    let optim = optimizer(&config);
+    let init_from = Some(checkpoint::InitFrom { checkpoint: dir, step: source.step });
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from };
     run_loop(run, net, optim, state, session, &device)
 }
 
@@ -227,10 +255,6 @@ fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
     TrainError::Io { path: path.to_path_buf(), problem: e.to_string() }
 }
 
-/// The MiniLM label cache the semantic teacher reads.
-pub fn label_cache() -> Result<Arc<LabelCache>, TrainError> {
-    Ok(Arc::new(LabelCache::new(TextEmbedder::from_env()?)))
-}
 
 /// One optimizer update of `net` from the gradients of `loss`: the transformer blocks at
 /// `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the output
