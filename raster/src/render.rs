@@ -32,6 +32,7 @@ mod backward;
 mod composite;
 #[cfg(feature = "gpu")]
 mod gpu;
+mod ids;
 mod lanes;
 mod project;
 mod tiles;
@@ -41,6 +42,7 @@ use rayon::prelude::*;
 
 #[cfg(feature = "gpu")]
 pub use gpu::GpuRenderer;
+pub use ids::{IdImage, render_ids, render_ids_any};
 use project::{Projected, View};
 use tiles::TileBins;
 
@@ -236,6 +238,26 @@ fn prepare(
     (projected, bins)
 }
 
+/// Composites every tile of `bins` (in parallel), each into a fresh sink from `sink`, and
+/// returns `finish(sink, coverage)` per tile, in tile order.
+fn composite_tiles<S: composite::TileSink, T: Send>(
+    bins: &TileBins,
+    cutoff: AlphaCutoff,
+    size: [u32; 2],
+    sink: impl Fn() -> S + Sync,
+    finish: impl Fn(S, composite::TileCoverage) -> T + Sync,
+) -> Vec<T> {
+    (0..bins.tile_count())
+        .into_par_iter()
+        .map(|tile| {
+            let origin = [(tile as u32 % bins.tiles_x) * TILE, (tile as u32 / bins.tiles_x) * TILE];
+            let mut s = sink();
+            let cov = composite::composite_tile(bins.isects(tile), &bins.sorted, cutoff, origin, size, &mut s);
+            finish(s, cov)
+        })
+        .collect()
+}
+
 /// Renders with the hard alpha cutoff; see [`render_with`].
 pub fn render(splats: &Splats, camera: &Camera, background: &[f32]) -> Result<(Image, ForwardState), RenderError> {
     render_with(splats, camera, background, &RenderOptions::default())
@@ -255,23 +277,16 @@ pub fn render_with(
     let view = View::new(camera);
     let (projected, bins) = prepare(splats, &view, options.cutoff, width, height);
 
-    let tiles: Vec<(composite::TileCoverage, Vec<f32>, [f32; composite::TILE_PIXELS])> = (0..bins.tile_count())
-        .into_par_iter()
-        .map(|tile| {
-            let origin = [(tile as u32 % bins.tiles_x) * TILE, (tile as u32 / bins.tiles_x) * TILE];
-            let mut sink = composite::FeatureSink::new(&bins.sorted_features, c);
-            let cov = composite::composite_tile(
-                bins.isects(tile),
-                &bins.sorted,
-                options.cutoff,
-                origin,
-                [width, height],
-                &mut sink,
-            );
+    let tiles = composite_tiles(
+        &bins,
+        options.cutoff,
+        [width, height],
+        || composite::FeatureSink::new(&bins.sorted_features, c),
+        |sink, cov| {
             let (features, depth) = sink.into_planes(&cov, &background);
             (cov, features, depth)
-        })
-        .collect();
+        },
+    );
 
     let (w, pixels) = (width as usize, width as usize * height as usize);
     let tiles_x = bins.tiles_x as usize;

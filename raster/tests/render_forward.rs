@@ -1,5 +1,6 @@
-//! The CPU tile rasterizer against a naive per-pixel reference renderer (the oracle), and the
-//! wgpu rasterizer against the CPU one. The reference is written independently of the crate's
+//! The CPU tile rasterizer against a naive per-pixel reference renderer (the oracle), the id
+//! renderer against one-hot channels composited by the CPU rasterizer, and the wgpu
+//! rasterizer against the CPU one. The reference is written independently of the crate's
 //! code, in f64: it projects every Gaussian, sorts them by depth and composites every one at
 //! every pixel, no tiles and no extents. Comparison per value: |got − want| ≤ 1e-5 +
 //! 1e-2·|want|; NaN is reported on its own; a failure names the output, pixel and both values.
@@ -7,7 +8,8 @@
 use glam::{DMat3, DQuat, DVec3, Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::render::{
-    ALPHA_MAX, ALPHA_MIN, Backend, Image, LOW_PASS, NEAR_PLANE, RenderError, Splats, T_MIN, render, render_any,
+    ALPHA_MAX, ALPHA_MIN, Backend, IdImage, Image, LOW_PASS, NEAR_PLANE, RenderError, Splats, T_MIN, render,
+    render_any, render_ids, render_ids_any,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -292,23 +294,73 @@ fn zero_channels_render_depth_and_alpha() {
     assert!(image.features.is_empty() && image.alpha.iter().any(|&a| a > 0.1));
 }
 
-/// GPU vs CPU tolerance: the shader uses the GPU's exp and evaluation order, so values agree
-/// to float rounding; 1e-4 + 1e-3·|cpu| leaves room for rare flips at the 1/255 cutoff.
-#[cfg(feature = "gpu")]
+/// A random scene whose features are the one-hot codes of random ids 0..=`ids` (0: none,
+/// an all-zero code), and those ids.
+fn one_hot_scene(n: usize, ids: u32, cam: &Camera, seed: u64) -> (Scene, Vec<u32>) {
+    let mut scene = random_scene(n, 0, cam, seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1d);
+    let id_of: Vec<u32> = (0..n).map(|_| rng.random_range(0..=ids)).collect();
+    scene.channels = ids as usize;
+    scene.features = id_of.iter().flat_map(|&id| (1..=ids).map(move |k| if k == id { 1.0 } else { 0.0 })).collect();
+    (scene, id_of)
+}
+
+/// Pixels where two id maps differ, as (pixel, a, b), at most 10.
+fn id_differences(a: &[u32], b: &[u32]) -> Vec<(usize, u32, u32)> {
+    a.iter().zip(b).enumerate().filter(|(_, (x, y))| x != y).map(|(p, (&x, &y))| (p, x, y)).take(10).collect()
+}
+
 #[test]
-fn wgpu_matches_cpu() {
-    let gpu = match inssplat_raster::render::GpuRenderer::new() {
-        Ok(gpu) => gpu,
+fn ids_render_like_one_hot_channels() {
+    let cases = [(64, 48, 400, 3), (128, 128, 3000, 40), (37, 29, 150, 1), (96, 80, 2000, 8)];
+    for (seed, (w, h, n, k)) in cases.into_iter().enumerate() {
+        let cam = camera(w, h);
+        let (scene, ids) = one_hot_scene(n, k, &cam, 300 + seed as u64);
+        let one_hot = render(&scene.splats(), &cam, &[]).unwrap().0;
+        // Same weights summed in the same order, settled pixels only stopped where later
+        // Gaussians could not change them: equal, ties included.
+        for min_alpha in [0.0, 0.5, 0.9] {
+            let want = IdImage::from_one_hot(&one_hot, min_alpha);
+            let got = render_ids(&scene.splats(), &ids, &cam, min_alpha).unwrap();
+            let what = format!("case {seed}, alpha > {min_alpha}: (pixel, ids, one-hot) that differ");
+            assert_eq!(id_differences(&got.ids, &want.ids), vec![], "{what}");
+            let covered = got.ids.iter().filter(|&&id| id != 0).count();
+            assert!(covered * 10 > got.ids.len(), "case {seed}: only {covered} pixels have an id");
+        }
+    }
+    let cam = camera(20, 20);
+    let (scene, ids) = one_hot_scene(10, 2, &cam, 1);
+    assert!(matches!(
+        render_ids(&scene.splats(), &ids[1..], &cam, 0.5),
+        Err(RenderError::Length { field: "ids", expected: 10, got: 9 })
+    ));
+}
+
+/// The wgpu adapter, or `None` (and a note) where there is none; in CI there must be one.
+#[cfg(feature = "gpu")]
+fn gpu_or_skip(test: &str) -> Option<inssplat_raster::render::GpuRenderer> {
+    match inssplat_raster::render::GpuRenderer::new() {
+        Ok(gpu) => {
+            eprintln!("wgpu adapter: {}", gpu.adapter());
+            Some(gpu)
+        }
         Err(e) => {
             assert!(
                 std::env::var("CI").as_deref() != Ok("true"),
                 "no wgpu adapter in CI ({e}); lavapipe (mesa-vulkan-drivers) must be installed"
             );
-            eprintln!("SKIPPED wgpu_matches_cpu: no wgpu adapter ({e})");
-            return;
+            eprintln!("SKIPPED {test}: no wgpu adapter ({e})");
+            None
         }
-    };
-    eprintln!("wgpu adapter: {}", gpu.adapter());
+    }
+}
+
+/// GPU vs CPU tolerance: the shader uses the GPU's exp and evaluation order, so values agree
+/// to float rounding; 1e-4 + 1e-3·|cpu| leaves room for rare flips at the 1/255 cutoff.
+#[cfg(feature = "gpu")]
+#[test]
+fn wgpu_matches_cpu() {
+    let Some(gpu) = gpu_or_skip("wgpu_matches_cpu") else { return };
     let cases = [(37, 29, 60, 3), (64, 48, 400, 19), (50, 70, 150, 0), (128, 128, 3000, 8)];
     for (seed, (w, h, n, c)) in cases.into_iter().enumerate() {
         let cam = camera(w, h);
@@ -324,6 +376,21 @@ fn wgpu_matches_cpu() {
     }
 }
 
+/// The wgpu id path (one-hot channels) against the CPU one: rounding may flip a near tie or
+/// an alpha at the threshold, so at most 1% of the pixels may differ.
+#[cfg(feature = "gpu")]
+#[test]
+fn wgpu_ids_match_cpu() {
+    let Some(gpu) = gpu_or_skip("wgpu_ids_match_cpu") else { return };
+    let cam = camera(128, 96);
+    let (scene, ids) = one_hot_scene(3000, 12, &cam, 7);
+    let cpu = render_ids(&scene.splats(), &ids, &cam, 0.5).unwrap();
+    let (got, backend) = render_ids_any(Some(&gpu), &scene.splats(), &ids, &cam, 0.5).unwrap();
+    assert_eq!(backend, Backend::Wgpu);
+    let differ = got.ids.iter().zip(&cpu.ids).filter(|(a, b)| a != b).count();
+    assert!(differ * 100 <= cpu.ids.len(), "{differ} of {} pixels differ", cpu.ids.len());
+}
+
 #[test]
 fn render_any_without_gpu_uses_cpu() {
     let cam = camera(20, 20);
@@ -331,4 +398,8 @@ fn render_any_without_gpu_uses_cpu() {
     let (image, backend) = render_any(None, &scene.splats(), &cam, &[]).unwrap();
     assert_eq!(backend, Backend::Cpu);
     assert_eq!(image, render(&scene.splats(), &cam, &[]).unwrap().0);
+    let (scene, ids) = one_hot_scene(10, 2, &cam, 2);
+    let (image, backend) = render_ids_any(None, &scene.splats(), &ids, &cam, 0.5).unwrap();
+    assert_eq!(backend, Backend::Cpu);
+    assert_eq!(image, render_ids(&scene.splats(), &ids, &cam, 0.5).unwrap());
 }

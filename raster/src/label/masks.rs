@@ -1,6 +1,6 @@
 //! Instance masks by rendering: every Gaussian carries its instance id, the rasterizer
-//! composites one one-hot channel per instance, and each pixel takes the channel of largest
-//! weight where the accumulated alpha exceeds 0.5 (else 0). Because ids live on the
+//! composites the ids in one pass ([`render_ids_any`]), and each pixel takes the id of
+//! largest weight where the accumulated alpha exceeds 0.5 (else 0). Because ids live on the
 //! Gaussians, masks of any view, context or novel, agree by construction. Also the small maps
 //! built from an id map: a label map and the mask of a set of ids (a text query's answer);
 //! and the scene's colour image from any camera (novel-view RGB for evaluation).
@@ -9,7 +9,7 @@ use inssplat_proto::gaussian::LengthMismatch;
 use inssplat_proto::{Camera, GaussianScene};
 
 use crate::metrics::NO_LABEL;
-use crate::render::{Backend, GpuRenderer, RenderError, Splats, render, render_any};
+use crate::render::{Backend, GpuRenderer, RenderError, Splats, render, render_ids_any};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MaskError {
@@ -21,6 +21,18 @@ pub enum MaskError {
 
 /// Alpha above which a pixel belongs to some instance.
 pub const MASK_ALPHA: f32 = 0.5;
+
+/// The scene's Gaussians with `features` (`channels` per Gaussian) as the rasterizer's input.
+fn splats<'a>(scene: &'a GaussianScene, features: &'a [f32], channels: usize) -> Splats<'a> {
+    Splats {
+        means: &scene.means,
+        log_scales: &scene.log_scales,
+        rotations: &scene.rotations,
+        logit_opacity: &scene.logit_opacity,
+        features,
+        channels,
+    }
+}
 
 /// Renders `scene.instance_id` (ids 1..=`instances`; others count as none) seen by `camera`
 /// into an id map, row-major `[H][W]`, 0 = none, on the CPU.
@@ -40,37 +52,10 @@ pub fn render_instance_ids_on(
     if instances == 0 {
         return Ok((vec![0; pixels], Backend::Cpu));
     }
-    let mut one_hot = vec![0.0f32; scene.len() * instances];
-    for (g, &id) in scene.instance_id.iter().enumerate() {
-        if (1..=instances).contains(&(id as usize)) {
-            one_hot[g * instances + id as usize - 1] = 1.0;
-        }
-    }
-    let splats = Splats {
-        means: &scene.means,
-        log_scales: &scene.log_scales,
-        rotations: &scene.rotations,
-        logit_opacity: &scene.logit_opacity,
-        features: &one_hot,
-        channels: instances,
-    };
-    let (image, backend) = render_any(gpu, &splats, camera, &vec![0.0; instances])?;
-    let ids = (0..pixels)
-        .map(|p| {
-            if image.alpha[p] <= MASK_ALPHA {
-                return 0;
-            }
-            let (mut best, mut best_w) = (0, 0.0);
-            for k in 0..instances {
-                let w = image.features[k * pixels + p];
-                if w > best_w {
-                    (best, best_w) = (k as u32 + 1, w);
-                }
-            }
-            best
-        })
-        .collect();
-    Ok((ids, backend))
+    // Ids past the instance count are no instance.
+    let ids: Vec<u32> = scene.instance_id.iter().map(|&id| if id as usize <= instances { id } else { 0 }).collect();
+    let (image, backend) = render_ids_any(gpu, &splats(scene, &[], 0), &ids, camera, MASK_ALPHA)?;
+    Ok((image.ids, backend))
 }
 
 /// The scene's colours (SH degree 0) seen by `camera` over black: planar `[3][H][W]`, not
@@ -78,15 +63,7 @@ pub fn render_instance_ids_on(
 pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
     let colours: Vec<f32> = scene.sh_dc.iter().flat_map(|c| c.map(inssplat_proto::gaussian::sh_dc_to_rgb)).collect();
-    let splats = Splats {
-        means: &scene.means,
-        log_scales: &scene.log_scales,
-        rotations: &scene.rotations,
-        logit_opacity: &scene.logit_opacity,
-        features: &colours,
-        channels: 3,
-    };
-    Ok(render(&splats, camera, &[0.0; 3])?.0.features)
+    Ok(render(&splats(scene, &colours, 3), camera, &[0.0; 3])?.0.features)
 }
 
 /// A scene's instance embedding and semantic feature rendered into one view.
@@ -111,15 +88,7 @@ pub fn render_features(scene: &GaussianScene, camera: &Camera) -> Result<Feature
         features.extend_from_slice(&scene.instance_embedding[i]);
         features.extend_from_slice(scene.semantic_of(i));
     }
-    let splats = Splats {
-        means: &scene.means,
-        log_scales: &scene.log_scales,
-        rotations: &scene.rotations,
-        logit_opacity: &scene.logit_opacity,
-        features: &features,
-        channels,
-    };
-    let (mut image, _) = render(&splats, camera, &vec![0.0; channels])?;
+    let (mut image, _) = render(&splats(scene, &features, channels), camera, &vec![0.0; channels])?;
     let pixels = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
     let semantic = image.features.split_off(e * pixels);
     Ok(FeatureImage { instance: image.features, semantic, alpha: image.alpha })

@@ -5,8 +5,8 @@
 //! four at a time without branches (the loop vectorizes); a pixel's weight then goes to a
 //! [`TileSink`], which accumulates whatever the caller renders (feature channels and depth,
 //! or instance ids). Pixels stop when the next Gaussian would take their transmittance below
-//! [`T_MIN`] (that Gaussian is not composited, as in gsplat); the tile stops when all its
-//! pixels have. Per pixel it keeps what the backward needs: the final transmittance and the
+//! [`T_MIN`] (that Gaussian is not composited, as in gsplat), or when the sink says their
+//! result is settled; the tile stops when all its pixels have. Per pixel it keeps what the backward needs: the final transmittance and the
 //! number of list entries up to the last one that contributed.
 
 use wide::{f32x4, u32x4};
@@ -95,8 +95,18 @@ impl Ellipse {
 /// Gaussian's depth rank and the pixel's weight w = α·T. Each pixel sees its Gaussians front
 /// to back, so sums come out in the same order whatever the sink.
 pub(crate) trait TileSink {
+    /// Whether the sink may settle pixels early (see [`TileSink::settled`]).
+    const SETTLES: bool = false;
+
     /// Gaussian `g` of depth rank `rank` contributes to each tile pixel of `taken` with its weight.
     fn add(&mut self, g: &Projected, rank: usize, taken: &[(usize, f32)]);
+
+    /// Whether the pixel's result can no longer change, its transmittance now being
+    /// `transmittance`: the compositor then stops it (its coverage stays as it is). Asked after
+    /// each contribution, only when [`TileSink::SETTLES`].
+    fn settled(&self, _pixel: usize, _transmittance: f32) -> bool {
+        false
+    }
 }
 
 /// Feature channels and depth of one tile: Σ w·f per channel (`[pixel][channel]`, no
@@ -158,6 +168,19 @@ pub(crate) fn pixel_offset(origin: u32, i: usize, centre: f32) -> f32 {
     (origin as i32 + i as i32) as f32 + 0.5 - centre
 }
 
+/// `LANES` pixels of a row that one Gaussian covers.
+#[derive(Debug, Clone, Copy, Default)]
+struct LaneGroup {
+    /// Tile pixel of the first lane.
+    at: usize,
+    /// Its column.
+    base: usize,
+    /// Vertical offset of the row from the Gaussian's centre.
+    dy: f32,
+    /// All ones for the lanes inside the Gaussian's row span.
+    span: u32x4,
+}
+
 /// Composites the depth ranks `ranks` (increasing) of `sorted` Gaussians over the tile whose
 /// top-left pixel is `origin`, inside an image of `size` (pixels past the border are never
 /// touched), feeding every contribution to `sink`.
@@ -201,6 +224,9 @@ fn composite<const SMOOTH: bool, S: TileSink>(
     // The pixels the current Gaussian contributes to and their weights (w = α·T); room for
     // a whole tile plus the lanes written past the last one.
     let mut taken = [(0usize, 0.0f32); TILE_PIXELS + LANES];
+    // The current Gaussian's lane groups (at most 4 per row) and their alphas.
+    let mut lane_groups = [LaneGroup::default(); TILE_PIXELS / LANES * 2];
+    let mut alphas = [f32x4::ZERO; TILE_PIXELS / LANES * 2];
     for (k, &rank) in ranks.iter().enumerate() {
         if live_count == 0 {
             break;
@@ -210,45 +236,59 @@ fn composite<const SMOOTH: bool, S: TileSink>(
         let Some((y0, y1)) = span(g.xy[1], g.extent[1], origin[1]) else { continue };
         let ellipse = Ellipse::new(g);
         let stamp = u32x4::splat(k as u32 + 1);
-        let mut count = 0;
-        for (y, row_live) in row_live.iter_mut().enumerate().take(y1 + 1).skip(y0) {
-            if *row_live == 0 {
+        // The lane groups the Gaussian covers in still-compositing rows, then all their alphas
+        // (independent chains the CPU overlaps), then the compositing proper.
+        let mut groups = 0;
+        for (y, &row_live) in row_live.iter().enumerate().take(y1 + 1).skip(y0) {
+            if row_live == 0 {
                 continue;
             }
             let dy = pixel_offset(origin[1], y, g.xy[1]);
             let Some((x0, x1)) = ellipse.row_span(dy, origin[0]) else { continue };
-            // All of the row's values first: independent chains the CPU overlaps.
-            let mut alphas = [f32x4::ZERO; TILE as usize / LANES];
-            for (alpha, base) in alphas.iter_mut().zip(chunk_starts(x0, x1)) {
-                *alpha = cutoff.alpha_lanes(gaussian_values(g, origin[0], base, dy));
+            for base in chunk_starts(x0, x1) {
+                lane_groups[groups] = LaneGroup { at: y * tile + base, base, dy, span: span_mask(base, x0, x1) };
+                groups += 1;
             }
-            for (&alpha, base) in alphas.iter().zip(chunk_starts(x0, x1)) {
-                let at = y * tile + base;
-                let lanes = at..at + LANES;
-                let t = f32x4::new(transmittance[lanes.clone()].try_into().unwrap());
-                let next = t * (f32x4::ONE - alpha);
-                let live_now = u32x4::new(live[lanes.clone()].try_into().unwrap());
-                let hit = f32x4::from_bits(live_now & span_mask(base, x0, x1)) & alpha.simd_gt(f32x4::ZERO);
-                let stop = hit & next.simd_lt(f32x4::splat(T_MIN));
-                let take = hit ^ stop;
-                transmittance[lanes.clone()].copy_from_slice(take.select(next, t).as_array());
-                let before = u32x4::new(last[lanes.clone()].try_into().unwrap());
-                last[lanes.clone()].copy_from_slice(take.to_bits().select(stamp, before).as_array());
-                live[lanes].copy_from_slice((live_now & !stop.to_bits()).as_array());
-                let stops = stop.to_bitmask().count_ones();
-                *row_live -= stops;
-                live_count -= stops as usize;
-                // Branch-free compaction of the contributing lanes.
-                let weight = (alpha * t).to_array();
-                let bits = take.to_bitmask();
-                for (l, &w) in weight.iter().enumerate() {
-                    taken[count] = (at + l, w);
-                    count += (bits >> l) as usize & 1;
-                }
+        }
+        for (alpha, group) in alphas.iter_mut().zip(&lane_groups[..groups]) {
+            *alpha = cutoff.alpha_lanes(gaussian_values(g, origin[0], group.base, group.dy));
+        }
+        let mut count = 0;
+        for (&alpha, group) in alphas.iter().zip(&lane_groups[..groups]) {
+            let at = group.at;
+            let lanes = at..at + LANES;
+            let t = f32x4::new(transmittance[lanes.clone()].try_into().unwrap());
+            let next = t * (f32x4::ONE - alpha);
+            let live_now = u32x4::new(live[lanes.clone()].try_into().unwrap());
+            let hit = f32x4::from_bits(live_now & group.span) & alpha.simd_gt(f32x4::ZERO);
+            let stop = hit & next.simd_lt(f32x4::splat(T_MIN));
+            let take = hit ^ stop;
+            transmittance[lanes.clone()].copy_from_slice(take.select(next, t).as_array());
+            let before = u32x4::new(last[lanes.clone()].try_into().unwrap());
+            last[lanes.clone()].copy_from_slice(take.to_bits().select(stamp, before).as_array());
+            live[lanes].copy_from_slice((live_now & !stop.to_bits()).as_array());
+            let stops = stop.to_bitmask().count_ones();
+            row_live[at / tile] -= stops;
+            live_count -= stops as usize;
+            // Branch-free compaction of the contributing lanes.
+            let weight = (alpha * t).to_array();
+            let bits = take.to_bitmask();
+            for (l, &w) in weight.iter().enumerate() {
+                taken[count] = (at + l, w);
+                count += (bits >> l) as usize & 1;
             }
         }
         if count > 0 {
             sink.add(g, rank, &taken[..count]);
+        }
+        if S::SETTLES {
+            for &(p, _) in &taken[..count] {
+                if live[p] != 0 && sink.settled(p, transmittance[p]) {
+                    live[p] = 0;
+                    row_live[p / tile] -= 1;
+                    live_count -= 1;
+                }
+            }
         }
     }
     TileCoverage {
