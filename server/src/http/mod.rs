@@ -1,5 +1,6 @@
 //! `inssplat serve`: the axum HTTP service in front of the pipeline. Routes live in one
-//! module per resource (`reconstruct`, `scenes`, `jobs`, `ops`); `layers` holds the API key
+//! module per resource (`reconstruct`, `scenes`, `jobs`, `ops`, and `page` for the web page);
+//! `layers` holds the API key
 //! check, the request timeout and the access log/metrics; `error` the one error shape. The
 //! model itself runs on the `worker` threads; the service binds first (printing its address,
 //! so port 0 works), answers `/health` at once and `/ready` once the model is warm.
@@ -9,6 +10,7 @@ mod jobs;
 mod layers;
 mod openapi;
 mod ops;
+mod page;
 mod reconstruct;
 mod scenes;
 mod upload;
@@ -75,6 +77,10 @@ pub struct ServeArgs {
     /// Require `Authorization: Bearer <key>` on /v1 routes (the key is never logged).
     #[arg(long, env = "INSSPLAT_API_KEY", hide_env_values = true)]
     pub api_key: Option<String>,
+    /// The web page's npm packages (three.js, Spark, redoc): the node_modules folder that
+    /// scripts/setup installs.
+    #[arg(long, env = "INSSPLAT_WEB_DIR", default_value = ".deps/web/node_modules")]
+    pub web_dir: PathBuf,
 }
 
 /// What every handler can reach.
@@ -83,6 +89,8 @@ pub(crate) struct AppState {
     shared: Arc<Shared>,
     api_key: Option<String>,
     data_dir: PathBuf,
+    /// The page's npm packages (`--web-dir`).
+    web_dir: PathBuf,
     default_vocab: Vec<String>,
     max_body_bytes: usize,
     request_timeout: Duration,
@@ -126,11 +134,16 @@ async fn run(args: ServeArgs, gpu: Option<Arc<GpuRenderer>>) -> anyhow::Result<(
         shared: shared.clone(),
         api_key: args.api_key.clone().filter(|k| !k.is_empty()),
         data_dir: args.data_dir.clone(),
+        web_dir: args.web_dir.clone(),
         default_vocab,
         max_body_bytes: usize::try_from(args.max_body_mb << 20).unwrap_or(usize::MAX),
         request_timeout: Duration::from_secs(args.request_timeout_s.max(1)),
         shutdown,
     });
+
+    if let Some(missing) = page::missing_vendor(&args.web_dir) {
+        tracing::warn!("the web page will not work: {missing}");
+    }
 
     let listener = tokio::net::TcpListener::bind(args.listen).await.with_context(|| format!("--listen {}: cannot bind", args.listen))?;
     let addr = listener.local_addr()?;
@@ -238,9 +251,16 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/health", get(ops::health))
         .route("/ready", get(ops::ready))
         .route("/metrics", get(ops::metrics))
-        .route("/openapi.json", get(ops::openapi))
-        .route("/docs", get(ops::docs));
+        .route("/openapi.json", get(ops::openapi));
+    let page = Router::new()
+        .route("/", get(page::index))
+        .route("/jobs", get(page::jobs))
+        .route("/docs", get(page::docs))
+        .route("/web/{file}", get(page::asset))
+        .route("/web/example/{file}", get(page::example))
+        .route("/vendor/{*path}", get(page::vendor));
     v1.merge(ops)
+        .merge(page)
         .method_not_allowed_fallback(layers::method_not_allowed)
         .route_layer(from_fn_with_state(state.clone(), layers::observe))
         .fallback(layers::not_found)

@@ -1,13 +1,13 @@
 //! Operational endpoints: liveness (`/health`), readiness once the model is warm (`/ready`,
-//! 503 before), Prometheus metrics (`/metrics`), the OpenAPI document (`/openapi.json`) and a
-//! page that renders it (`/docs`).
+//! 503 before), Prometheus metrics (`/metrics`) and the OpenAPI document (`/openapi.json`;
+//! `page` serves `/docs`, which renders it).
 
 use std::sync::Arc;
 
 use axum::Json;
 use axum::extract::State;
 use axum::http::header;
-use axum::response::{Html, IntoResponse, Response};
+use axum::response::{IntoResponse, Response};
 use inssplat_proto::api::{ErrorBody, ServiceStatus};
 use utoipa::OpenApi;
 
@@ -57,15 +57,4 @@ pub async fn metrics(State(state): State<Arc<AppState>>) -> Result<Response, Api
     responses((status = 200, description = "OpenAPI document", content_type = "application/json")))]
 pub async fn openapi() -> Json<utoipa::openapi::OpenApi> {
     Json(ApiDoc::openapi())
-}
-
-/// A page that renders `/openapi.json` (the viewer script loads from a CDN in the browser).
-pub async fn docs() -> Html<&'static str> {
-    Html(
-        r#"<!doctype html>
-<html><head><meta charset="utf-8"><title>inssplat API</title></head>
-<body><redoc spec-url="/openapi.json"></redoc>
-<noscript>The API is described in <a href="/openapi.json">/openapi.json</a>.</noscript>
-<script src="https://cdn.redoc.ly/redoc/latest/bundles/redoc.standalone.js"></script></body></html>"#,
-    )
 }
