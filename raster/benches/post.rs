@@ -81,17 +81,7 @@ fn main() {
     let mut rows = Vec::new();
     for views in [2, 4, 8, 16] {
         let picked: Vec<usize> = (0..views).map(|i| i * 16 / views).collect();
-        let inputs: Vec<ViewOutputs<'_>> = picked
-            .iter()
-            .map(|&i| ViewOutputs {
-                camera: &ring[i],
-                depth: &planes[i].depth,
-                depth_conf: &planes[i].conf,
-                gaussians: &planes[i].gaussians,
-                instance: &planes[i].instance,
-                semantic: &planes[i].semantic,
-            })
-            .collect();
+        let inputs: Vec<ViewOutputs<'_>> = picked.iter().map(|&i| planes[i].outputs(&ring[i])).collect();
         let (t_bp, dense) = time(|| backproject(&inputs, SEM_DIM).expect("back-projection"));
         let (t_vox, (compact, _)) = time(|| voxelize(&dense, &VoxelParams::default()).expect("voxelization"));
         let (t_c3, clustered) = time(|| {

@@ -2,11 +2,13 @@
 //! of predicted depth into per-pixel Gaussians, confidence-aware voxelization and feature
 //! fusion, the differentiable CPU tile rasterizer (forward and hand-written backward, any
 //! channel count), the wgpu forward rasterizer for serving, instance clustering in 3D
-//! (HDBSCAN) and label assignment, and the image metrics of the evaluation protocol. It knows
+//! (HDBSCAN) and label assignment, the image metrics of the evaluation protocol, and the
+//! ideal network outputs of views with known ground truth that prove the chain. It knows
 //! nothing of HTTP or ONNX.
 
 pub mod backproject;
 pub mod cluster;
+pub mod ideal;
 pub mod label;
 pub mod metrics;
 pub mod render;

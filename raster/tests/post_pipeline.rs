@@ -21,18 +21,7 @@ fn ground_truth_inputs_recover_instances_and_labels() {
     let cameras = ring_cameras(8, 128);
     let scene = render_scene(&cameras);
     let planes = ideal_outputs(&scene, 0.15, 7);
-    let views: Vec<ViewOutputs<'_>> = planes
-        .iter()
-        .zip(&cameras)
-        .map(|(p, camera)| ViewOutputs {
-            camera,
-            depth: &p.depth,
-            depth_conf: &p.conf,
-            gaussians: &p.gaussians,
-            instance: &p.instance,
-            semantic: &p.semantic,
-        })
-        .collect();
+    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
     let dense = backproject(&views, SEM_DIM).unwrap();
     let (mut compact, report) = voxelize(&dense, &VoxelParams::default()).unwrap();
     assert!(report.gaussians_out * 4 <= 8 * 128 * 128, "{report:?}");

@@ -1,17 +1,17 @@
-//! A small analytic room for the post-processing tests and benchmark, until the trainer's
-//! procedural generator exists: a floor with four boxes (two "chair"s, a "table", a
-//! "cabinet"), seen by cameras on a ring, rendered exactly by ray–box intersection per pixel
-//! centre into an `inssplat_proto::dataset::Scene` (depth, instance ids, colour). From it,
-//! [`ideal_outputs`] builds what a perfect network would output: true depth, pixel-sized
-//! surface-aligned Gaussians, a noisy one-hot instance embedding per instance, and a semantic
-//! code whose Φ_sem projection lands near its label's (random, unit) text embedding.
-//! Included as a module by `post_pipeline.rs` and `benches/post.rs`.
+//! A small analytic room for the post-processing tests and benchmark: a floor with four
+//! boxes (two "chair"s, a "table", a "cabinet"), seen by cameras on a ring, rendered exactly
+//! by ray–box intersection per pixel centre into an `inssplat_proto::dataset::Scene` (depth,
+//! instance ids, colour). [`ideal_outputs`] gives what a perfect network would output for it
+//! (`inssplat_raster::ideal`, with the room's exact surface normals and labels), and the
+//! semantic code's Φ_sem projection lands on its label's (random, unit) text embedding.
+//! Included as a module by `post_pipeline.rs` and `benches/post.rs`; the same chain runs on
+//! synthesized scenes in the workspace's `tests/tests/chain_synth.rs`.
 
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use inssplat_proto::dataset::{Frame, InstanceLabel, Scene};
-use inssplat_proto::gaussian::{logit, rgb_to_sh_dc};
-use inssplat_proto::signature::{GAUSSIAN_CHANNELS, TEXT_DIM};
-use inssplat_proto::{Camera, INSTANCE_DIM, Intrinsics};
+use inssplat_proto::signature::TEXT_DIM;
+use inssplat_proto::{Camera, Intrinsics};
+use inssplat_raster::ideal::{ViewPlanes, ideal_view, label_projection, pixel_ray};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -32,9 +32,6 @@ pub const FLOOR_LABEL: &str = "floor";
 
 /// The vocabulary: every label of the room, the floor's, and distractors.
 pub const VOCABULARY: [&str; 8] = ["table", "chair", "cabinet", FLOOR_LABEL, "lamp", "sofa", "bed", "plant"];
-
-/// Standard deviation of an ideal Gaussian, in pixel footprints.
-pub const SIGMA_PX: f32 = 0.4;
 
 /// Width of the semantic feature L.
 pub const SEM_DIM: usize = VOCABULARY.len();
@@ -85,13 +82,6 @@ pub fn ring_cameras(views: usize, size: u32) -> Vec<Camera> {
             Camera::look_at(k, eye, Vec3::new(0.0, 0.3, 0.0), Vec3::Y)
         })
         .collect()
-}
-
-/// World-space unit ray through the centre of pixel (`x`, `y`).
-fn pixel_ray(cam: &Camera, x: usize, y: usize) -> (Vec3, Vec3) {
-    let p = cam.camera_to_world(cam.unproject(x as f32 + 0.5, y as f32 + 0.5, 1.0));
-    let o = cam.center();
-    (o, (p - o).normalize())
 }
 
 /// The room seen by `cameras`, rendered exactly: depth along the camera z axis (0 = no hit),
@@ -151,8 +141,8 @@ pub fn text_space(seed: u64) -> TextSpace {
             v.into_iter().map(|x| x / n).collect()
         })
         .collect();
-    let weight = (0..TEXT_DIM * SEM_DIM).map(|i| vocabulary[i % SEM_DIM][i / SEM_DIM]).collect();
-    TextSpace { vocabulary, weight, bias: vec![0.0; TEXT_DIM] }
+    let (weight, bias) = label_projection(&vocabulary);
+    TextSpace { vocabulary, weight, bias }
 }
 
 /// Index of `label` in [`VOCABULARY`].
@@ -160,81 +150,25 @@ pub fn label_index(label: &str) -> usize {
     VOCABULARY.iter().position(|l| *l == label).expect("label in the vocabulary")
 }
 
-/// What a perfect network would output for one view, planar `[C][H][W]`.
-pub struct ViewPlanes {
-    pub depth: Vec<f32>,
-    pub conf: Vec<f32>,
-    pub gaussians: Vec<f32>,
-    pub instance: Vec<f32>,
-    pub semantic: Vec<f32>,
-}
-
-/// Ideal outputs for every frame of `scene`: true depth; confidence (1 + 4/z)·|cos| of the
-/// viewing angle; zero offsets; Gaussians flat in the surface (normal from the analytic
-/// room), [`SIGMA_PX`] pixel footprints wide (stretched by 1/cos, at most ×1/0.35, along the
-/// ray's direction in the surface), opacity 0.98, the pixel's colour; instance embedding e_id
-/// plus uniform noise of ±`noise` per entry; semantic code e_label plus the same noise.
+/// Ideal outputs ([`ideal_view`]) for every frame of `scene`, with the room's exact normals
+/// and labels (the floor's included), and uniform noise of ±`noise` per code entry.
 pub fn ideal_outputs(scene: &Scene, noise: f32, seed: u64) -> Vec<ViewPlanes> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut noise = || rng.random_range(-noise..=noise);
     scene
         .frames
         .iter()
         .map(|f| {
-            let cam = &f.camera;
-            let (w, h) = (f.width() as usize, f.height() as usize);
-            let px = w * h;
-            let depth = f.depth.clone().expect("depth");
-            let mut v = ViewPlanes {
-                conf: vec![0.0; px],
-                gaussians: vec![0.0; GAUSSIAN_CHANNELS * px],
-                instance: vec![0.0; INSTANCE_DIM * px],
-                semantic: vec![0.0; SEM_DIM * px],
-                depth,
-            };
-            for p in 0..px {
-                let (o, d) = pixel_ray(cam, p % w, p / w);
-                let Some(hit) = cast(o, d) else { continue };
-                let z = v.depth[p];
-                // Surer when near and when facing the surface.
-                v.conf[p] = (1.0 + 4.0 / z) * hit.normal.dot(-d).abs().max(0.05);
-                // A disc in the surface: along the ray's in-surface direction `a` it spans the
-                // pixel's stretched footprint z/(f·cos), across it the plain one z/f.
-                let (n_cam, d_cam) = (cam.rotation * hit.normal, cam.rotation * d);
-                let cos = n_cam.dot(d_cam).abs().max(0.35);
-                let a = (d_cam - d_cam.dot(n_cam) * n_cam).normalize_or(n_cam.any_orthonormal_vector());
-                let q = Quat::from_mat3(&glam::Mat3::from_cols(a, n_cam.cross(a), n_cam));
-                let s = SIGMA_PX * z / cam.intrinsics.fx;
-                let rgb = [0, 1, 2].map(|c| f32::from(f.rgb[3 * p + c]) / 255.0);
-                let channels = [
-                    0.0,
-                    0.0,
-                    0.0,
-                    (s / cos).ln(),
-                    s.ln(),
-                    (0.05 * s).ln(),
-                    q.w,
-                    q.x,
-                    q.y,
-                    q.z,
-                    logit(0.98),
-                    rgb_to_sh_dc(rgb[0]),
-                    rgb_to_sh_dc(rgb[1]),
-                    rgb_to_sh_dc(rgb[2]),
-                ];
-                for (c, value) in channels.into_iter().enumerate() {
-                    v.gaussians[c * px + p] = value;
-                }
-                for k in 0..INSTANCE_DIM {
-                    let hot = if k == usize::from(hit.id) { 1.0 } else { 0.0 };
-                    v.instance[k * px + p] = hot + rng.random_range(-noise..=noise);
-                }
-                let label = label_index(hit.label);
-                for k in 0..SEM_DIM {
-                    let hot = if k == label { 1.0 } else { 0.0 };
-                    v.semantic[k * px + p] = hot + rng.random_range(-noise..=noise);
-                }
-            }
-            v
+            let w = f.width() as usize;
+            let hits: Vec<Option<Hit>> = (0..w * f.height() as usize)
+                .map(|p| {
+                    let (o, d) = pixel_ray(&f.camera, p % w, p / w);
+                    cast(o, d)
+                })
+                .collect();
+            let normal_at = |p: usize| hits[p].as_ref().map_or(Vec3::ZERO, |h| h.normal);
+            let label_at = |p: usize| hits[p].as_ref().map(|h| label_index(h.label));
+            ideal_view(f, normal_at, label_at, SEM_DIM, &mut noise)
         })
         .collect()
 }
