@@ -1,6 +1,7 @@
 // Drives the inssplat page in headless Chromium (playwright-core) against a running service,
 // as a person would: choose the photos, reconstruct, wait for the 3D view, then type a label
-// that the reconstruction reports and let the page highlight it. It saves screenshots and
+// that the reconstruction reports and let the page highlight it; then /jobs and /docs must load
+// without exceptions. No request may leave the service's origin. It saves screenshots and
 // prints one JSON line of measurements (pixels counted in the screenshots); the Rust test
 // tests/tests/web_page.rs starts the service, runs this and judges the numbers.
 //
@@ -53,13 +54,17 @@ const browser = await chromium.launch({
   args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
 });
 try {
-  const page = await browser.newPage({ viewport: { width: 1280, height: 900 } });
+  const context = await browser.newContext({ viewport: { width: 1280, height: 900 } });
+  // Requests for another origin, less those the content security policy refused to send.
+  const foreign = new Set();
+  const refused = [];
+  context.on("request", (r) => new URL(r.url()).origin !== new URL(url).origin && !r.url().startsWith("data:") && foreign.add(r));
+  context.on("requestfailed", (r) => foreign.has(r) && r.failure()?.errorText === "csp" && foreign.delete(r) && refused.push(r.url()));
+  const page = await context.newPage();
   const errors = [];
-  const foreign = [];
-  page.on("request", (r) => new URL(r.url()).origin !== new URL(url).origin && !r.url().startsWith("data:") && foreign.push(r.url()));
   page.on("pageerror", (e) => errors.push(String(e)));
   page.on("console", (m) => m.type() === "error" && errors.push(m.text()));
-  const helper = await browser.newPage();
+  const helper = await context.newPage();
   const started = Date.now();
 
   await page.goto(url);
@@ -84,7 +89,15 @@ try {
   await page.screenshot({ path: join(out, "page.png") });
   const masked = await page.locator("#views canvas").count();
 
-  console.log(JSON.stringify({ reconstructed, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, errors, foreign }));
+  // The other pages load and run too (redoc renders the API; its CDN logo is refused by the
+  // page's content security policy, a console message, so only exceptions count there).
+  const other = await context.newPage();
+  other.on("pageerror", (e) => errors.push(`${other.url()}: ${e}`));
+  await other.goto(new URL("/jobs", url).href);
+  await other.goto(new URL("/docs", url).href);
+  await other.getByText("/v1/reconstruct").first().waitFor({ timeout: 30_000 });
+
+  console.log(JSON.stringify({ reconstructed, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, errors, foreign: [...foreign].map((r) => r.url()), refused }));
 } finally {
   await browser.close();
 }

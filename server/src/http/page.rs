@@ -40,6 +40,12 @@ const VENDOR_ENTRIES: &[&str] =
 /// Where in a page the warning about missing packages goes.
 const NOTICE_SLOT: &str = "<!--vendor-notice-->";
 
+/// The pages may load nothing from any other host (redoc, for one, would fetch its logo from
+/// its CDN); inline scripts (the import map), eval and WebAssembly, as Spark uses them, stay
+/// allowed.
+const CONTENT_SECURITY_POLICY: &str = "default-src 'self' data: blob:; \
+    script-src 'self' 'unsafe-inline' 'unsafe-eval' 'wasm-unsafe-eval' blob:; style-src 'self' 'unsafe-inline'";
+
 /// The packages of `--web-dir` that are missing, as one sentence (None when all are there).
 pub fn missing_vendor(web_dir: &FsPath) -> Option<String> {
     let missing: Vec<&str> = VENDOR_ENTRIES.iter().copied().filter(|e| !web_dir.join(e).is_file()).collect();
@@ -53,9 +59,9 @@ pub fn missing_vendor(web_dir: &FsPath) -> Option<String> {
 }
 
 /// `html` with the missing-package warning (if any) in its notice slot.
-fn page(state: &AppState, html: &str) -> Html<String> {
-    let notice = missing_vendor(&state.web_dir).map(|m| format!(r#"<p class="notice error">The 3D viewer cannot load: {}.</p>"#, escape(&m)));
-    Html(html.replace(NOTICE_SLOT, &notice.unwrap_or_default()))
+fn page(state: &AppState, html: &str) -> Response {
+    let notice = missing_vendor(&state.web_dir).map(|m| format!(r#"<p class="notice error">This page cannot work: {}.</p>"#, escape(&m)));
+    ([(header::CONTENT_SECURITY_POLICY, CONTENT_SECURITY_POLICY)], Html(html.replace(NOTICE_SLOT, &notice.unwrap_or_default()))).into_response()
 }
 
 fn escape(s: &str) -> String {
@@ -63,17 +69,17 @@ fn escape(s: &str) -> String {
 }
 
 /// The scene page: photos in, 3D view, instances and text queries.
-pub async fn index(State(state): State<Arc<AppState>>) -> Html<String> {
+pub async fn index(State(state): State<Arc<AppState>>) -> Response {
     page(&state, include_str!("../../../web/index.html"))
 }
 
 /// The batch jobs page.
-pub async fn jobs(State(state): State<Arc<AppState>>) -> Html<String> {
+pub async fn jobs(State(state): State<Arc<AppState>>) -> Response {
     page(&state, include_str!("../../../web/jobs.html"))
 }
 
 /// The API reference (redoc, from `--web-dir`).
-pub async fn docs(State(state): State<Arc<AppState>>) -> Html<String> {
+pub async fn docs(State(state): State<Arc<AppState>>) -> Response {
     page(&state, include_str!("../../../web/docs.html"))
 }
 
