@@ -14,7 +14,10 @@ export class Viewer {
     this.renderer.setClearColor(BACKGROUND);
     this.scene = new THREE.Scene();
     this.camera = new THREE.PerspectiveCamera(60, 1, 0.01, 1000);
-    this.scene.add(new SparkRenderer({ renderer: this.renderer }));
+    // Frames are drawn only when something changed (the view, the colours, or Spark's sort
+    // finishing): a software-rendered browser stays responsive.
+    this.dirty = true;
+    this.scene.add(new SparkRenderer({ renderer: this.renderer, onDirty: () => (this.dirty = true) }));
     this.controls = null;
     this.cameras = new THREE.Group();
     this.scene.add(this.cameras);
@@ -28,8 +31,11 @@ export class Viewer {
       this.renderer.setSize(w, h, false);
       this.camera.aspect = w / h;
       this.camera.updateProjectionMatrix();
+      this.dirty = true;
     }
     this.controls?.update();
+    if (!this.dirty) return;
+    this.dirty = false;
     this.renderer.render(this.scene, this.camera);
   }
 
@@ -55,10 +61,12 @@ export class Viewer {
     this.colours.array.set(rgba);
     this.colours.needsUpdate = true;
     this.splats.needsUpdate = true;
+    this.dirty = true;
   }
 
   showCameras(visible) {
     this.cameras.visible = visible;
+    this.dirty = true;
   }
 
   drawCameras(cameras, depth) {
@@ -90,7 +98,9 @@ export class Viewer {
     // OrbitControls orbits about the camera's up as it is when they are made.
     this.controls?.dispose();
     this.controls = new OrbitControls(this.camera, this.canvas);
+    this.controls.addEventListener("change", () => (this.dirty = true));
     this.controls.target.set(...gaussians.centre);
     this.controls.update();
+    this.dirty = true;
   }
 }

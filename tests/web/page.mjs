@@ -66,6 +66,8 @@ try {
   page.on("console", (m) => m.type() === "error" && errors.push(m.text()));
   const helper = await context.newPage();
   const started = Date.now();
+  const seconds = {};
+  const lap = (name) => (seconds[name] = (Date.now() - started) / 1000);
 
   await page.goto(url);
   await page.locator("#photos").setInputFiles(photos);
@@ -73,10 +75,11 @@ try {
   await page.waitForSelector("body[data-state=ready], body[data-state=error]", { timeout: 180_000 });
   const progress = await page.locator("#progress").innerText();
   if ((await page.locator("body").getAttribute("data-state")) === "error") throw new Error(`the page failed: ${progress}; ${errors.join("; ")}`);
-  const reconstructed = (Date.now() - started) / 1000;
+  lap("reconstructed");
 
   const scene = await settle(page, helper, (c) => c.drawn > c.pixels / 5, 60);
   writeFileSync(join(out, "scene.png"), scene.shot);
+  lap("drawn");
 
   const labels = await page.locator("#instances li").evaluateAll((items) => items.map((i) => i.dataset.label));
   const label = labels[0];
@@ -86,6 +89,7 @@ try {
   const matches = Number(await page.locator("#query-result").getAttribute("data-matches"));
   const queried = await settle(page, helper, (c) => c.highlight > scene.counts.highlight + c.pixels / 50, 30);
   writeFileSync(join(out, "query.png"), queried.shot);
+  lap("highlighted");
   await page.screenshot({ path: join(out, "page.png") });
   const masked = await page.locator("#views canvas").count();
 
@@ -96,8 +100,9 @@ try {
   await other.goto(new URL("/jobs", url).href);
   await other.goto(new URL("/docs", url).href);
   await other.getByText("/v1/reconstruct").first().waitFor({ timeout: 30_000 });
+  lap("other_pages");
 
-  console.log(JSON.stringify({ reconstructed, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, errors, foreign: [...foreign].map((r) => r.url()), refused }));
+  console.log(JSON.stringify({ seconds, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, errors, foreign: [...foreign].map((r) => r.url()), refused }));
 } finally {
   await browser.close();
 }
