@@ -8,10 +8,11 @@ export const DIMMED = [70, 70, 70];
 /** The 3D view's background. */
 export const BACKGROUND = 0x15171c;
 
-/** A stable, well-spread colour for instance `id` (0 = no instance: grey). */
+/** A stable, well-spread colour for instance `id` (0 = no instance: grey); the hues stop
+ * short of purple and magenta, which belong to the highlight. */
 export function instanceColour(id) {
   if (id === 0) return [128, 128, 128];
-  const hue = (id * 0.618033988749895) % 1;
+  const hue = ((id * 0.618033988749895) % 1) * 0.72;
   const f = (n) => {
     const k = (n + hue * 12) % 12;
     return Math.round(255 * (0.55 - 0.4 * Math.max(-1, Math.min(k - 3, 9 - k, 1))));
