@@ -3,8 +3,9 @@
 //! procedural room go in through the page's file input; the 3D view must draw the Gaussians
 //! (most of the canvas off the background), and a label the reconstruction reports, typed into
 //! the query box, must light its instance up (highlight-coloured pixels in the canvas go from
-//! next to none to many) and mask it on every input photo. Nothing may be requested from
-//! anywhere but the service. The screenshots stay in `target/tmp/web_page/`.
+//! next to none to many) and mask it on every input photo. The same photos sent as a batch job
+//! from `/jobs` must be followed there to the end, with a link to the result. Nothing may be
+//! requested from anywhere but the service. The screenshots stay in `target/tmp/web_page/`.
 
 mod support;
 #[path = "support/http.rs"]
@@ -73,6 +74,8 @@ fn page_reconstructs_draws_and_highlights_a_queried_label() {
     let (before, after) = (scene_px["highlight"].as_u64().unwrap(), query_px["highlight"].as_u64().unwrap());
     assert!(after > before + pixels / 50, "highlighted pixels rose only from {before} to {after} of {pixels}");
     assert_eq!(m["masked"].as_u64(), Some(VIEWS as u64), "one masked photo per view");
+    assert_eq!(m["job"]["state"], "done · 1/1", "the batch job submitted on /jobs ran: {}", m["job"]);
+    assert_eq!(m["job"]["plyLinks"], 1, "the finished job links its scene.ply");
     for shot in ["scene.png", "query.png", "page.png"] {
         image::open(artefacts.join(shot)).unwrap_or_else(|e| panic!("{shot}: {e}"));
     }

@@ -1,7 +1,7 @@
 // Drives the inssplat page in headless Chromium (playwright-core) against a running service,
 // as a person would: choose the photos, reconstruct, wait for the 3D view, then type a label
-// that the reconstruction reports and let the page highlight it; then /jobs and /docs must load
-// without exceptions. No request may leave the service's origin. It saves screenshots and
+// that the reconstruction reports and let the page highlight it; then submit the same photos as
+// a batch job on /jobs and follow it to its end, and open /docs, all without exceptions. No request may leave the service's origin. It saves screenshots and
 // prints one JSON line of measurements (pixels counted in the screenshots); the Rust test
 // tests/tests/web_page.rs starts the service, runs this and judges the numbers.
 //
@@ -98,11 +98,19 @@ try {
   const other = await context.newPage();
   other.on("pageerror", (e) => errors.push(`${other.url()}: ${e}`));
   await other.goto(new URL("/jobs", url).href);
+  await other.locator("#set-name").fill("room");
+  await other.locator("#set-photos").setInputFiles(photos);
+  await other.locator("#add-set button").click();
+  await other.locator("#submit").click();
+  const jobState = other.locator("article .state");
+  await other.waitForFunction(() => /^(done|failed|cancelled) /.test(document.querySelector("article .state")?.textContent), null, { timeout: 120_000 });
+  const job = { state: await jobState.innerText(), plyLinks: await other.locator('article a[href$="scene.ply"]').count() };
+  lap("job");
   await other.goto(new URL("/docs", url).href);
   await other.getByText("/v1/reconstruct").first().waitFor({ timeout: 30_000 });
   lap("other_pages");
 
-  console.log(JSON.stringify({ seconds, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, errors, foreign: [...foreign].map((r) => r.url()), refused }));
+  console.log(JSON.stringify({ seconds, labels, label, matches, masked, progress, scene: scene.counts, query: queried.counts, job, errors, foreign: [...foreign].map((r) => r.url()), refused }));
 } finally {
   await browser.close();
 }
