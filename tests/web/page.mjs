@@ -51,7 +51,12 @@ async function settle(page, helper, done, seconds) {
 
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM,
-  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+  // WebGL on the CPU (SwiftShader); none of Chromium's own background connections (the
+  // machine has no network: they would only be refused).
+  args: [
+    "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic",
+  ],
 });
 try {
   const context = await browser.newContext({ viewport: { width: 1280, height: 900 } });
