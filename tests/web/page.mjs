@@ -92,7 +92,7 @@ try {
   await page.locator("#query-text").press("Enter");
   await page.waitForSelector("#query-result[data-matches]", { timeout: 60_000 });
   const matches = Number(await page.locator("#query-result").getAttribute("data-matches"));
-  const queried = await settle(page, helper, (c) => c.highlight > scene.counts.highlight + c.pixels / 50, 30);
+  const queried = await settle(page, helper, (c) => c.highlight > scene.counts.highlight + c.pixels / 50, 60);
   writeFileSync(join(out, "query.png"), queried.shot);
   lap("highlighted");
   await page.screenshot({ path: join(out, "page.png") });
