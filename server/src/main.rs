@@ -124,6 +124,10 @@ enum Command {
         /// Where instances are clustered: once on the Gaussians, or per view (the paper's mode).
         #[arg(long, value_enum, default_value = "3d")]
         cluster: eval::ClusterMode,
+        /// Place the network's outputs with the scenes' true context cameras instead of the
+        /// predicted ones (scores everything but the camera head).
+        #[arg(long)]
+        known_poses: bool,
         /// Robustness sweeps at 8 views (noise, blur, exposure, overlap, repeats), a table of
         /// each metric against the strength, and the worst scenes' previews under --out.
         #[arg(long, value_enum, value_delimiter = ',')]
@@ -252,7 +256,7 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Serve { args, render } => inssplat_server::http::serve(args, gpu_renderer(render)?),
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, perturb, sweep, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -269,6 +273,7 @@ fn main() -> anyhow::Result<()> {
                 extra_vocab: extra,
                 pipeline: PipelineConfig::default(),
                 cluster,
+                known_poses,
                 perturb,
                 out: out.clone(),
                 progress: !json,

@@ -42,6 +42,15 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 
+    // With the true context cameras the alignment is exact, and the report says so.
+    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["known_poses"], true);
+    assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras"));
+    let scene = &report["scenes"][0];
+    assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");
+
     // The paper's mode: per-view 2D clustering, same metrics.
     let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

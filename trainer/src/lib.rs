@@ -4,6 +4,7 @@
 //! never depends on it: the exported ONNX file is the only hand-off.
 
 pub mod export;
+pub mod fit;
 pub mod model;
 pub mod synth;
 pub mod loss;

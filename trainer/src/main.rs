@@ -27,6 +27,9 @@ enum Command {
     Train(Box<cli_train::TrainArgs>),
     /// Export a checkpoint's network to ONNX for the server.
     Export(cli_train::ExportArgs),
+    /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
+    /// context views (true cameras), then score instance mIoU on its target views.
+    FitScene(cli_fit::FitArgs),
     /// Write the MiniLM embeddings of every synthesizable label to a file, for training
     /// without the text model (INSSPLAT_LABEL_TABLE=FILE).
     LabelTable {
@@ -36,6 +39,7 @@ enum Command {
     },
 }
 
+mod cli_fit;
 mod cli_train;
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -144,6 +148,7 @@ fn main() -> Result<()> {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
         Command::Export(args) => cli_train::run_export(args),
+        Command::FitScene(args) => cli_fit::run_fit(args),
         Command::LabelTable { out } => {
             let n = inssplat_trainer::train::labels::write_label_table(&out)?;
             println!("wrote {} ({n} labels)", out.display());

@@ -57,6 +57,8 @@ pub struct Report {
     pub data: String,
     pub vocabulary: Vec<String>,
     pub cluster: ClusterMode,
+    /// Whether the true context cameras replaced the predicted ones.
+    pub known_poses: bool,
     pub summaries: Vec<Summary>,
     /// Robustness sweeps: metric means per perturbation and strength.
     pub robustness: Vec<RobustRow>,
@@ -127,6 +129,8 @@ pub struct EvalRequest {
     pub extra_vocab: Vec<String>,
     pub pipeline: PipelineConfig,
     pub cluster: ClusterMode,
+    /// Use the true context cameras instead of the predicted ones (see [`Settings`]).
+    pub known_poses: bool,
     /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
     pub perturb: Vec<PerturbKind>,
     /// Where failure previews go (with `perturb`).
@@ -175,7 +179,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
     let bar = if req.progress { ProgressBar::new(runs as u64) } else { ProgressBar::hidden() };
     bar.set_style(ProgressStyle::with_template("{spinner} eval {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
     let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
-        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation };
+        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation, known_poses: req.known_poses };
         scenes
             .iter()
             .map(|scene| {
@@ -224,14 +228,17 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
         vocabulary,
         cluster: req.cluster,
+        known_poses: req.known_poses,
         summaries,
         robustness,
         failures,
         scenes: all,
-        protocol: "context views reconstructed; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by Umeyama on \
-                   camera centres (view 0 when degenerate); true target cameras mapped into the predicted frame and \
-                   the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization"
-            .into(),
+        protocol: format!(
+            "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by Umeyama on \
+             camera centres (view 0 when degenerate); true target cameras mapped into the predicted frame and \
+             the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization",
+            if req.known_poses { " with the TRUE context cameras (--known-poses), not the predicted ones" } else { "" }
+        ),
     })
 }
 
@@ -336,7 +343,8 @@ pub fn markdown(r: &Report) -> String {
         ClusterMode::ThreeD => "instances clustered once in 3D",
         ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)",
     };
-    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
+    let poses = if r.known_poses { " Cameras: the true context poses (--known-poses), not the camera head." } else { "" };
+    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{poses}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summaries {

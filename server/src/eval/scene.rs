@@ -84,6 +84,9 @@ pub struct Settings<'a> {
     pub pipeline: &'a PipelineConfig,
     pub cluster: ClusterMode,
     pub perturbation: Option<Perturbation>,
+    /// Reconstruct with the true context cameras instead of the predicted ones: what the rest
+    /// of the network achieves when the camera head is taken out of the question.
+    pub known_poses: bool,
 }
 
 fn scene_name(scene: &Scene) -> String {
@@ -160,8 +163,16 @@ pub fn evaluate_scene_keeping(
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
     let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
     let images = context_images(scene, &context, settings.perturbation);
+    let known;
+    let pipeline = if settings.known_poses {
+        let poses = context.iter().map(|&i| scene.frames[i].camera).collect();
+        known = PipelineConfig { known_poses: Some(poses), ..settings.pipeline.clone() };
+        &known
+    } else {
+        settings.pipeline
+    };
     let start = Instant::now();
-    let rec = reconstruct(model, labels, &images, settings.vocabulary, settings.pipeline)
+    let rec = reconstruct(model, labels, &images, settings.vocabulary, pipeline)
         .map_err(|source| SceneEvalError::Pipeline { scene: name.clone(), source })?;
     let seconds = start.elapsed().as_secs_f64();
     let targets = scene.eval.as_ref().map(|e| e.target.clone()).unwrap_or_default();

@@ -31,6 +31,8 @@ pub enum PipelineError {
     Runtime(#[from] RuntimeError),
     #[error("label vocabulary is empty")]
     EmptyVocabulary,
+    #[error("{given} known camera poses for {views} views; give one per view, in order")]
+    Poses { given: usize, views: usize },
     #[error("{stage}: {message}")]
     Stage { stage: &'static str, message: String },
 }
@@ -46,6 +48,10 @@ pub struct PipelineConfig {
     pub cluster: ClusterParams,
     /// Render the views' id maps here (falls back to the CPU if it fails); `None`: CPU.
     pub gpu: Option<Arc<GpuRenderer>>,
+    /// Known cameras of the inputs, in order (world→camera in any metric frame, intrinsics at
+    /// the model resolution), used instead of the network's camera head; the network's depth,
+    /// Gaussians and features are placed with them. `None`: the predicted cameras.
+    pub known_poses: Option<Vec<Camera>>,
 }
 
 /// One input photo.
@@ -154,7 +160,11 @@ pub fn reconstruct_with(
     })?;
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
     let out = clock.time("model", || model.run(&batch, images.len()))?;
-    let cameras = predicted_cameras(&out);
+    let cameras = match &config.known_poses {
+        None => predicted_cameras(&out),
+        Some(poses) if poses.len() == images.len() => poses.clone(),
+        Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
+    };
 
     let pixels = out.height * out.width;
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
