@@ -26,12 +26,31 @@ impl SemanticProjection<'_> {
         self.bias.len()
     }
 
-    /// Writes W·l + b into `out` (`text_dim` entries).
-    pub fn project(&self, l: &[f32], out: &mut [f32]) {
-        for (r, o) in out.iter_mut().enumerate() {
-            let row = &self.weight[r * l.len()..(r + 1) * l.len()];
-            *o = self.bias[r] + row.iter().zip(l).map(|(w, x)| w * x).sum::<f32>();
+    /// W·l + β·b (`text_dim` entries).
+    fn project(&self, l: &[f64], beta: f64) -> Vec<f32> {
+        (0..self.text_dim()).map(|r| (beta * self.bias[r] as f64 + dot64(self.row(r, l.len()), l)) as f32).collect()
+    }
+
+    /// Row `r` of W for features of `sem_dim` entries.
+    fn row(&self, r: usize, sem_dim: usize) -> &[f32] {
+        &self.weight[r * sem_dim..(r + 1) * sem_dim]
+    }
+
+    /// WᵀW (`[sem_dim][sem_dim]`) and Wᵀb, with which |W·l + b|² = lᵀ(WᵀW)l + 2(Wᵀb)·l + b·b
+    /// costs sem_dim² per feature instead of text_dim × sem_dim.
+    fn gram(&self, sem_dim: usize) -> (Vec<f64>, Vec<f64>) {
+        let mut gram = vec![0.0f64; sem_dim * sem_dim];
+        let mut wb = vec![0.0f64; sem_dim];
+        for (r, &b) in self.bias.iter().enumerate() {
+            let row = self.row(r, sem_dim);
+            for (i, &wi) in row.iter().enumerate() {
+                wb[i] += wi as f64 * b as f64;
+                for (g, &wj) in gram[i * sem_dim..(i + 1) * sem_dim].iter_mut().zip(row) {
+                    *g += wi as f64 * wj as f64;
+                }
+            }
         }
+        (gram, wb)
     }
 }
 
@@ -70,26 +89,40 @@ pub fn semantic_prototypes(
             sem_dim,
         });
     }
+    // Σ over an instance of t/|t| with t = W·l + b is W·(Σ l/|t|) + b·(Σ 1/|t|): per Gaussian
+    // only |t| is needed (from the Gram matrix) and the sums stay in feature space; each
+    // instance is projected once.
+    let (gram, wb) = proj.gram(sem_dim);
+    let bb: f64 = proj.bias.iter().map(|&b| b as f64 * b as f64).sum();
     let k = scene.instance_id.iter().copied().max().unwrap_or(0) as usize;
+    // Per instance: Σ l/|t| (sem_dim values), then Σ 1/|t|.
+    let stride = sem_dim + 1;
     let (sums, counts) = (0..scene.len())
         .into_par_iter()
         .filter(|&i| scene.instance_id[i] > 0)
         .fold(
-            || (vec![0.0f32; k * text_dim], vec![0usize; k], vec![0.0f32; text_dim]),
-            |(mut sums, mut counts, mut t), i| {
-                proj.project(scene.semantic_of(i), &mut t);
+            || (vec![0.0f64; k * stride], vec![0usize; k]),
+            |(mut sums, mut counts), i| {
+                let l = scene.semantic_of(i);
                 let id = scene.instance_id[i] as usize - 1;
                 counts[id] += 1;
-                let n = t.iter().map(|x| x * x).sum::<f32>().sqrt();
+                let quadratic: f64 = (0..sem_dim)
+                    .map(|a| {
+                        let row = &gram[a * sem_dim..(a + 1) * sem_dim];
+                        l[a] as f64 * (row.iter().zip(l).map(|(&g, &x)| g * x as f64).sum::<f64>() + 2.0 * wb[a])
+                    })
+                    .sum();
+                let n = (quadratic + bb).max(0.0).sqrt();
                 if n > 1e-12 {
-                    sums[id * text_dim..(id + 1) * text_dim].iter_mut().zip(&t).for_each(|(s, x)| *s += x / n);
+                    let sum = &mut sums[id * stride..(id + 1) * stride];
+                    sum.iter_mut().zip(l).for_each(|(s, &x)| *s += x as f64 / n);
+                    sum[sem_dim] += 1.0 / n;
                 }
-                (sums, counts, t)
+                (sums, counts)
             },
         )
-        .map(|(s, c, _)| (s, c))
         .reduce(
-            || (vec![0.0; k * text_dim], vec![0; k]),
+            || (vec![0.0; k * stride], vec![0; k]),
             |(mut s, mut c), (s2, c2)| {
                 s.iter_mut().zip(s2).for_each(|(a, b)| *a += b);
                 c.iter_mut().zip(c2).for_each(|(a, b)| *a += b);
@@ -98,10 +131,13 @@ pub fn semantic_prototypes(
         );
     Ok((0..k)
         .filter(|&id| counts[id] > 0)
-        .map(|id| InstancePrototype {
-            id: id as u32 + 1,
-            embedding: normalized(&sums[id * text_dim..(id + 1) * text_dim]),
-            gaussians: counts[id],
+        .map(|id| {
+            let sum = &sums[id * stride..(id + 1) * stride];
+            InstancePrototype {
+                id: id as u32 + 1,
+                embedding: normalized(&proj.project(&sum[..sem_dim], sum[sem_dim])),
+                gaussians: counts[id],
+            }
         })
         .collect())
 }
@@ -190,16 +226,25 @@ pub fn query(
     let mut hits: Vec<(QueryHit, f32)> = prototypes
         .iter()
         .enumerate()
-        .map(|(i, p)| (QueryHit { id: p.id, score: dot(&p.embedding, &t) }, label_scores.get(i).copied().unwrap_or(f32::MIN)))
+        .map(|(i, p)| {
+            (QueryHit { id: p.id, score: dot(&p.embedding, &t) }, label_scores.get(i).copied().unwrap_or(f32::MIN))
+        })
         .collect();
     hits.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
     let best = hits.first().map_or(f32::MIN, |h| h.0.score);
-    hits.retain(|(h, own)| h.score >= rule.min_score && h.score >= best - rule.margin && h.score >= own - rule.label_margin);
+    hits.retain(|(h, own)| {
+        h.score >= rule.min_score && h.score >= best - rule.margin && h.score >= own - rule.label_margin
+    });
     Ok(hits.into_iter().map(|(h, _)| h).collect())
 }
 
 fn dot(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// w·x with w in f32 and x in f64, summed in f64.
+fn dot64(w: &[f32], x: &[f64]) -> f64 {
+    w.iter().zip(x).map(|(&w, x)| w as f64 * x).sum()
 }
 
 fn normalized(v: &[f32]) -> Vec<f32> {

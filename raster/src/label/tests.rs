@@ -9,20 +9,25 @@ fn proj() -> SemanticProjection<'static> {
     SemanticProjection { weight: &W, bias: &B }
 }
 
+/// A Gaussian of instance `id` with semantic feature `l`; nothing else matters here.
+fn gaussian(id: u32, l: &[f32]) -> Gaussian<'_> {
+    Gaussian {
+        mean: [0.0; 3],
+        log_scale: [0.0; 3],
+        rotation: [1.0, 0.0, 0.0, 0.0],
+        logit_opacity: logit(0.9),
+        sh_dc: [0.0; 3],
+        confidence: 1.0,
+        instance_embedding: [0.0; 8],
+        semantic: l,
+        instance_id: id,
+    }
+}
+
 fn scene(members: &[(u32, [f32; 2])]) -> GaussianScene {
     let mut s = GaussianScene::with_sem_dim(2);
     for (id, l) in members {
-        s.push(Gaussian {
-            mean: [0.0; 3],
-            log_scale: [0.0; 3],
-            rotation: [1.0, 0.0, 0.0, 0.0],
-            logit_opacity: logit(0.9),
-            sh_dc: [0.0; 3],
-            confidence: 1.0,
-            instance_embedding: [0.0; 8],
-            semantic: l,
-            instance_id: *id,
-        });
+        s.push(gaussian(*id, l));
     }
     s
 }
@@ -51,6 +56,44 @@ fn prototypes_are_normalized_means_of_normalized_projections() {
     assert!(close(&p[1].embedding, &unit3([0.0, -2.0, 0.5])));
     let bad = SemanticProjection { weight: &W[..4], bias: &B };
     assert!(matches!(semantic_prototypes(&s, &bad), Err(LabelError::Projection { expected: 6, .. })));
+}
+
+#[test]
+fn prototypes_match_the_definition_for_a_dense_projection() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let (text_dim, sem_dim) = (12, 5);
+    let weight: Vec<f32> = (0..text_dim * sem_dim).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let bias: Vec<f32> = (0..text_dim).map(|_| rng.random_range(-0.5..0.5)).collect();
+    let proj = SemanticProjection { weight: &weight, bias: &bias };
+    let mut s = GaussianScene::with_sem_dim(sem_dim);
+    for _ in 0..300 {
+        let l: Vec<f32> = (0..sem_dim).map(|_| rng.random_range(-2.0..2.0)).collect();
+        s.push(gaussian(rng.random_range(0..4), &l));
+    }
+    // The definition: mean of the normalized projections, normalized.
+    let mut want = vec![vec![0.0f64; text_dim]; 3];
+    for i in 0..s.len() {
+        let id = s.instance_id[i] as usize;
+        if id == 0 {
+            continue;
+        }
+        let t: Vec<f64> = (0..text_dim)
+            .map(|r| {
+                let row = &weight[r * sem_dim..(r + 1) * sem_dim];
+                bias[r] as f64 + row.iter().zip(s.semantic_of(i)).map(|(&w, &x)| w as f64 * x as f64).sum::<f64>()
+            })
+            .collect();
+        let n = t.iter().map(|x| x * x).sum::<f64>().sqrt();
+        want[id - 1].iter_mut().zip(&t).for_each(|(a, x)| *a += x / n);
+    }
+    let got = semantic_prototypes(&s, &proj).unwrap();
+    assert_eq!(got.len(), 3);
+    for (p, w) in got.iter().zip(&want) {
+        let n = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let w: Vec<f32> = w.iter().map(|x| (x / n) as f32).collect();
+        assert!(close(&p.embedding, &w), "id {}: {:?} vs {w:?}", p.id, p.embedding);
+    }
 }
 
 #[test]
