@@ -128,6 +128,10 @@ enum Command {
         /// predicted ones (scores everything but the camera head).
         #[arg(long)]
         known_poses: bool,
+        /// Name every pixel from its own rendered semantic feature instead of its instance's
+        /// prototype (the ablation of instance-grounded aggregation).
+        #[arg(long)]
+        no_aggregation: bool,
         /// Robustness sweeps at 8 views (noise, blur, exposure, overlap, repeats), a table of
         /// each metric against the strength, and the worst scenes' previews under --out.
         #[arg(long, value_enum, value_delimiter = ',')]
@@ -256,7 +260,7 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Serve { args, render } => inssplat_server::http::serve(args, gpu_renderer(render)?),
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, perturb, sweep, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, no_aggregation, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -274,6 +278,7 @@ fn main() -> anyhow::Result<()> {
                 pipeline: PipelineConfig::default(),
                 cluster,
                 known_poses,
+                no_aggregation,
                 perturb,
                 out: out.clone(),
                 progress: !json,

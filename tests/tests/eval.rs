@@ -42,14 +42,18 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 
-    // With the true context cameras the alignment is exact, and the report says so.
-    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--json"]);
+    // With the true context cameras the alignment is exact, and the report says so ...
+    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--no-aggregation", "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
     assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras"));
     let scene = &report["scenes"][0];
     assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");
+    // ... and the labels come from every pixel's own semantic feature (still a valid score).
+    assert_eq!(report["no_aggregation"], true);
+    let sem = scene["semantic_macc"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&sem), "{scene}");
 
     // The paper's mode: per-view 2D clustering, same metrics.
     let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--json"]);

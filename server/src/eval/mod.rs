@@ -59,6 +59,8 @@ pub struct Report {
     pub cluster: ClusterMode,
     /// Whether the true context cameras replaced the predicted ones.
     pub known_poses: bool,
+    /// Whether pixels were named without instance-grounded aggregation.
+    pub no_aggregation: bool,
     pub summaries: Vec<Summary>,
     /// Robustness sweeps: metric means per perturbation and strength.
     pub robustness: Vec<RobustRow>,
@@ -131,6 +133,8 @@ pub struct EvalRequest {
     pub cluster: ClusterMode,
     /// Use the true context cameras instead of the predicted ones (see [`Settings`]).
     pub known_poses: bool,
+    /// Pixels named from their own semantic features (see [`Settings`]).
+    pub no_aggregation: bool,
     /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
     pub perturb: Vec<PerturbKind>,
     /// Where failure previews go (with `perturb`).
@@ -179,7 +183,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
     let bar = if req.progress { ProgressBar::new(runs as u64) } else { ProgressBar::hidden() };
     bar.set_style(ProgressStyle::with_template("{spinner} eval {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
     let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
-        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation, known_poses: req.known_poses };
+        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation, known_poses: req.known_poses, no_aggregation: req.no_aggregation };
         scenes
             .iter()
             .map(|scene| {
@@ -229,6 +233,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         vocabulary,
         cluster: req.cluster,
         known_poses: req.known_poses,
+        no_aggregation: req.no_aggregation,
         summaries,
         robustness,
         failures,
@@ -344,6 +349,7 @@ pub fn markdown(r: &Report) -> String {
         ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)",
     };
     let poses = if r.known_poses { " Cameras: the true context poses (--known-poses), not the camera head." } else { "" };
+    let poses = if r.no_aggregation { format!("{poses} Labels per pixel, no instance-grounded aggregation (--no-aggregation).") } else { poses.to_string() };
     let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{poses}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";

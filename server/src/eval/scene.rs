@@ -21,7 +21,7 @@ use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, r
 use crate::output::png_bytes;
 use crate::runtime::Model;
 use super::perturb::{self, Perturbation};
-use super::views::{ClusterMode, segment};
+use super::views::{ClusterMode, pixel_labels, segment};
 
 /// Every number of one (scene, view count); `None` where the scene cannot give it.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -87,6 +87,9 @@ pub struct Settings<'a> {
     /// Reconstruct with the true context cameras instead of the predicted ones: what the rest
     /// of the network achieves when the camera head is taken out of the question.
     pub known_poses: bool,
+    /// Name pixels from their own semantic features instead of their instance's prototype
+    /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
+    pub no_aggregation: bool,
 }
 
 fn scene_name(scene: &Scene) -> String {
@@ -189,7 +192,7 @@ pub fn evaluate_scene_keeping(
         ..SceneScores::default()
     };
     context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
-    target_scores(&mut s, scene, &context, &targets, &rec, labels, mode).map_err(&bad)?;
+    target_scores(&mut s, scene, &context, &targets, &rec, labels, mode, settings.no_aggregation).map_err(&bad)?;
     let names = images.into_iter().map(|i| i.name).collect();
     Ok((s, rec, names))
 }
@@ -250,6 +253,7 @@ fn target_scores(
     rec: &Reconstruction,
     labels: &LabelCache,
     mode: ClusterMode,
+    no_aggregation: bool,
 ) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let pred_cams: Vec<_> = rec.views.iter().map(|v| v.camera).collect();
@@ -275,7 +279,10 @@ fn target_scores(
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
         let Some(gt) = &frame.instances else { continue };
-        let seg = segment(rec, &camera, mode, &texts, &params)?;
+        let mut seg = segment(rec, &camera, mode, &texts, &params)?;
+        if no_aggregation {
+            seg.labels = pixel_labels(rec, &camera, &texts)?;
+        }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
             ious.extend(ins.matches.iter().map(|m| m.iou));

@@ -4,12 +4,17 @@
 //! - 2D (the paper's): the view's instance features are rendered and clustered on their own
 //!   (HDBSCAN on the feature map), each cluster gets a semantic prototype from the rendered
 //!   semantic features and a label; ids mean nothing across views.
+//!
+//! Either way a pixel's label is its instance's (the instance-grounded aggregation of
+//! semantic features); without aggregation (the ablation) every pixel is named from its own
+//! rendered semantic feature instead, the instances staying as they are.
 
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM};
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::cluster::per_view::{FeatureMap, cluster_view};
-use inssplat_raster::label::masks::{label_map, render_features, render_instance_ids};
-use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
+use inssplat_raster::label::masks::{FeatureImage, MASK_ALPHA, label_map, render_features, render_instance_ids};
+use inssplat_raster::label::{InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes};
+use inssplat_raster::metrics::NO_LABEL;
 
 use crate::pipeline::reconstruct::{Reconstruction, label_table, own_label_scores};
 
@@ -55,30 +60,7 @@ pub fn segment(
             let image = render_features(&rec.scene, camera).map_err(|e| err(&e))?;
             let clustering =
                 cluster_view(&FeatureMap { features: &image.instance, alpha: &image.alpha }, params).map_err(|e| err(&e))?;
-            // Pixels as points of a scene, so the 3D mode's prototype code applies unchanged.
-            let pixels = image.alpha.len();
-            let sem_dim = rec.scene.sem_dim;
-            let mut points = GaussianScene::with_sem_dim(sem_dim);
-            let mut semantic = vec![0.0; sem_dim];
-            for (p, &id) in clustering.ids.iter().enumerate() {
-                for (k, s) in semantic.iter_mut().enumerate() {
-                    *s = image.semantic[k * pixels + p];
-                }
-                points.push(inssplat_proto::gaussian::Gaussian {
-                    mean: [0.0; 3],
-                    log_scale: [0.0; 3],
-                    rotation: [1.0, 0.0, 0.0, 0.0],
-                    logit_opacity: 0.0,
-                    sh_dc: [0.0; 3],
-                    confidence: 1.0,
-                    instance_embedding: [0.0; INSTANCE_DIM],
-                    semantic: &semantic,
-                    instance_id: id,
-                });
-            }
-            let projection = SemanticProjection { weight: &rec.sem_proj_weight, bias: &rec.sem_proj_bias };
-            let prototypes = semantic_prototypes(&points, &projection).map_err(|e| err(&e))?;
-            let matches = assign_labels(&prototypes, texts).map_err(|e| err(&e))?;
+            let (prototypes, matches) = name_pixel_groups(rec, &image, &clustering.ids, texts)?;
             let mut label_of_id = vec![None; clustering.prototypes.len()];
             for (p, m) in prototypes.iter().zip(&matches) {
                 label_of_id[p.id as usize - 1] = m.map(|m| m.label);
@@ -87,4 +69,56 @@ pub fn segment(
             Ok(ViewSegmentation { labels: label_map(&clustering.ids, &label_of_id), ids: clustering.ids, prototypes, own_scores })
         }
     }
+}
+
+/// Labels of the view seen by `camera` pixel by pixel, each from its own rendered semantic
+/// feature (no aggregation over instances); `NO_LABEL` where the accumulated alpha is at most
+/// [`MASK_ALPHA`].
+pub fn pixel_labels(rec: &Reconstruction, camera: &Camera, texts: &[[f32; 384]]) -> Result<Vec<u32>, String> {
+    let image = render_features(&rec.scene, camera).map_err(|e| e.to_string())?;
+    let own: Vec<u32> = image.alpha.iter().enumerate().map(|(p, &a)| if a > MASK_ALPHA { p as u32 + 1 } else { 0 }).collect();
+    let (prototypes, matches) = name_pixel_groups(rec, &image, &own, texts)?;
+    let mut labels = vec![NO_LABEL; own.len()];
+    for (p, m) in prototypes.iter().zip(&matches) {
+        if let Some(m) = m {
+            labels[p.id as usize - 1] = m.label as u32;
+        }
+    }
+    Ok(labels)
+}
+
+/// Semantic prototypes and labels of the pixel groups `ids` (per pixel, 0 = none) of a
+/// rendered feature image: pixels as points of a scene, so the 3D mode's prototype code
+/// applies unchanged.
+fn name_pixel_groups(
+    rec: &Reconstruction,
+    image: &FeatureImage,
+    ids: &[u32],
+    texts: &[[f32; 384]],
+) -> Result<(Vec<InstancePrototype>, Vec<Option<LabelMatch>>), String> {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let pixels = image.alpha.len();
+    let sem_dim = rec.scene.sem_dim;
+    let mut points = GaussianScene::with_sem_dim(sem_dim);
+    let mut semantic = vec![0.0; sem_dim];
+    for (p, &id) in ids.iter().enumerate() {
+        for (k, s) in semantic.iter_mut().enumerate() {
+            *s = image.semantic[k * pixels + p];
+        }
+        points.push(inssplat_proto::gaussian::Gaussian {
+            mean: [0.0; 3],
+            log_scale: [0.0; 3],
+            rotation: [1.0, 0.0, 0.0, 0.0],
+            logit_opacity: 0.0,
+            sh_dc: [0.0; 3],
+            confidence: 1.0,
+            instance_embedding: [0.0; INSTANCE_DIM],
+            semantic: &semantic,
+            instance_id: id,
+        });
+    }
+    let projection = SemanticProjection { weight: &rec.sem_proj_weight, bias: &rec.sem_proj_bias };
+    let prototypes = semantic_prototypes(&points, &projection).map_err(|e| err(&e))?;
+    let matches = assign_labels(&prototypes, texts).map_err(|e| err(&e))?;
+    Ok((prototypes, matches))
 }
