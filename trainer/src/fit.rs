@@ -134,14 +134,10 @@ fn seed(scene: &Scene, context: &[usize], stride: usize) -> Seed {
     s
 }
 
-fn name_of(scene: &Scene) -> String {
-    scene.dir.file_name().map_or_else(|| scene.dir.display().to_string(), |n| n.to_string_lossy().into_owned())
-}
-
 /// Fits `scene` from its `config.views`-view context set and scores it on its target views.
 /// `on_step(step, loss)` is called after every step (for progress).
 pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)) -> Result<FitReport, FitError> {
-    let name = name_of(scene);
+    let name = scene.name();
     let bad = |problem: String| FitError::Scene { scene: name.clone(), problem };
     let eval = scene.eval.as_ref().ok_or_else(|| bad("transforms.json has no `eval` split (synthesize with --split test)".into()))?;
     let context = eval.context_for(config.views).ok_or_else(|| bad(format!("no {}-view context set in `eval.context`", config.views)))?;
@@ -176,10 +172,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         instance: param2(instance_seed, 8),
     };
 
-    let images: Vec<f32> = frames
-        .iter()
-        .flat_map(|f| (0..3).flat_map(move |c| f.rgb.iter().skip(c).step_by(3).map(|v| f32::from(*v) / 255.0)))
-        .collect();
+    let images: Vec<f32> = frames.iter().flat_map(|f| f.planar_rgb()).collect();
     let v = frames.len();
     let images = Tensor::<4>::from_data(TensorData::new(images, [v, 3, h, w]), &device);
     let ids: Vec<u32> = frames.iter().flat_map(|f| f.instances.as_ref().into_iter().flatten().map(|&i| u32::from(i))).collect();

@@ -271,3 +271,20 @@ proptest! {
         prop_assert_eq!(std::fs::read(dir.path().join(f)).unwrap(), std::fs::read(again.path().join(f)).unwrap());
     }
 }
+
+#[test]
+fn planar_rgb_puts_each_channel_in_its_own_plane_and_name_is_the_folder() {
+    let mut scene = sample();
+    scene.dir = PathBuf::from("/data/test/scene_000007");
+    assert_eq!(scene.name(), "scene_000007");
+    let frame = &mut scene.frames[0];
+    frame.rgb = (0..frame.rgb.len()).map(|i| (i % 256) as u8).collect();
+    let planar = frame.planar_rgb();
+    let pixels = (frame.width() * frame.height()) as usize;
+    assert_eq!(planar.len(), 3 * pixels);
+    for p in [0, 1, pixels - 1] {
+        for c in 0..3 {
+            assert_eq!(planar[c * pixels + p], f32::from(frame.rgb[p * 3 + c]) / 255.0);
+        }
+    }
+}

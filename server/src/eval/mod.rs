@@ -348,9 +348,14 @@ pub fn markdown(r: &Report) -> String {
         ClusterMode::ThreeD => "instances clustered once in 3D",
         ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)",
     };
-    let poses = if r.known_poses { " Cameras: the true context poses (--known-poses), not the camera head." } else { "" };
-    let poses = if r.no_aggregation { format!("{poses} Labels per pixel, no instance-grounded aggregation (--no-aggregation).") } else { poses.to_string() };
-    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{poses}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
+    let mut notes = String::new();
+    if r.known_poses {
+        notes += " Cameras: the true context poses (--known-poses), not the camera head.";
+    }
+    if r.no_aggregation {
+        notes += " Labels per pixel, no instance-grounded aggregation (--no-aggregation).";
+    }
+    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summaries {

@@ -92,10 +92,6 @@ pub struct Settings<'a> {
     pub no_aggregation: bool,
 }
 
-fn scene_name(scene: &Scene) -> String {
-    scene.dir.file_name().map_or_else(|| scene.dir.display().to_string(), |n| n.to_string_lossy().into_owned())
-}
-
 /// The context frames of `scene` for `views` views (after an overlap perturbation), checked.
 fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation>, resolution: usize) -> Result<Vec<usize>, String> {
     let eval = scene.eval.as_ref().ok_or("transforms.json has no `eval` split (synthesize with --split test)")?;
@@ -112,7 +108,7 @@ fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation
 
 /// The frames `context` of `scene` (perturbed if asked) as PNG-encoded photos.
 pub fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturbation>) -> Vec<InputImage> {
-    let name = scene_name(scene);
+    let name = scene.name();
     context
         .iter()
         .map(|&i| {
@@ -162,7 +158,7 @@ pub fn evaluate_scene_keeping(
     views: usize,
     settings: &Settings<'_>,
 ) -> Result<(SceneScores, Reconstruction, Vec<String>), SceneEvalError> {
-    let name = scene_name(scene);
+    let name = scene.name();
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
     let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
     let images = context_images(scene, &context, settings.perturbation);
@@ -274,7 +270,7 @@ fn target_scores(
         let frame = &scene.frames[t];
         let camera = to_pred.map_camera(&frame.camera);
         let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
-        let truth: Vec<f32> = (0..3).flat_map(|c| frame.rgb.iter().skip(c).step_by(3).map(|v| f32::from(*v) / 255.0)).collect();
+        let truth = frame.planar_rgb();
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);

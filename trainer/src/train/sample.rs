@@ -170,9 +170,7 @@ impl Sample {
         let mut cameras = Vec::with_capacity(order.len());
         for &f in order {
             let frame = &scene.frames[f];
-            for c in 0..3 {
-                images.extend(frame.rgb.chunks_exact(3).map(|px| f32::from(px[c]) / 255.0));
-            }
+            images.extend(frame.planar_rgb());
             let frame_depth = frame.depth.as_ref().ok_or_else(|| bad(format!("frame {f} has no depth")))?;
             depth.extend_from_slice(frame_depth);
             let frame_ids = frame.instances.as_ref().ok_or_else(|| bad(format!("frame {f} has no instance map")))?;
