@@ -13,10 +13,9 @@ use std::time::Instant;
 use burn::module::{Module, Param};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use glam::Vec3;
-use inssplat_proto::GaussianScene;
+use inssplat_proto::{GaussianScene, INSTANCE_DIM};
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::gaussian::rgb_to_sh_dc;
+use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::render_instance_ids;
 use inssplat_raster::metrics::segmentation::instance_scores;
@@ -160,7 +159,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     // Small start: a pixel's rendered feature sums several Gaussians, so large random
     // embeddings would average out in the render while staying random per Gaussian, and the 3D
     // clustering (which sees Gaussians, not pixels) would find only noise.
-    let instance_seed: Vec<f32> = (0..n * 8).map(|_| rng.random_range(-0.01..0.01)).collect();
+    let instance_seed: Vec<f32> = (0..n * INSTANCE_DIM).map(|_| rng.random_range(-0.01..0.01)).collect();
     let param2 = |v: Vec<f32>, c: usize| Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, [n, c]), &device));
     let identity: Vec<f32> = (0..n).flat_map(|_| [1.0, 0.0, 0.0, 0.0]).collect();
     let mut fitted = Fitted {
@@ -169,7 +168,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         rotations: param2(identity, 4),
         logit_opacity: Param::from_tensor(Tensor::<1>::from_data(TensorData::new(vec![2.0f32; n], [n]), &device)),
         colour: param2(seeded.colour, 3),
-        instance: param2(instance_seed, 8),
+        instance: param2(instance_seed, INSTANCE_DIM),
     };
 
     let images: Vec<f32> = frames.iter().flat_map(|f| f.planar_rgb()).collect();
@@ -193,7 +192,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
             .map_err(|e| step_err(e.to_string()))?;
         let rendered = Tensor::stack::<4>(renders, 0);
         let rgb = rgb_loss(rendered.clone().narrow(1, 0, 3), images.clone()).map_err(|e| step_err(e.to_string()))?;
-        let ins = instance_loss(rendered.narrow(1, 3, 8), &no_semantic, &ids, &loss_config)
+        let ins = instance_loss(rendered.narrow(1, 3, INSTANCE_DIM), &no_semantic, &ids, &loss_config)
             .map_err(|e| step_err(e.to_string()))?
             .total(&loss_config);
         let loss = rgb + ins.mul_scalar(config.instance_weight);
@@ -264,17 +263,21 @@ fn to_scene(fitted: &Fitted) -> GaussianScene {
     let opacity = fitted.logit_opacity.val().into_data().try_to_vec::<f32>().expect("f32 parameters");
     let n = opacity.len();
     let mut scene = GaussianScene::with_sem_dim(0);
+    scene.reserve(n);
     for i in 0..n {
         let q = glam::Vec4::from_slice(&rotations[i * 4..i * 4 + 4]);
         let q = if q.length() > 1e-8 { q.normalize() } else { glam::Vec4::X };
-        scene.means.push(Vec3::from_slice(&means[i * 3..i * 3 + 3]).to_array());
-        scene.log_scales.push([log_scales[i * 3], log_scales[i * 3 + 1], log_scales[i * 3 + 2]]);
-        scene.rotations.push(q.to_array());
-        scene.logit_opacity.push(opacity[i]);
-        scene.sh_dc.push([0, 1, 2].map(|c| rgb_to_sh_dc(colour[i * 3 + c])));
-        scene.confidence.push(1.0);
-        scene.instance_embedding.push(std::array::from_fn(|e| instance[i * 8 + e]));
-        scene.instance_id.push(0);
+        scene.push(Gaussian {
+            mean: std::array::from_fn(|k| means[i * 3 + k]),
+            log_scale: std::array::from_fn(|k| log_scales[i * 3 + k]),
+            rotation: q.to_array(),
+            logit_opacity: opacity[i],
+            sh_dc: std::array::from_fn(|c| rgb_to_sh_dc(colour[i * 3 + c])),
+            confidence: 1.0,
+            instance_embedding: std::array::from_fn(|e| instance[i * INSTANCE_DIM + e]),
+            semantic: &[],
+            instance_id: 0,
+        });
     }
     scene
 }
