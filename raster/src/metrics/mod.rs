@@ -1,8 +1,8 @@
 //! The numbers of the evaluation protocol (DESIGN.md, "Evaluation protocol"), each a pure
 //! function of predicted and ground-truth arrays: semantic mIoU/mAcc, instance mIoU and
 //! Acc@0.25, cross-view consistency T-mIoU and T-SR@0.5, text-query IoU
-//! ([`segmentation`]); PSNR, SSIM and depth AbsRel ([`image`]); camera errors after a Umeyama
-//! similarity alignment ([`pose`]). A metric that the inputs cannot give (no ground-truth
+//! ([`segmentation`]); PSNR, SSIM and depth AbsRel ([`image`]); camera errors after a similarity
+//! alignment ([`pose`]). A metric that the inputs cannot give (no ground-truth
 //! instance, no valid depth) is `None`, never zero.
 
 pub mod image;
@@ -10,7 +10,7 @@ pub mod pose;
 pub mod segmentation;
 
 pub use image::{DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, psnr, ssim};
-pub use pose::{PoseScores, Similarity, camera_errors, umeyama};
+pub use pose::{PoseScores, Similarity, camera_errors, pose_alignment};
 pub use segmentation::{
     ConsistencyScores, InstanceMatch, InstanceScores, NO_LABEL, SemanticScores, consistency_scores, instance_scores,
     mask_iou, semantic_scores,

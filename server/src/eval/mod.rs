@@ -239,8 +239,8 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         failures,
         scenes: all,
         protocol: format!(
-            "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by Umeyama on \
-             camera centres (view 0 when degenerate); true target cameras mapped into the predicted frame and \
+            "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
+             similarity fitted to their orientations (chordal mean) and then their centres (least squares); true target cameras mapped into the predicted frame and \
              the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization",
             if req.known_poses { " with the TRUE context cameras (--known-poses), not the predicted ones" } else { "" }
         ),

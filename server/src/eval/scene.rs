@@ -1,7 +1,8 @@
 //! One scene at one view count, scored by the DESIGN.md protocol: reconstruct from the
-//! scene's context views, align the predicted cameras to the true ones (Umeyama on the camera
-//! centres, or view 0 where the centres cannot fix a similarity), render the clustered scene at
-//! every target camera mapped into the predicted frame, and compare with the ground truth.
+//! scene's context views, align the predicted cameras to the true ones (the similarity fitted to
+//! their orientations and centres, [`inssplat_raster::metrics::pose::pose_alignment`]), render
+//! the clustered scene at every target camera mapped into the predicted frame, and compare with
+//! the ground truth.
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -40,8 +41,6 @@ pub struct SceneScores {
     pub depth_abs_rel: Option<f64>,
     pub rotation_deg: Option<f64>,
     pub translation: Option<f64>,
-    /// "umeyama" or "view 0" (see the module docs).
-    pub alignment: String,
     pub gaussians_in: usize,
     pub gaussians_kept: usize,
     pub instances_found: usize,
@@ -257,7 +256,6 @@ fn target_scores(
     let Some(pose) = camera_errors(&pred_cams, &true_cams).map_err(|e| err(&e))? else { return Ok(()) };
     s.rotation_deg = Some(pose.rotation_deg);
     s.translation = Some(pose.translation);
-    s.alignment = if pose.umeyama { "umeyama" } else { "view 0" }.into();
     let to_pred = pose.alignment.inverse();
 
     let vocabulary = &rec.vocabulary;
