@@ -91,7 +91,6 @@ async function showScene(result) {
   listInstances(result.instances);
   $("#summary").textContent =
     `${result.gaussians_kept} Gaussians (of ${result.gaussians_in}), ${result.cameras.length} views, ` +
-    `masks rendered on ${result.render_backend}. ` +
     result.timings.map((t) => `${t.stage} ${t.ms.toFixed(0)} ms`).join(", ");
   $("#query-result").textContent = "";
   paint();

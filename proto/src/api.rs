@@ -14,15 +14,6 @@ pub struct ErrorBody {
     pub error_type: String,
 }
 
-/// Which rasterizer rendered the outputs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
-#[serde(rename_all = "snake_case")]
-pub enum RenderBackend {
-    Cpu,
-    Wgpu,
-}
-
 /// A predicted camera, nerfstudio convention (OpenGL camera-to-world, row-major).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
@@ -65,7 +56,6 @@ pub struct ReconstructResponse {
     pub cameras: Vec<CameraOut>,
     pub instances: Vec<InstanceOut>,
     pub timings: Vec<StageTiming>,
-    pub render_backend: RenderBackend,
     /// Per-pixel Gaussians in, Gaussians kept after voxelization.
     pub gaussians_in: usize,
     pub gaussians_kept: usize,
@@ -210,6 +200,5 @@ mod tests {
     #[test]
     fn enums_serialize_snake_case() {
         assert_eq!(serde_json::to_string(&JobState::Cancelled).unwrap(), "\"cancelled\"");
-        assert_eq!(serde_json::to_string(&RenderBackend::Wgpu).unwrap(), "\"wgpu\"");
     }
 }

@@ -1,6 +1,6 @@
 //! Post-processing benchmark: back-project, voxelize, cluster (once in 3D, and the paper's
 //! per-view 2D mode on rendered instance feature maps, measured in the same run), label and
-//! render masks, for 2, 4, 8 and 16 views of 128×128 of the analytic test room (evenly
+//! the input views' masks (each pixel's merged Gaussian's id), for 2, 4, 8 and 16 views of 128×128 of the analytic test room (evenly
 //! spaced views out of one ring of 16). Prints per-stage medians, Gaussians kept vs pixels
 //! in, mask quality of both clustering modes against the ground truth (mean per-view
 //! instance mIoU, and T-mIoU across views), and the contract checks: 3D clustering at 16 views ≤ 1.2× that at 8, Gaussians kept
@@ -17,7 +17,6 @@ use inssplat_proto::INSTANCE_DIM;
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::per_view::{FeatureMap, cluster_views};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::label::masks::render_instance_ids;
 use inssplat_raster::label::{SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::metrics::{consistency_scores, instance_scores};
 use inssplat_raster::render::{Splats, render};
@@ -83,20 +82,20 @@ fn main() {
         let picked: Vec<usize> = (0..views).map(|i| i * 16 / views).collect();
         let inputs: Vec<ViewOutputs<'_>> = picked.iter().map(|&i| planes[i].outputs(&ring[i])).collect();
         let (t_bp, dense) = time(|| backproject(&inputs, SEM_DIM).expect("back-projection"));
-        let (t_vox, (compact, _)) = time(|| voxelize(&dense, &VoxelParams::default()).expect("voxelization"));
-        let (t_c3, clustered) = time(|| {
-            let mut s = compact.clone();
-            let c = cluster_instances(&mut s, &params).expect("3D clustering");
-            (s, c.prototypes.len())
+        let (t_vox, voxelized) = time(|| voxelize(&dense.scene, &VoxelParams::default()).expect("voxelization"));
+        let compact = voxelized.scene.clone();
+        let (t_c3, (clustered, k)) = time(|| {
+            let mut v = voxelized.clone();
+            let c = cluster_instances(&mut v.scene, &params).expect("3D clustering");
+            (v, c.prototypes.len())
         });
-        let (clustered, k) = clustered;
         let (t_label, _) = time(|| {
-            let protos = semantic_prototypes(&clustered, &proj).expect("prototypes");
+            let protos = semantic_prototypes(&clustered.scene, &proj).expect("prototypes");
             assign_labels(&protos, &text.vocabulary).expect("labels")
         });
-        let (t_masks, masks) = time(|| {
-            picked.iter().map(|&i| render_instance_ids(&clustered, &ring[i], k).expect("masks")).collect::<Vec<_>>()
-        });
+        let pixels = (SIZE * SIZE) as usize;
+        let (t_masks, masks) =
+            time(|| dense.to_pixels(&clustered.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect::<Vec<_>>());
         // The paper's mode clusters each view's rendered instance feature map.
         let embeddings: Vec<f32> = compact.instance_embedding.iter().flatten().copied().collect();
         let splats = Splats {

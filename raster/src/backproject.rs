@@ -4,7 +4,8 @@
 //! valid pixel. The pixel's centre is lifted to its depth along the camera z axis, the
 //! predicted camera-frame offset is added, and the camera-frame rotation is turned into the
 //! world frame; scale, opacity, colour, S and L are copied as they are. Pixels whose depth is
-//! not a positive finite number carry no surface and are skipped.
+//! not a positive finite number carry no surface and are skipped; every Gaussian remembers its
+//! pixel, so per-Gaussian results map back onto the views ([`BackProjected::to_pixels`]).
 
 use glam::{Quat, Vec3};
 use inssplat_proto::signature::GAUSSIAN_CHANNELS;
@@ -46,20 +47,47 @@ pub enum BackprojectError {
     },
 }
 
+/// [`backproject`]'s result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BackProjected {
+    /// One Gaussian per valid pixel, view by view, each view in row-major pixel order;
+    /// `instance_id` is 0.
+    pub scene: GaussianScene,
+    /// The pixel of each Gaussian, counted over all views: view · H·W + row · W + column.
+    pub pixel: Vec<u32>,
+    /// Pixels of all views.
+    pub pixels: usize,
+}
+
+impl BackProjected {
+    /// One value per Gaussian (`values[i]` for Gaussian i) laid out on the views' pixels,
+    /// `[V][H][W]`; 0 at pixels that made no Gaussian.
+    pub fn to_pixels(&self, values: &[u32]) -> Vec<u32> {
+        let mut out = vec![0; self.pixels];
+        for (&p, &v) in self.pixel.iter().zip(values) {
+            out[p as usize] = v;
+        }
+        out
+    }
+}
+
 /// Back-projects every view into one scene whose semantic features have `sem_dim` channels.
-/// Gaussians come out view by view, each view in row-major pixel order; `instance_id` is 0.
-pub fn backproject(views: &[ViewOutputs<'_>], sem_dim: usize) -> Result<GaussianScene, BackprojectError> {
+pub fn backproject(views: &[ViewOutputs<'_>], sem_dim: usize) -> Result<BackProjected, BackprojectError> {
     for (v, view) in views.iter().enumerate() {
         check_shapes(v, view, sem_dim)?;
     }
-    let parts: Vec<GaussianScene> = views.par_iter().map(|view| backproject_view(view, sem_dim)).collect();
+    let parts: Vec<(GaussianScene, Vec<u32>)> = views.par_iter().map(|view| backproject_view(view, sem_dim)).collect();
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
-    let total = parts.iter().map(GaussianScene::len).sum();
+    let total = parts.iter().map(|(s, _)| s.len()).sum();
     scene.reserve(total);
-    for part in parts {
+    let mut pixel = Vec::with_capacity(total);
+    let mut offset = 0;
+    for ((part, pixels), view) in parts.into_iter().zip(views) {
         scene.append(part);
+        pixel.extend(pixels.iter().map(|p| offset + p));
+        offset += view.camera.intrinsics.width * view.camera.intrinsics.height;
     }
-    Ok(scene)
+    Ok(BackProjected { scene, pixel, pixels: offset as usize })
 }
 
 fn check_shapes(v: usize, view: &ViewOutputs<'_>, sem_dim: usize) -> Result<(), BackprojectError> {
@@ -88,7 +116,8 @@ fn check_shapes(v: usize, view: &ViewOutputs<'_>, sem_dim: usize) -> Result<(), 
     Ok(())
 }
 
-fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> GaussianScene {
+/// One view's Gaussians and the pixel each came from.
+fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> (GaussianScene, Vec<u32>) {
     let cam = view.camera;
     let width = cam.intrinsics.width as usize;
     let pixels = width * cam.intrinsics.height as usize;
@@ -97,6 +126,7 @@ fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> GaussianScene {
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
     let valid = view.depth.iter().filter(|d| d.is_finite() && **d > 0.0).count();
     scene.reserve(valid);
+    let mut from = Vec::with_capacity(valid);
     let mut semantic = vec![0.0; sem_dim];
     for p in 0..pixels {
         let z = view.depth[p];
@@ -127,8 +157,9 @@ fn backproject_view(view: &ViewOutputs<'_>, sem_dim: usize) -> GaussianScene {
             semantic: &semantic,
             instance_id: 0,
         });
+        from.push(p as u32);
     }
-    scene
+    (scene, from)
 }
 
 #[cfg(test)]
@@ -179,7 +210,7 @@ mod tests {
         let mut p = planes(2);
         p.depth[3] = 4.0;
         p.gaussians[1] = 0.25; // offset x (channel 0) of pixel 1
-        let s = backproject(&[view(&cam, &p)], 2).unwrap();
+        let s = backproject(&[view(&cam, &p)], 2).unwrap().scene;
         assert_eq!(s.len(), 4);
         // Pixel (0, 0): centre (0.5, 0.5), (u − cx)/fx · z = −0.25 · 2.
         assert_eq!(s.means[0], [-0.5, -0.5, 2.0]);
@@ -201,7 +232,7 @@ mod tests {
         for (c, v) in [(6, q_cam.w), (7, q_cam.x), (8, q_cam.y), (9, q_cam.z)] {
             p.gaussians[c * 4] = v;
         }
-        let s = backproject(&[view(&cam, &p)], 1).unwrap();
+        let s = backproject(&[view(&cam, &p)], 1).unwrap().scene;
         // Re-projecting each mean lands on its pixel centre at its depth.
         for (i, m) in s.means.iter().enumerate() {
             let pc = cam.world_to_camera(Vec3::from(*m));
@@ -222,9 +253,12 @@ mod tests {
         p.depth[0] = 0.0;
         p.depth[1] = f32::NAN;
         p.gaussians[6 * 4 + 2] = 0.0; // zero quaternion → identity
-        let s = backproject(&[view(&cam, &p), view(&cam, &p)], 1).unwrap();
-        assert_eq!(s.len(), 4);
-        assert_eq!(s.rotations[0], [1.0, 0.0, 0.0, 0.0]);
+        let b = backproject(&[view(&cam, &p), view(&cam, &p)], 1).unwrap();
+        assert_eq!(b.scene.len(), 4);
+        assert_eq!(b.scene.rotations[0], [1.0, 0.0, 0.0, 0.0]);
+        // Each Gaussian knows its pixel; the skipped pixels get 0 when values go back.
+        assert_eq!((b.pixel.as_slice(), b.pixels), ([2, 3, 6, 7].as_slice(), 8));
+        assert_eq!(b.to_pixels(&[1, 2, 3, 4]), [0, 0, 1, 2, 0, 0, 3, 4]);
         p.semantic.pop();
         let err = backproject(&[view(&cam, &planes(1)), view(&cam, &p)], 1).unwrap_err();
         assert!(matches!(err, BackprojectError::Shape { view: 1, tensor: "semantic", .. }), "{err}");

@@ -49,6 +49,32 @@ impl Default for VoxelParams {
     }
 }
 
+/// [`voxelize`]'s result: the merged scene, what was done, and where every input went.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Voxelized {
+    pub scene: GaussianScene,
+    pub report: VoxelReport,
+    /// Index in `scene` of the Gaussian that each input Gaussian was merged into,
+    /// [`DROPPED`] for one dropped before merging.
+    pub voxel_of: Vec<u32>,
+}
+
+/// [`Voxelized::voxel_of`] of an input Gaussian that was dropped.
+pub const DROPPED: u32 = u32::MAX;
+
+impl Voxelized {
+    /// Instance id of every input Gaussian: that of the Gaussian it was merged into, 0 for
+    /// a dropped one. With per-pixel Gaussians in, this is each input view's instance map:
+    /// every pixel takes the id of the surface its own depth put it on, exactly, with no
+    /// rendering, and views agree because the ids live on the merged Gaussians.
+    pub fn input_instance_ids(&self) -> Vec<u32> {
+        self.voxel_of
+            .par_iter()
+            .map(|&v| if v == DROPPED { 0 } else { self.scene.instance_id[v as usize] })
+            .collect()
+    }
+}
+
 /// What voxelization did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VoxelReport {
@@ -90,8 +116,8 @@ fn percentile(v: &mut [f32], q: f32) -> f32 {
     *v.select_nth_unstable_by(k, f32::total_cmp).1
 }
 
-/// Merges the Gaussians of `scene` per voxel. Returns the compact scene and a report.
-pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<(GaussianScene, VoxelReport), VoxelError> {
+/// Merges the Gaussians of `scene` per voxel.
+pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized, VoxelError> {
     scene.validate()?;
     if !(params.extent_fraction.is_finite() && params.extent_fraction > 0.0) {
         return Err(VoxelError::Fraction(params.extent_fraction));
@@ -118,9 +144,15 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<(Gaussian
     let mut starts: Vec<usize> = (0..keyed.len()).filter(|&j| j == 0 || keyed[j].0 != keyed[j - 1].0).collect();
     starts.push(keyed.len());
     let members: Vec<u32> = keyed.into_iter().map(|(_, i)| i).collect();
+    let voxels = starts.len() - 1;
+    let mut voxel_of = vec![DROPPED; scene.len()];
+    for (v, run) in starts.windows(2).enumerate() {
+        for &i in &members[run[0]..run[1]] {
+            voxel_of[i as usize] = v as u32;
+        }
+    }
 
     const VOXELS_PER_TASK: usize = 2048;
-    let voxels = starts.len() - 1;
     let parts: Vec<GaussianScene> = (0..voxels.div_ceil(VOXELS_PER_TASK))
         .into_par_iter()
         .map(|task| {
@@ -146,7 +178,7 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<(Gaussian
         robust_extent: extent,
         voxel_size,
     };
-    Ok((out, report))
+    Ok(Voxelized { scene: out, report, voxel_of })
 }
 
 /// Largest log scale kept: e^(2·40) still fits an f32 variance.
@@ -323,9 +355,10 @@ mod tests {
         push(&mut s, [20.1, 20.5, 20.5], [-3.0; 3], 1.0, 1.0, 4.0);
         push(&mut s, [20.5, 20.5, 20.5], [-3.0; 3], 3.0, 0.0, 8.0);
         let params = VoxelParams { extent_fraction: 1.0 / 9.0, ..VoxelParams::default() };
-        let (out, report) = voxelize(&s, &params).unwrap();
+        let Voxelized { scene: out, report, voxel_of } = voxelize(&s, &params).unwrap();
         assert_eq!((report.gaussians_in, report.gaussians_out, report.voxel_size), (102, 101, 1.0));
         let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
+        assert_eq!((voxel_of[100], voxel_of[101]), (m as u32, m as u32));
         assert!((out.means[m][0] - (0.25 * 20.1 + 0.75 * 20.5)).abs() < 1e-5);
         assert_eq!(out.sh_dc[m][0], 0.25 * 1.0 + 0.75 * 3.0);
         assert_eq!(out.confidence[m], 4.0);
@@ -354,7 +387,7 @@ mod tests {
             weighting: Weighting::Softmax { temperature: 1.0 },
             ..VoxelParams::default()
         };
-        let (out, _) = voxelize(&s, &params).unwrap();
+        let out = voxelize(&s, &params).unwrap().scene;
         let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
         // Weights e^0 : e^ln2 = 1/3 : 2/3.
         assert!((out.means[m][0] - (20.1 / 3.0 + 2.0 * 20.5 / 3.0)).abs() < 1e-5);
@@ -387,8 +420,18 @@ mod tests {
         push(&mut s, [1.0, 1.0, 0.0], [f32::INFINITY, 0.0, 0.0], 1.0, 1.0, 0.0);
         push(&mut s, [1.0, 1.0, 0.0], [0.0; 3], 1.0, 1.0, 0.0);
         *s.rotations.last_mut().unwrap() = [0.0; 4];
-        let (out, report) = voxelize(&s, &VoxelParams::default()).unwrap();
+        let Voxelized { scene: mut out, report, voxel_of } = voxelize(&s, &VoxelParams::default()).unwrap();
         assert_eq!((report.dropped, out.len()), (4, 100));
+        // The dropped ones point nowhere and take id 0; the others take their voxel's id.
+        assert_eq!(&voxel_of[100..], &[DROPPED; 4]);
+        out.instance_id = (1..=100).collect();
+        let merged = Voxelized { scene: out, report, voxel_of };
+        let ids = merged.input_instance_ids();
+        assert_eq!(&ids[100..], &[0; 4]);
+        let mut kept = ids[..100].to_vec();
+        kept.sort_unstable();
+        assert_eq!(kept, (1..=100).collect::<Vec<u32>>(), "one grid point per voxel, each its own id");
+        let out = merged.scene;
         assert!(out.log_scales.iter().flatten().all(|l| *l == -3.0));
         assert_eq!(scale_rotation(Mat3::from_diagonal(Vec3::new(f32::NAN, 1.0, 1.0))), None);
         let bad = VoxelParams { extent_fraction: 0.0, ..VoxelParams::default() };

@@ -1,6 +1,6 @@
 //! The whole post-processing chain on ground truth: an analytic room's true depth and
 //! cameras, noisy one-hot instance embeddings and semantic codes go through back-projection,
-//! voxelization (default voxel size), 3D clustering, mask rendering and labelling; the
+//! voxelization (default voxel size), 3D clustering, input-view masks and labelling; the
 //! instances must come back (instance mIoU ≥ 0.95 over the context views, every view
 //! agreeing) with the right labels (semantic mIoU ≥ 0.95), and a text query must find both
 //! chairs.
@@ -10,7 +10,7 @@ mod post_scene;
 
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::label::masks::{ids_mask, label_map, render_instance_ids};
+use inssplat_raster::label::masks::{ids_mask, label_map};
 use inssplat_raster::label::{QueryRule, SemanticProjection, assign_labels, query, semantic_prototypes};
 use inssplat_raster::metrics::{NO_LABEL, consistency_scores, instance_scores, mask_iou, semantic_scores};
 use inssplat_raster::voxel::{VoxelParams, voxelize};
@@ -23,14 +23,17 @@ fn ground_truth_inputs_recover_instances_and_labels() {
     let planes = ideal_outputs(&scene, 0.15, 7);
     let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
     let dense = backproject(&views, SEM_DIM).unwrap();
-    let (mut compact, report) = voxelize(&dense, &VoxelParams::default()).unwrap();
+    let mut voxelized = voxelize(&dense.scene, &VoxelParams::default()).unwrap();
+    let report = voxelized.report;
     assert!(report.gaussians_out * 4 <= 8 * 128 * 128, "{report:?}");
-    let clustering = cluster_instances(&mut compact, &ClusterParams::default()).unwrap();
+    let clustering = cluster_instances(&mut voxelized.scene, &ClusterParams::default()).unwrap();
     let k = clustering.prototypes.len();
     // Four boxes and the floor.
     assert_eq!(k, 5, "{clustering:?}");
 
-    let predicted: Vec<Vec<u32>> = cameras.iter().map(|c| render_instance_ids(&compact, c, k).unwrap()).collect();
+    let predicted: Vec<Vec<u32>> =
+        dense.to_pixels(&voxelized.input_instance_ids()).chunks_exact(128 * 128).map(<[u32]>::to_vec).collect();
+    let compact = &voxelized.scene;
     let truth: Vec<Vec<u32>> =
         scene.frames.iter().map(|f| f.instances.as_ref().unwrap().iter().map(|&i| u32::from(i)).collect()).collect();
     let scores = instance_scores(&predicted.concat(), &truth.concat()).unwrap().unwrap();
@@ -42,7 +45,7 @@ fn ground_truth_inputs_recover_instances_and_labels() {
 
     let text = text_space(11);
     let proj = SemanticProjection { weight: &text.weight, bias: &text.bias };
-    let prototypes = semantic_prototypes(&compact, &proj).unwrap();
+    let prototypes = semantic_prototypes(compact, &proj).unwrap();
     let labels = assign_labels(&prototypes, &text.vocabulary).unwrap();
     for m in &scores.matches {
         let truth_label = scene.label_of(m.gt as u16).unwrap();

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
-use inssplat_raster::render::GpuRenderer;
+use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
 use inssplat_text::{LabelCache, TextEmbedder};
@@ -49,10 +49,6 @@ enum Command {
         /// Threads for ONNX Runtime (default: all cores).
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
-        /// Where to render the masks: a hardware GPU if one is found (auto), the CPU, or the
-        /// GPU (any adapter, software included; an error if there is none).
-        #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
-        render: RenderChoice,
     },
     /// Ask a reconstruction where something is: matching instances and their masks per view.
     Query {
@@ -74,6 +70,10 @@ enum Command {
         /// Where the images go (default OUT/render).
         #[arg(short = 'o', long = "to")]
         to: Option<PathBuf>,
+        /// Where to render the instance masks: a hardware GPU if one is found (auto), the CPU,
+        /// or the GPU (any adapter, software included; an error if there is none).
+        #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
+        render: RenderChoice,
     },
     /// Time the pipeline per stage at several view counts on one scene.
     Bench {
@@ -97,9 +97,6 @@ enum Command {
     Serve {
         #[command(flatten)]
         args: inssplat_server::http::ServeArgs,
-        /// Where to render the masks (as for `reconstruct`).
-        #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
-        render: RenderChoice,
     },
     /// Score the model on test-split scenes (DESIGN.md protocol): JSON + a markdown table.
     Eval {
@@ -158,11 +155,11 @@ enum RenderChoice {
 
 /// The GPU renderer `choice` asks for: auto takes a hardware adapter only (a software one such
 /// as lavapipe is slower than the CPU path).
-fn gpu_renderer(choice: RenderChoice) -> anyhow::Result<Option<std::sync::Arc<GpuRenderer>>> {
+fn gpu_renderer(choice: RenderChoice) -> anyhow::Result<Option<GpuRenderer>> {
     Ok(match choice {
         RenderChoice::Cpu => None,
-        RenderChoice::Auto => GpuRenderer::new().ok().filter(|g| !g.is_software()).map(std::sync::Arc::new),
-        RenderChoice::Gpu => Some(std::sync::Arc::new(GpuRenderer::new().context("--render gpu: no GPU adapter")?)),
+        RenderChoice::Auto => GpuRenderer::new().ok().filter(|g| !g.is_software()),
+        RenderChoice::Gpu => Some(GpuRenderer::new().context("--render gpu: no GPU adapter")?),
     })
 }
 
@@ -187,7 +184,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Reconstruct { inputs, out, model, vocab, json, threads, render } => {
+        Command::Reconstruct { inputs, out, model, vocab, json, threads } => {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
@@ -197,8 +194,7 @@ fn main() -> anyhow::Result<()> {
             bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
-            let config = PipelineConfig { gpu: gpu_renderer(render)?, ..PipelineConfig::default() };
-            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
+            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default(), &|stage| {
                 bar.set_message(format!("{views} views: {stage}"))
             });
             bar.finish_and_clear();
@@ -232,12 +228,22 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Render { out, camera, to } => {
+        Command::Render { out, camera, to, render } => {
             let saved = saved::Saved::load(&out)?;
             let cameras = render_view::cameras(&saved, &camera)?;
             let dir = to.unwrap_or_else(|| out.join("render"));
-            let files = render_view::render_views(&saved, &cameras, &dir)?;
-            println!("{} images from {} camera(s) in {}", files.len(), cameras.len(), dir.display());
+            let gpu = gpu_renderer(render)?;
+            let (files, backend) = render_view::render_views(&saved, &cameras, &dir, gpu.as_ref())?;
+            println!(
+                "{} images from {} camera(s) in {} (masks rendered on {})",
+                files.len(),
+                cameras.len(),
+                dir.display(),
+                match backend {
+                    Backend::Cpu => "cpu",
+                    Backend::Wgpu => "wgpu",
+                }
+            );
             Ok(())
         }
         Command::Bench { data, views, runs, model, json, threads } => {
@@ -259,7 +265,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Serve { args, render } => inssplat_server::http::serve(args, gpu_renderer(render)?),
+        Command::Serve { args } => inssplat_server::http::serve(args),
         Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, no_aggregation, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use image::{Rgb, RgbImage};
-use inssplat_proto::api::{CameraOut, InstanceOut, ReconstructResponse, RenderBackend};
+use inssplat_proto::api::{CameraOut, InstanceOut, ReconstructResponse};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 use serde::{Deserialize, Serialize};
@@ -203,10 +203,6 @@ pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
         cameras: cameras_out(rec),
         instances: rec.instances.clone(),
         timings: rec.timings.clone(),
-        render_backend: match rec.render_backend {
-            inssplat_raster::render::Backend::Cpu => RenderBackend::Cpu,
-            inssplat_raster::render::Backend::Wgpu => RenderBackend::Wgpu,
-        },
         gaussians_in: rec.voxel.gaussians_in,
         gaussians_kept: rec.voxel.gaussians_out,
     }

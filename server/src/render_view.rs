@@ -3,7 +3,7 @@
 //! `labels_NNN.png`). Cameras come from a `transforms.json` (nerfstudio convention, e.g. one
 //! edited by hand or exported by another tool) or from `interp:i,j,t`, the pose a fraction t
 //! of the way from input view i to input view j (centres lerped, rotations slerped, the
-//! intrinsics of view i).
+//! intrinsics of view i). The instance masks render on a GPU where one is asked for.
 
 use std::path::{Path, PathBuf};
 
@@ -11,7 +11,8 @@ use anyhow::{Context, bail};
 use image::{Rgb, RgbImage};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_raster::label::masks::{label_map, render_colour, render_instance_ids};
+use inssplat_raster::label::masks::{label_map, render_colour, render_instance_ids_on};
+use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 
 use crate::output::{colour_map, palette, save_png};
@@ -45,12 +46,20 @@ pub fn cameras(saved: &Saved, spec: &str) -> anyhow::Result<Vec<Camera>> {
     Ok(t.cameras(path)?)
 }
 
-/// Renders every camera into `out`; returns the files written.
-pub fn render_views(saved: &Saved, cameras: &[Camera], out: &Path) -> anyhow::Result<Vec<PathBuf>> {
+/// Renders every camera into `out`, the instance masks on `gpu` when given (the CPU if it
+/// fails); returns the files written and where the masks were rendered (the CPU if any view's
+/// were).
+pub fn render_views(
+    saved: &Saved,
+    cameras: &[Camera],
+    out: &Path,
+    gpu: Option<&GpuRenderer>,
+) -> anyhow::Result<(Vec<PathBuf>, Backend)> {
     std::fs::create_dir_all(out).with_context(|| format!("-o: cannot create {}", out.display()))?;
     let label_of_id = label_table(&saved.doc.instances, &saved.doc.vocabulary);
     let k = label_of_id.len();
     let mut written = Vec::new();
+    let mut backend = Backend::Wgpu;
     for (v, camera) in cameras.iter().enumerate() {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let pixels = (w * h) as usize;
@@ -59,7 +68,10 @@ pub fn render_views(saved: &Saved, cameras: &[Camera], out: &Path) -> anyhow::Re
             let p = (y * w + x) as usize;
             Rgb([0, 1, 2].map(|c| (colour[c * pixels + p].clamp(0.0, 1.0) * 255.0).round() as u8))
         });
-        let ids = render_instance_ids(&saved.scene, camera, k)?;
+        let (ids, used) = render_instance_ids_on(gpu, &saved.scene, camera, k)?;
+        if used == Backend::Cpu {
+            backend = Backend::Cpu;
+        }
         let labels = label_map(&ids, &label_of_id);
         let images = [
             ("rgb", rgb),
@@ -72,5 +84,5 @@ pub fn render_views(saved: &Saved, cameras: &[Camera], out: &Path) -> anyhow::Re
             written.push(path);
         }
     }
-    Ok(written)
+    Ok((written, if cameras.is_empty() { Backend::Cpu } else { backend }))
 }

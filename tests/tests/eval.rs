@@ -90,9 +90,10 @@ fn bench_times_every_stage_per_view_count() {
     assert_eq!(rows.iter().map(|r| r["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
     for r in rows {
         let stages = r["stage_ms"].as_object().unwrap();
-        for stage in ["decode", "model", "backproject", "voxelize", "cluster", "label", "render"] {
+        for stage in ["decode", "model", "backproject", "voxelize", "cluster", "label", "masks"] {
             assert!(stages[stage].as_f64().unwrap() >= 0.0, "{stage}");
         }
+        assert!(r["render_cpu_ms"].as_f64().unwrap() > 0.0, "{r}");
         let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
         assert!(r["total_ms"].as_f64().unwrap() > 0.0 && sum > 0.0);
         assert_eq!(r["gaussians_in"].as_u64().unwrap(), r["views"].as_u64().unwrap() * 32 * 32);

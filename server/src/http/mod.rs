@@ -26,7 +26,6 @@ use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::middleware::from_fn_with_state;
 use axum::routing::{get, post};
-use inssplat_raster::render::GpuRenderer;
 use tokio::sync::{broadcast, watch};
 
 pub use error::ApiError;
@@ -99,17 +98,17 @@ pub(crate) struct AppState {
 }
 
 /// Runs the service until SIGTERM or Ctrl-C.
-pub fn serve(args: ServeArgs, gpu: Option<Arc<GpuRenderer>>) -> anyhow::Result<()> {
+pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     tracing_subscriber::fmt().with_writer(std::io::stderr).with_target(false).init();
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .context("cannot start the async runtime")?
-        .block_on(run(args, gpu))
+        .block_on(run(args))
 }
 
-async fn run(args: ServeArgs, gpu: Option<Arc<GpuRenderer>>) -> anyhow::Result<()> {
+async fn run(args: ServeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.workers >= 1, "--workers must be at least 1");
     anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
     std::fs::create_dir_all(&args.data_dir).with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
@@ -125,7 +124,7 @@ async fn run(args: ServeArgs, gpu: Option<Arc<GpuRenderer>>) -> anyhow::Result<(
     let shared = Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let threads = args.threads.unwrap_or((cores / args.workers).max(1));
-    let pipeline = PipelineConfig { gpu, ..PipelineConfig::default() };
+    let pipeline = PipelineConfig::default();
     let config = WorkerConfig { model: args.model.clone(), threads, workers: args.workers, queue: args.queue, pipeline };
     let (pool, startup) = Pool::start(config, shared.clone());
     let (stop_tx, shutdown) = watch::channel(false);

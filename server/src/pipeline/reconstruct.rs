@@ -1,8 +1,10 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
 //! → cluster once in 3D → semantic prototypes → text labels → per-view instance and label
-//! maps rendered from the clustered Gaussians. Every stage is timed.
+//! maps. An input view's maps need no rendering: each pixel's own Gaussian was merged into one
+//! clustered Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in
+//! every view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's
+//! target views). Every stage is timed.
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
@@ -11,8 +13,7 @@ use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, M
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::label::masks::{label_map, render_instance_ids_on};
-use inssplat_raster::render::{Backend, GpuRenderer};
+use inssplat_raster::label::masks::label_map;
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
@@ -46,8 +47,6 @@ fn stage_err(stage: &'static str) -> impl Fn(&dyn std::fmt::Display) -> Pipeline
 pub struct PipelineConfig {
     pub voxel: VoxelParams,
     pub cluster: ClusterParams,
-    /// Render the views' id maps here (falls back to the CPU if it fails); `None`: CPU.
-    pub gpu: Option<Arc<GpuRenderer>>,
     /// Known cameras of the inputs, in order (world→camera in any metric frame, intrinsics at
     /// the model resolution), used instead of the network's camera head; the network's depth,
     /// Gaussians and features are placed with them. `None`: the predicted cameras.
@@ -84,8 +83,6 @@ pub struct Reconstruction {
     /// Φ_sem of the network: weight `[384][d_s]` and bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
     pub sem_proj_bias: Vec<f32>,
-    /// Where the id maps were rendered.
-    pub render_backend: Backend,
     pub voxel: VoxelReport,
     pub timings: Vec<StageTiming>,
 }
@@ -182,17 +179,18 @@ pub fn reconstruct_with(
         backproject(&views, out.sem_dim)
     });
     let per_pixel = per_pixel.map_err(|e| stage_err("backproject")(&e))?;
-    let (mut scene, voxel) =
-        clock.time("voxelize", || voxelize(&per_pixel, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;
+    let mut voxelized =
+        clock.time("voxelize", || voxelize(&per_pixel.scene, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;
     let clustering = clock
-        .time("cluster", || cluster_instances(&mut scene, &config.cluster))
+        .time("cluster", || cluster_instances(&mut voxelized.scene, &config.cluster))
         .map_err(|e| stage_err("cluster")(&e))?;
+    let scene = &mut voxelized.scene;
 
     let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
     let (prototypes, matches) = clock.time("label", || -> Result<_, PipelineError> {
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
         let texts = labels.embed(&words).map_err(|e| stage_err("label")(&e))?;
-        let prototypes = semantic_prototypes(&scene, &projection).map_err(|e| stage_err("label")(&e))?;
+        let prototypes = semantic_prototypes(scene, &projection).map_err(|e| stage_err("label")(&e))?;
         let matches = assign_labels(&prototypes, &texts).map_err(|e| stage_err("label")(&e))?;
         Ok((prototypes, matches))
     })?;
@@ -208,16 +206,10 @@ pub fn reconstruct_with(
         .collect();
     scene.meta.model_version = Some(model.model_version.clone());
     scene.meta.up_axis = Some("-y".into());
-    let instances = instance_table(&scene, &prototypes, &matches, vocabulary);
+    let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
-    let rendered = clock.time("render", || match config.gpu.as_deref() {
-        // One device queue: views in turn.
-        Some(gpu) => cameras.iter().map(|c| render_instance_ids_on(Some(gpu), &scene, c, k)).collect::<Result<Vec<_>, _>>(),
-        None => cameras.par_iter().map(|c| render_instance_ids_on(None, &scene, c, k)).collect::<Result<Vec<_>, _>>(),
-    });
-    let rendered = rendered.map_err(|e| stage_err("render")(&e))?;
-    let render_backend = if rendered.iter().all(|(_, b)| *b == Backend::Wgpu) { Backend::Wgpu } else { Backend::Cpu };
-    let id_maps: Vec<Vec<u32>> = rendered.into_iter().map(|(ids, _)| ids).collect();
+    let id_maps: Vec<Vec<u32>> =
+        clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
     let views = decoded
         .into_iter()
         .zip(id_maps)
@@ -231,17 +223,16 @@ pub fn reconstruct_with(
             rgb: (0..pixels).flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8)).collect(),
         })
         .collect();
-    scene.meta.producer = format!("inssplat {}", env!("CARGO_PKG_VERSION"));
+    voxelized.scene.meta.producer = format!("inssplat {}", env!("CARGO_PKG_VERSION"));
     Ok(Reconstruction {
-        scene,
+        scene: voxelized.scene,
         views,
         instances,
         prototypes,
         vocabulary: vocabulary.to_vec(),
         sem_proj_weight: out.sem_proj_weight.clone(),
         sem_proj_bias: out.sem_proj_bias.clone(),
-        render_backend,
-        voxel,
+        voxel: voxelized.report,
         timings: clock.timings,
     })
 }

@@ -36,7 +36,7 @@ impl Server {
         let log = data.join(format!("serve-{}.log", std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos()));
         let mut child = Command::new(inssplat_e2e::inssplat_bin())
             .args(["serve", "--listen", "127.0.0.1:0", "--model", model.to_str().unwrap(), "--data-dir", data.to_str().unwrap()])
-            .args(["--render", "cpu", "--threads", "2"])
+            .args(["--threads", "2"])
             .args(args)
             .env_remove("INSSPLAT_API_KEY")
             .stdout(Stdio::piped())
