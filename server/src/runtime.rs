@@ -108,6 +108,10 @@ impl Model {
             .map_err(load_err)?
             .with_intra_threads(threads.max(1))
             .map_err(|e| load_err(e.into()))?
+            // Idle ONNX Runtime threads would otherwise spin after every run, on the cores the
+            // post-processing stages (rayon) need next.
+            .with_intra_op_spinning(false)
+            .map_err(|e| load_err(e.into()))?
             .commit_from_file(path)
             .map_err(load_err)?;
         check_tensors(path, "input", &signature::INPUTS, session.inputs().iter().map(|o| (o.name(), o.dtype())))?;
