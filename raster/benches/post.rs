@@ -20,7 +20,7 @@ use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::{SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::metrics::{consistency_scores, instance_scores};
 use inssplat_raster::render::{Splats, render};
-use inssplat_raster::voxel::{VoxelParams, voxelize};
+use inssplat_raster::voxel::{VoxelParams, Voxelized, voxelize};
 use post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras, text_space};
 
 const SIZE: u32 = 128;
@@ -84,11 +84,12 @@ fn main() {
         let (t_bp, dense) = time(|| backproject(&inputs, SEM_DIM).expect("back-projection"));
         let (t_vox, voxelized) = time(|| voxelize(&dense.scene, &VoxelParams::default()).expect("voxelization"));
         let compact = voxelized.scene.clone();
-        let (t_c3, (clustered, k)) = time(|| {
-            let mut v = voxelized.clone();
-            let c = cluster_instances(&mut v.scene, &params).expect("3D clustering");
-            (v, c.prototypes.len())
+        let (t_c3, (clustered_scene, k)) = time(|| {
+            let mut s = compact.clone();
+            let c = cluster_instances(&mut s, &params).expect("3D clustering");
+            (s, c.prototypes.len())
         });
+        let clustered = Voxelized { scene: clustered_scene, ..voxelized };
         let (t_label, _) = time(|| {
             let protos = semantic_prototypes(&clustered.scene, &proj).expect("prototypes");
             assign_labels(&protos, &text.vocabulary).expect("labels")

@@ -41,8 +41,8 @@ const CONTEXT_MIN_MIOU: f64 = 0.95;
 const RENDERED_MIN_IOU: f64 = 0.75;
 const RENDERED_MIN_MIOU: f64 = 0.85;
 
-/// Ideal outputs of `frames` of `scene`, semantic codes over `vocabulary`.
-fn ideal_outputs(scene: &Scene, frames: &[&Frame], vocabulary: &[&str], seed: u64) -> Vec<ViewPlanes> {
+/// Ideal outputs of every frame of `scene`, semantic codes over `vocabulary`.
+fn ideal_outputs(scene: &Scene, vocabulary: &[&str], seed: u64) -> Vec<ViewPlanes> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut noise = || rng.random_range(-NOISE..=NOISE);
     // Vocabulary index of each instance id's label (the background, id 0, has none).
@@ -50,7 +50,8 @@ fn ideal_outputs(scene: &Scene, frames: &[&Frame], vocabulary: &[&str], seed: u6
         let label = scene.label_of(id)?;
         Some(vocabulary.iter().position(|v| *v == label).expect("every synthesized label is in the vocabulary"))
     };
-    frames
+    scene
+        .frames
         .iter()
         .map(|f| {
             let normals = depth_normals(f);
@@ -73,7 +74,7 @@ fn sizeable_miou(predicted: &[u32], truth: &[u32]) -> (f64, Vec<InstanceMatch>) 
     (miou, visible)
 }
 
-fn ids_of(frames: &[&Frame]) -> Vec<u32> {
+fn ids_of(frames: &[Frame]) -> Vec<u32> {
     frames.iter().flat_map(|f| f.instances.as_ref().unwrap().iter().map(|&id| u32::from(id))).collect()
 }
 
@@ -93,18 +94,17 @@ fn ground_truth_of_synthesized_scenes_recovers_instances_and_labels() {
     (cfg.width, cfg.height, cfg.frames, cfg.objects) = (SIZE, SIZE, (VIEWS, VIEWS), (3, 5));
     for index in [0, 1, 5] {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let context: Vec<&Frame> = scene.frames.iter().collect();
-        let planes = ideal_outputs(&scene, &context, &vocabulary, index);
-        let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&context).map(|(p, f)| p.outputs(&f.camera)).collect();
+        let planes = ideal_outputs(&scene, &vocabulary, index);
+        let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&scene.frames).map(|(p, f)| p.outputs(&f.camera)).collect();
         let dense = backproject(&views, vocabulary.len()).unwrap();
         let mut voxelized = voxelize(&dense.scene, &VoxelParams::default()).unwrap();
         let clustering = cluster_instances(&mut voxelized.scene, &ClusterParams::default()).unwrap();
         let k = clustering.prototypes.len();
         let compact = &voxelized.scene;
 
-        let truth = ids_of(&context);
+        let truth = ids_of(&scene.frames);
         let (context_miou, visible) = sizeable_miou(&dense.to_pixels(&voxelized.input_instance_ids()), &truth);
-        let rendered: Vec<u32> = context.iter().flat_map(|f| render_instance_ids(compact, &f.camera, k).unwrap()).collect();
+        let rendered: Vec<u32> = scene.frames.iter().flat_map(|f| render_instance_ids(compact, &f.camera, k).unwrap()).collect();
         let (rendered_miou, rendered_visible) = sizeable_miou(&rendered, &truth);
         eprintln!(
             "scene {index}: {} → {} Gaussians, {k} clusters; views' own masks mIoU {context_miou:.4} ({}); \
