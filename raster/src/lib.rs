@@ -11,5 +11,7 @@ pub mod cluster;
 pub mod ideal;
 pub mod label;
 pub mod metrics;
+pub mod register;
 pub mod render;
+pub mod rotation;
 pub mod voxel;

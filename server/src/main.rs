@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use inssplat_raster::register::RegisterParams;
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
@@ -125,6 +126,10 @@ enum Command {
         /// predicted ones (scores everything but the camera head).
         #[arg(long)]
         known_poses: bool,
+        /// Use the camera head's poses as they are, without the keypoint registration stage
+        /// (the ablation of registration).
+        #[arg(long)]
+        no_register: bool,
         /// Name every pixel from its own rendered semantic feature instead of its instance's
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
@@ -266,7 +271,7 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Serve { args } => inssplat_server::http::serve(args),
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, no_aggregation, perturb, sweep, json, threads } => {
+        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, no_register, no_aggregation, perturb, sweep, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -281,7 +286,7 @@ fn main() -> anyhow::Result<()> {
             let request = eval::EvalRequest {
                 views,
                 extra_vocab: extra,
-                pipeline: PipelineConfig::default(),
+                pipeline: PipelineConfig { register: (!no_register).then(RegisterParams::default), ..PipelineConfig::default() },
                 cluster,
                 known_poses,
                 no_aggregation,

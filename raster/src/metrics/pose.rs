@@ -11,9 +11,9 @@
 
 use glam::{DMat3, DQuat, DVec3};
 use inssplat_proto::Camera;
-use nalgebra::{Matrix3, SVD};
 
 use super::{MetricError, same_len};
+use crate::rotation::nearest_rotation;
 
 /// x ↦ scale · rotation · x + translation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,19 +70,8 @@ pub fn pose_alignment(pred: &[Camera], gt: &[Camera]) -> Result<Option<Similarit
     if pred.is_empty() {
         return Ok(None);
     }
-    let mut sum = Matrix3::<f64>::zeros();
-    for (p, g) in pred.iter().zip(gt) {
-        let offset = c2w(g) * c2w(p).transpose();
-        sum += Matrix3::from_column_slice(&offset.to_cols_array());
-    }
-    let svd = SVD::new(sum, true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return Ok(None) };
-    let mut sign = Matrix3::identity();
-    if u.determinant() * v_t.determinant() < 0.0 {
-        sign[(2, 2)] = -1.0;
-    }
-    let r = u * sign * v_t;
-    let rotation = DMat3::from_cols_slice(r.as_slice());
+    let sum: DMat3 = pred.iter().zip(gt).fold(DMat3::ZERO, |sum, (p, g)| sum + c2w(g) * c2w(p).transpose());
+    let Some(rotation) = nearest_rotation(sum) else { return Ok(None) };
     let (cp, cg) = (centres(pred), centres(gt));
     let mean = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len() as f64;
     let (ms, md) = (mean(&cp), mean(&cg));

@@ -39,6 +39,12 @@ pub struct Letterbox {
 }
 
 impl Letterbox {
+    /// The photo's pixels inside the square, `[x0, y0, x1, y1)` in model pixels.
+    pub fn photo_rect(&self) -> [u32; 4] {
+        let (x1, y1) = (self.pad_x + self.width as f32 * self.scale, self.pad_y + self.height as f32 * self.scale);
+        [self.pad_x.ceil() as u32, self.pad_y.ceil() as u32, x1.floor() as u32, y1.floor() as u32]
+    }
+
     /// Intrinsics in the original photo for intrinsics predicted at the model resolution.
     pub fn to_original(&self, k: &Intrinsics) -> Intrinsics {
         Intrinsics {

@@ -14,6 +14,7 @@ use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
+use inssplat_raster::register::{RegisterParams, RegisterView, register};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
@@ -43,14 +44,29 @@ fn stage_err(stage: &'static str) -> impl Fn(&dyn std::fmt::Display) -> Pipeline
 }
 
 /// Tunables of the post-processing stages.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct PipelineConfig {
     pub voxel: VoxelParams,
     pub cluster: ClusterParams,
+    /// Register the views from matched keypoints and the predicted depth (the "register"
+    /// stage; views it cannot reach keep the camera head's pose). `None`: the camera head's
+    /// poses as they are.
+    pub register: Option<RegisterParams>,
     /// Known cameras of the inputs, in order (world→camera in any metric frame, intrinsics at
     /// the model resolution), used instead of the network's camera head; the network's depth,
     /// Gaussians and features are placed with them. `None`: the predicted cameras.
     pub known_poses: Option<Vec<Camera>>,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            voxel: VoxelParams::default(),
+            cluster: ClusterParams::default(),
+            register: Some(RegisterParams::default()),
+            known_poses: None,
+        }
+    }
 }
 
 /// One input photo.
@@ -158,7 +174,24 @@ pub fn reconstruct_with(
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
     let out = clock.time("model", || model.run(&batch, images.len()))?;
     let cameras = match &config.known_poses {
-        None => predicted_cameras(&out),
+        None => {
+            let predicted = predicted_cameras(&out);
+            match &config.register {
+                None => predicted,
+                Some(params) => clock.time("register", || {
+                    let pixels = out.height * out.width;
+                    let views: Vec<RegisterView<'_>> = (0..out.views)
+                        .map(|v| RegisterView {
+                            rgb: &decoded[v].planar,
+                            depth: &out.depth[v * pixels..(v + 1) * pixels],
+                            photo: decoded[v].letterbox.photo_rect(),
+                            camera: &predicted[v],
+                        })
+                        .collect();
+                    register(&views, params).cameras
+                }),
+            }
+        }
         Some(poses) if poses.len() == images.len() => poses.clone(),
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };

@@ -1,0 +1,176 @@
+//! Camera registration from the photos and the network's depth: the test-time pose stage
+//! that VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
+//! ([`features`]) are matched with every other view's; each pair with enough matches gets a
+//! relative pose ([`relative`]), and the views are chained to view 0 along the maximum
+//! spanning tree of the pairs' inlier counts, each view through its best-supported path.
+//! Views that no chain reaches from view 0 form components of their own: the first view of
+//! each keeps the camera head's pose, and the rest are chained to it. The result is in the network's
+//! frame (world = view 0's camera), with the network's intrinsics and the depth's metric
+//! scale, so it replaces the predicted cameras one for one.
+
+pub mod features;
+pub mod relative;
+
+use glam::{Quat, Vec3};
+use inssplat_proto::Camera;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use relative::{Correspondence, RelativePose, relative_pose};
+
+/// Tunables of [`register`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegisterParams {
+    /// FAST-9 intensity threshold (0–255) on the ×2 upsampled grey image.
+    pub fast_threshold: u8,
+    /// One keypoint per cell of this side, in view pixels.
+    pub grid_cell: u32,
+    /// Strongest keypoints kept per view.
+    pub max_keypoints: usize,
+    /// Largest Hamming distance of a match (of 256 bits).
+    pub max_hamming: u32,
+    /// Best match below this × the second best.
+    pub ratio: f32,
+    /// RANSAC hypotheses per pair.
+    pub ransac_iterations: usize,
+    /// Gauss–Newton iterations of the best hypothesis.
+    pub refine_iterations: usize,
+    /// Reprojection error of an inlier, view pixels.
+    pub inlier_px: f32,
+    /// Inliers a pair needs to count as an edge.
+    pub min_inliers: usize,
+    /// RANSAC seed (each pair draws from its own stream).
+    pub seed: u64,
+}
+
+impl Default for RegisterParams {
+    fn default() -> Self {
+        Self {
+            fast_threshold: 10,
+            grid_cell: 4,
+            max_keypoints: 400,
+            max_hamming: 64,
+            ratio: 0.85,
+            ransac_iterations: 400,
+            refine_iterations: 10,
+            inlier_px: 2.5,
+            min_inliers: 10,
+            seed: 0x5eed,
+        }
+    }
+}
+
+/// One view: its photo, the network's depth and its predicted camera (whose intrinsics are
+/// used; its pose is the fallback).
+#[derive(Debug, Clone, Copy)]
+pub struct RegisterView<'a> {
+    /// Planar RGB `[3][H][W]` in [0, 1].
+    pub rgb: &'a [f32],
+    /// `[H][W]` metres along the camera z axis; ≤ 0 or non-finite = none.
+    pub depth: &'a [f32],
+    /// The photo's rectangle in the view, `[x0, y0, x1, y1)` pixels: all of it, or the part
+    /// that is not letterbox padding.
+    pub photo: [u32; 4],
+    pub camera: &'a Camera,
+}
+
+/// A pair of views with its relative pose.
+#[derive(Debug, Clone, Copy)]
+pub struct PairPose {
+    pub i: usize,
+    pub j: usize,
+    pub matches: usize,
+    /// Camera i → camera j; `None` when too few matches agree.
+    pub pose: Option<RelativePose>,
+}
+
+/// The registered cameras and how they were found.
+#[derive(Debug, Clone)]
+pub struct Registration {
+    pub cameras: Vec<Camera>,
+    /// Each view's component: the view its pose is chained from (0 = registered to the
+    /// reference view; any other root keeps the camera head's pose, and so is chained from
+    /// it).
+    pub component: Vec<usize>,
+    pub pairs: Vec<PairPose>,
+    pub keypoints: Vec<usize>,
+}
+
+/// Registers `views` (see the module documentation). View 0 keeps the identity pose.
+pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registration {
+    let pairs_tests = features::test_pairs();
+    let feats: Vec<features::Features> = views
+        .par_iter()
+        .map(|v| {
+            let k = &v.camera.intrinsics;
+            features::detect(v.rgb, k.width, k.height, v.photo, &pairs_tests, params)
+        })
+        .collect();
+    let n = views.len();
+    let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+    let pairs: Vec<PairPose> = jobs
+        .par_iter()
+        .map(|&(i, j)| {
+            let corr = correspondences(&views[i], &views[j], &feats[i], &feats[j], params);
+            let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let (ki, kj) = (&views[i].camera.intrinsics, &views[j].camera.intrinsics);
+            PairPose { i, j, matches: corr.len(), pose: relative_pose(&corr, ki, kj, params, &mut rng) }
+        })
+        .collect();
+    let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
+    // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
+    // view left keeps the camera head's pose and anchors its own component.
+    let mut component: Vec<Option<usize>> = vec![None; n];
+    let mut root = 0;
+    while root < n {
+        component[root] = Some(root);
+        if root == 0 {
+            cameras[0].rotation = Quat::IDENTITY;
+            cameras[0].translation = Vec3::ZERO;
+        }
+        loop {
+            let next = pairs
+                .iter()
+                .filter_map(|p| p.pose.map(|pose| (p, pose)))
+                .filter_map(|(p, pose)| match (component[p.i], component[p.j]) {
+                    (Some(c), None) => Some((p.i, p.j, pose, c)),
+                    (None, Some(c)) => Some((p.j, p.i, pose.inverse(), c)),
+                    _ => None,
+                })
+                .max_by_key(|(_, _, pose, _)| pose.inliers);
+            let Some((from, to, pose, c)) = next else { break };
+            let parent = cameras[from];
+            let cam = &mut cameras[to];
+            cam.rotation = (pose.rotation * parent.rotation).normalize();
+            cam.translation = pose.rotation * parent.translation + pose.translation;
+            component[to] = Some(c);
+        }
+        root = component.iter().position(Option::is_none).unwrap_or(n);
+    }
+    let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
+    Registration { cameras, component, pairs, keypoints: feats.iter().map(features::Features::len).collect() }
+}
+
+/// The matches of views a and b whose keypoints both have depth, lifted into each camera.
+fn correspondences(
+    a: &RegisterView<'_>,
+    b: &RegisterView<'_>,
+    fa: &features::Features,
+    fb: &features::Features,
+    params: &RegisterParams,
+) -> Vec<Correspondence> {
+    let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
+        let k = &v.camera.intrinsics;
+        let (x, y) = (p.x as usize, p.y as usize);
+        let z = *v.depth.get(y * k.width as usize + x)?;
+        (z.is_finite() && z > 0.0).then(|| v.camera.unproject(p.x, p.y, z))
+    };
+    features::match_features(fa, fb, params)
+        .into_iter()
+        .filter_map(|(ia, ib)| {
+            let (pa, pb) = (fa.points[ia], fb.points[ib]);
+            Some(Correspondence { pixel_i: pa, point_i: lift(a, pa)?, pixel_j: pb, point_j: lift(b, pb)? })
+        })
+        .collect()
+}
