@@ -2,22 +2,29 @@
 //! that VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
 //! ([`features`]) are matched with every other view's; each pair with enough matches gets a
 //! relative pose ([`relative`]), and the views are chained to view 0 along the maximum
-//! spanning tree of the pairs' inlier counts, each view through its best-supported path.
+//! spanning tree of the pairs' inlier counts, each view through its best-supported path; then
+//! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors
+//! do not add up along a chain.
 //! Views that no chain reaches from view 0 form components of their own: the first view of
 //! each keeps the camera head's pose, and the rest are chained to it. The result is in the network's
 //! frame (world = view 0's camera), with the network's intrinsics and the depth's metric
 //! scale, so it replaces the predicted cameras one for one.
 
 pub mod features;
+mod joint;
 pub mod relative;
 
-use glam::{Quat, Vec3};
+use glam::{DMat3, DQuat, Quat, Vec3};
 use inssplat_proto::Camera;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use relative::{Correspondence, RelativePose, relative_pose};
+use joint::Edge;
+use relative::{Correspondence, Model, RelativePose, relative_pose};
+
+/// Gate of the joint refinement, in inlier thresholds.
+const JOINT_GATE: f64 = 3.0;
 
 /// Tunables of [`register`].
 #[derive(Debug, Clone, PartialEq)]
@@ -76,13 +83,15 @@ pub struct RegisterView<'a> {
 }
 
 /// A pair of views with its relative pose.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct PairPose {
     pub i: usize,
     pub j: usize,
     pub matches: usize,
     /// Camera i → camera j; `None` when too few matches agree.
     pub pose: Option<RelativePose>,
+    /// The matches that agree with `pose`.
+    pub inliers: Vec<Correspondence>,
 }
 
 /// The registered cameras and how they were found.
@@ -115,7 +124,8 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
             let corr = correspondences(&views[i], &views[j], &feats[i], &feats[j], params);
             let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             let (ki, kj) = (&views[i].camera.intrinsics, &views[j].camera.intrinsics);
-            PairPose { i, j, matches: corr.len(), pose: relative_pose(&corr, ki, kj, params, &mut rng) }
+            let (pose, inliers) = relative_pose(&corr, ki, kj, params, &mut rng).unzip();
+            PairPose { i, j, matches: corr.len(), pose, inliers: inliers.unwrap_or_default() }
         })
         .collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
@@ -149,7 +159,30 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         root = component.iter().position(Option::is_none).unwrap_or(n);
     }
     let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
+    refine_jointly(&mut cameras, &component, &pairs, params);
     Registration { cameras, component, pairs, keypoints: feats.iter().map(features::Features::len).collect() }
+}
+
+/// Refines all chained poses at once on every pair within a component (each component's root
+/// stays), gating matches at [`JOINT_GATE`] × the inlier threshold: a chain's drift may have
+/// moved a pair's inliers beyond it.
+fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose], params: &RegisterParams) {
+    let edges: Vec<Edge<'_>> = pairs
+        .iter()
+        .filter(|p| p.pose.is_some() && component[p.i] == component[p.j])
+        .map(|p| Edge { i: p.i, j: p.j, ki: &cameras[p.i].intrinsics, kj: &cameras[p.j].intrinsics, corr: &p.inliers })
+        .collect();
+    let mut poses: Vec<Model> = cameras
+        .iter()
+        .map(|c| Model { r: DMat3::from_quat(c.rotation.as_dquat()), t: c.translation.as_dvec3() })
+        .collect();
+    let free: Vec<bool> = component.iter().enumerate().map(|(v, c)| *c != v).collect();
+    let tau = params.inlier_px as f64;
+    joint::refine(&mut poses, &free, &edges, JOINT_GATE * tau, 0.5 * tau, params.refine_iterations);
+    for (cam, pose) in cameras.iter_mut().zip(&poses) {
+        cam.rotation = DQuat::from_mat3(&pose.r).normalize().as_quat();
+        cam.translation = pose.t.as_vec3();
+    }
 }
 
 /// The matches of views a and b whose keypoints both have depth, lifted into each camera.
@@ -162,8 +195,7 @@ fn correspondences(
 ) -> Vec<Correspondence> {
     let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
         let k = &v.camera.intrinsics;
-        let (x, y) = (p.x as usize, p.y as usize);
-        let z = *v.depth.get(y * k.width as usize + x)?;
+        let z = *v.depth.get(p.y as usize * k.width as usize + p.x as usize)?;
         (z.is_finite() && z > 0.0).then(|| v.camera.unproject(p.x, p.y, z))
     };
     features::match_features(fa, fb, params)

@@ -3,18 +3,18 @@
 //! of minimal hypotheses — three matches' 3-D points aligned rigidly (Kabsch), and two
 //! matches' viewing rays aligned as a pure rotation, which holds for a phone turned on the
 //! spot and does not suffer from depth error — and scores each by its symmetric reprojection
-//! error (MSAC). The best is refined by Gauss–Newton with Huber weights on the inliers'
-//! reprojection errors in both views. Reprojection, not 3-D distance, is what is minimised:
+//! error (MSAC). The best is refined on the inliers' reprojection errors in both views
+//! ([`super::joint`]). Reprojection, not 3-D distance, is what is minimised:
 //! a depth that is off by 20% moves a point along its ray, which changes its projection in
 //! the other view only through the parallax of the baseline.
 
 use glam::{DMat3, DQuat, DVec3, Quat, Vec2, Vec3};
 use inssplat_proto::camera::Intrinsics;
-use nalgebra::{Matrix6, Vector6};
 use rand::Rng;
 use rand::seq::index::sample;
 
 use super::RegisterParams;
+use super::joint::{self, Edge};
 use crate::rotation::nearest_rotation;
 
 /// One match: the keypoint in each view and its point lifted by that view's depth (camera
@@ -27,7 +27,7 @@ pub struct Correspondence {
     pub point_j: Vec3,
 }
 
-/// A relative pose and the matches that agree with it.
+/// A relative pose and how many matches agree with it.
 #[derive(Debug, Clone, Copy)]
 pub struct RelativePose {
     pub rotation: Quat,
@@ -43,10 +43,33 @@ impl RelativePose {
     }
 }
 
+/// x_j = r·x_i + t, in double precision.
 #[derive(Clone, Copy)]
-struct Model {
-    r: DMat3,
-    t: DVec3,
+pub(super) struct Model {
+    pub r: DMat3,
+    pub t: DVec3,
+}
+
+impl Model {
+    /// Camera i's pose → camera j's pose (world→camera), given i's.
+    pub fn of_cameras(ri: DMat3, ti: DVec3, rj: DMat3, tj: DVec3) -> Self {
+        let r = rj * ri.transpose();
+        Model { r, t: tj - r * ti }
+    }
+}
+
+/// The four reprojection residuals of `c` under `m` (i's point in j, j's point in i), or
+/// `None` when a point falls behind the other camera.
+pub(super) fn reprojection(ki: &Intrinsics, kj: &Intrinsics, m: &Model, c: &Correspondence) -> Option<[f64; 4]> {
+    let pj = project(kj, m.r * c.point_i.as_dvec3() + m.t)?;
+    let pi = project(ki, m.r.transpose() * (c.point_j.as_dvec3() - m.t))?;
+    let (uj, ui) = (c.pixel_j.as_dvec2(), c.pixel_i.as_dvec2());
+    Some([pj[0] - uj.x, pj[1] - uj.y, pi[0] - ui.x, pi[1] - ui.y])
+}
+
+/// Huber weight of a residual `r` with threshold `delta`.
+pub(super) fn huber(r: f64, delta: f64) -> f64 {
+    if r.abs() <= delta { 1.0 } else { delta / r.abs() }
 }
 
 struct Pair<'a> {
@@ -60,13 +83,8 @@ fn project(k: &Intrinsics, p: DVec3) -> Option<[f64; 2]> {
 }
 
 impl Pair<'_> {
-    /// The four reprojection residuals of match `c` (i's point in j, j's point in i), or `None`
-    /// when a point falls behind the other camera.
     fn residuals(&self, m: &Model, c: &Correspondence) -> Option<[f64; 4]> {
-        let pj = project(self.kj, m.r * c.point_i.as_dvec3() + m.t)?;
-        let pi = project(self.ki, m.r.transpose() * (c.point_j.as_dvec3() - m.t))?;
-        let (uj, ui) = (c.pixel_j.as_dvec2(), c.pixel_i.as_dvec2());
-        Some([pj[0] - uj.x, pj[1] - uj.y, pi[0] - ui.x, pi[1] - ui.y])
+        reprojection(self.ki, self.kj, m, c)
     }
 
     /// Symmetric squared error of `c` in pixels²: the larger of its two squared reprojection
@@ -82,46 +100,6 @@ impl Pair<'_> {
             let e2 = self.error2(m, c);
             if e2 < tau2 { (cost + e2, n + 1) } else { (cost + tau2, n) }
         })
-    }
-
-    /// Gauss–Newton (Huber-weighted, forward-difference Jacobian) on the matches within `tau`
-    /// of `m`, updating the rotation on the left: R ← exp(ω)·R, t ← t + δ.
-    fn refine(&self, mut m: Model, tau: f64, iterations: usize) -> Model {
-        let huber = 0.5 * tau;
-        let moved = |m: &Model, d: &Vector6<f64>| Model {
-            r: DMat3::from_quat(DQuat::from_scaled_axis(DVec3::new(d[0], d[1], d[2]))) * m.r,
-            t: m.t + DVec3::new(d[3], d[4], d[5]),
-        };
-        for _ in 0..iterations {
-            let inliers: Vec<&Correspondence> = self.corr.iter().filter(|c| self.error2(&m, c) < tau * tau).collect();
-            if inliers.len() < 4 {
-                break;
-            }
-            let (mut h, mut g) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
-            for c in inliers {
-                let Some(r0) = self.residuals(&m, c) else { continue };
-                let mut jac = [[0.0; 6]; 4];
-                for (p, col) in (0..6).map(|p| (p, Vector6::from_fn(|i, _| if i == p { 1e-6 } else { 0.0 }))) {
-                    let Some(r1) = self.residuals(&moved(&m, &col), c) else { continue };
-                    for k in 0..4 {
-                        jac[k][p] = (r1[k] - r0[k]) / 1e-6;
-                    }
-                }
-                for k in 0..4 {
-                    let w = if r0[k].abs() <= huber { 1.0 } else { huber / r0[k].abs() };
-                    let row = Vector6::from_row_slice(&jac[k]);
-                    h += w * row * row.transpose();
-                    g += w * r0[k] * row;
-                }
-            }
-            h += Matrix6::from_diagonal_element(1e-6 * h.trace().max(1e-12));
-            let Some(step) = h.cholesky().map(|ch| ch.solve(&(-g))) else { break };
-            m = moved(&m, &step);
-            if step.norm() < 1e-8 {
-                break;
-            }
-        }
-        m
     }
 }
 
@@ -150,15 +128,15 @@ fn iterations_for(w: f64) -> usize {
     (((0.01f64).ln() / (1.0 - all).ln()).ceil() as usize).max(16)
 }
 
-/// The relative pose of views i and j from `corr`, or `None` when fewer than
-/// `params.min_inliers` matches agree on one.
+/// The relative pose of views i and j from `corr` and the matches that agree with it, or
+/// `None` when fewer than `params.min_inliers` do.
 pub fn relative_pose(
     corr: &[Correspondence],
     ki: &Intrinsics,
     kj: &Intrinsics,
     params: &RegisterParams,
     rng: &mut impl Rng,
-) -> Option<RelativePose> {
+) -> Option<(RelativePose, Vec<Correspondence>)> {
     if corr.len() < params.min_inliers.max(3) {
         return None;
     }
@@ -188,11 +166,88 @@ pub fn relative_pose(
         }
     }
     let (_, model) = best?;
-    let model = pair.refine(model, tau, params.refine_iterations);
-    let (_, inliers) = pair.score(&model, tau);
-    (inliers >= params.min_inliers).then(|| RelativePose {
-        rotation: DQuat::from_mat3(&model.r).normalize().as_quat(),
-        translation: model.t.as_vec3(),
-        inliers,
+    let mut poses = [Model { r: DMat3::IDENTITY, t: DVec3::ZERO }, model];
+    let edge = Edge { i: 0, j: 1, ki, kj, corr };
+    joint::refine(&mut poses, &[false, true], &[edge], tau, 0.5 * tau, params.refine_iterations);
+    let model = poses[1];
+    let inliers: Vec<Correspondence> = corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
+    (inliers.len() >= params.min_inliers).then(|| {
+        let pose = RelativePose {
+            rotation: DQuat::from_mat3(&model.r).normalize().as_quat(),
+            translation: model.t.as_vec3(),
+            inliers: inliers.len(),
+        };
+        (pose, inliers)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Quat, Vec2, Vec3};
+    use inssplat_proto::camera::Intrinsics;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::{Correspondence, relative_pose};
+    use crate::register::RegisterParams;
+
+    fn k() -> Intrinsics {
+        Intrinsics::from_fov_y(128, 128, 1.1)
+    }
+
+    fn project(p: Vec3) -> Vec2 {
+        let k = k();
+        Vec2::new(k.fx * p.x / p.z + k.cx, k.fy * p.y / p.z + k.cy)
+    }
+
+    /// `n` points of a room 2–5 m in front of camera i seen from camera j = (r, t); a share
+    /// `outliers` of the matches point at random pixels; camera j's depths are scaled by
+    /// `depth_scale_j` (a biased depth prediction).
+    fn matches(r: Quat, t: Vec3, n: usize, outliers: f32, depth_scale_j: f32, rng: &mut ChaCha8Rng) -> Vec<Correspondence> {
+        (0..n)
+            .map(|_| {
+                let pi = Vec3::new(rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5), 1.0) * rng.random_range(2.0..5.0);
+                let mut pj = r * pi + t;
+                if rng.random::<f32>() < outliers {
+                    pj = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 1.0) * rng.random_range(2.0..5.0);
+                }
+                Correspondence { pixel_i: project(pi), point_i: pi, pixel_j: project(pj), point_j: pj * depth_scale_j }
+            })
+            .collect()
+    }
+
+    fn angle_deg(a: Quat, b: Quat) -> f32 {
+        (a * b.conjugate()).normalize().angle_between(Quat::IDENTITY).to_degrees()
+    }
+
+    #[test]
+    fn recovers_a_general_motion_despite_outliers() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let (r, t) = (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
+        let corr = matches(r, t, 120, 0.4, 1.0, &mut rng);
+        let (pose, _) = relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
+        assert!(angle_deg(pose.rotation, r) < 0.05, "rotation off by {}°", angle_deg(pose.rotation, r));
+        assert!((pose.translation - t).length() < 0.005, "translation {:?} vs {t:?}", pose.translation);
+        assert!((65..=85).contains(&pose.inliers), "{} inliers of ~72 true", pose.inliers);
+    }
+
+    #[test]
+    fn a_turn_on_the_spot_survives_biased_depth() {
+        // Pure rotation: reprojection does not depend on depth, so a 25% depth bias in one view
+        // must not bend the rotation, where a 3-D fit of the points alone would.
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let r = Quat::from_euler(glam::EulerRot::YXZ, -0.5, 0.08, 0.0);
+        let corr = matches(r, Vec3::ZERO, 80, 0.3, 1.25, &mut rng);
+        let (pose, _) = relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
+        assert!(angle_deg(pose.rotation, r) < 0.1, "rotation off by {}°", angle_deg(pose.rotation, r));
+        assert!(pose.translation.length() < 0.05, "{:?}", pose.translation);
+    }
+
+    #[test]
+    fn unrelated_matches_give_no_pose() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let corr = matches(Quat::IDENTITY, Vec3::ZERO, 60, 1.0, 1.0, &mut rng);
+        assert!(relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).is_none());
+        assert!(relative_pose(&corr[..5], &k(), &k(), &RegisterParams::default(), &mut rng).is_none());
+    }
 }
