@@ -9,6 +9,7 @@ use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
 use inssplat_raster::register::{RegisterParams, RegisterView, register};
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_trainer::train::sample::in_reference_frame;
 
 const VIEWS: usize = 8;
 const SIZE: u32 = 128;
@@ -21,12 +22,6 @@ const MAX_CENTRE_M: f32 = 0.3;
 const MAX_MEAN_ROTATION_DEG: f32 = 1.5;
 /// Share of all views that must be chained to view 0 (measured: 42 of 48).
 const MIN_CHAINED: f64 = 0.75;
-
-/// `cam` with view 0's camera as the world.
-fn relative_to(first: &Camera, cam: &Camera) -> Camera {
-    let rotation = (cam.rotation * first.rotation.conjugate()).normalize();
-    Camera { translation: cam.translation - rotation * first.translation, rotation, ..*cam }
-}
 
 fn registered(frames: &[&Frame]) -> (Vec<Camera>, Vec<usize>) {
     let rgb: Vec<Vec<f32>> = frames.iter().map(|f| f.planar_rgb()).collect();
@@ -57,15 +52,14 @@ fn views_chained_to_the_first_land_on_their_true_poses() {
         let context = scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
         let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
         let (cameras, component) = registered(&frames);
-        let first = &frames[0].camera;
+        let truths = in_reference_frame(&frames.iter().map(|f| f.camera).collect::<Vec<_>>());
         let mut errors = Vec::new();
-        for ((cam, frame), c) in cameras.iter().zip(&frames).zip(&component) {
+        for ((cam, truth), c) in cameras.iter().zip(&truths).zip(&component) {
             total += 1;
             if *c != 0 {
                 continue;
             }
             chained += 1;
-            let truth = relative_to(first, &frame.camera);
             let rot = (cam.rotation * truth.rotation.conjugate()).normalize().angle_between(Quat::IDENTITY).to_degrees();
             let centre = (cam.center() - truth.center()).length();
             errors.push(format!("{rot:.2}°/{centre:.3} m"));

@@ -83,15 +83,13 @@ pub struct RegisterView<'a> {
 }
 
 /// A pair of views with its relative pose.
-#[derive(Debug, Clone)]
-pub struct PairPose {
-    pub i: usize,
-    pub j: usize,
-    pub matches: usize,
+struct PairPose {
+    i: usize,
+    j: usize,
     /// Camera i → camera j; `None` when too few matches agree.
-    pub pose: Option<RelativePose>,
+    pose: Option<RelativePose>,
     /// The matches that agree with `pose`.
-    pub inliers: Vec<Correspondence>,
+    inliers: Vec<Correspondence>,
 }
 
 /// The registered cameras and how they were found.
@@ -102,18 +100,16 @@ pub struct Registration {
     /// reference view; any other root keeps the camera head's pose, and so is chained from
     /// it).
     pub component: Vec<usize>,
-    pub pairs: Vec<PairPose>,
-    pub keypoints: Vec<usize>,
 }
 
 /// Registers `views` (see the module documentation). View 0 keeps the identity pose.
 pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registration {
-    let pairs_tests = features::test_pairs();
+    let brief_tests = features::test_pairs();
     let feats: Vec<features::Features> = views
         .par_iter()
         .map(|v| {
             let k = &v.camera.intrinsics;
-            features::detect(v.rgb, k.width, k.height, v.photo, &pairs_tests, params)
+            features::detect(v.rgb, k.width, k.height, v.photo, &brief_tests, params)
         })
         .collect();
     let n = views.len();
@@ -125,7 +121,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
             let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             let (ki, kj) = (&views[i].camera.intrinsics, &views[j].camera.intrinsics);
             let (pose, inliers) = relative_pose(&corr, ki, kj, params, &mut rng).unzip();
-            PairPose { i, j, matches: corr.len(), pose, inliers: inliers.unwrap_or_default() }
+            PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
         })
         .collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
@@ -160,7 +156,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
     }
     let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
     refine_jointly(&mut cameras, &component, &pairs, params);
-    Registration { cameras, component, pairs, keypoints: feats.iter().map(features::Features::len).collect() }
+    Registration { cameras, component }
 }
 
 /// Refines all chained poses at once on every pair within a component (each component's root

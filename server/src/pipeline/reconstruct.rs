@@ -173,17 +173,18 @@ pub fn reconstruct_with(
     })?;
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
     let out = clock.time("model", || model.run(&batch, images.len()))?;
+    let pixels = out.height * out.width;
+    let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
     let cameras = match &config.known_poses {
         None => {
             let predicted = predicted_cameras(&out);
             match &config.register {
                 None => predicted,
                 Some(params) => clock.time("register", || {
-                    let pixels = out.height * out.width;
                     let views: Vec<RegisterView<'_>> = (0..out.views)
                         .map(|v| RegisterView {
                             rgb: &decoded[v].planar,
-                            depth: &out.depth[v * pixels..(v + 1) * pixels],
+                            depth: &out.depth[plane(1, v)],
                             photo: decoded[v].letterbox.photo_rect(),
                             camera: &predicted[v],
                         })
@@ -196,8 +197,6 @@ pub fn reconstruct_with(
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };
 
-    let pixels = out.height * out.width;
-    let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
     let per_pixel = clock.time("backproject", || {
         let views: Vec<ViewOutputs<'_>> = (0..out.views)
             .map(|v| ViewOutputs {
