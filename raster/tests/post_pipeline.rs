@@ -5,8 +5,6 @@
 //! agreeing) with the right labels (semantic mIoU ≥ 0.95), and a text query must find both
 //! chairs.
 
-#[path = "post_scene.rs"]
-mod post_scene;
 
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
@@ -14,7 +12,7 @@ use inssplat_raster::label::masks::{ids_mask, label_map};
 use inssplat_raster::label::{QueryRule, SemanticProjection, assign_labels, query, semantic_prototypes};
 use inssplat_raster::metrics::{NO_LABEL, consistency_scores, instance_scores, mask_iou, semantic_scores};
 use inssplat_raster::voxel::{VoxelParams, voxelize};
-use post_scene::{SEM_DIM, VOCABULARY, ideal_outputs, label_index, render_scene, ring_cameras, text_space};
+use crate::post_scene::{SEM_DIM, VOCABULARY, ideal_outputs, label_index, render_scene, ring_cameras, text_space};
 
 #[test]
 fn ground_truth_inputs_recover_instances_and_labels() {

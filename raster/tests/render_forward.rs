@@ -14,8 +14,7 @@ use inssplat_raster::render::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-mod support;
-use support::Scene;
+use crate::support::Scene;
 
 impl Scene {
     fn push(&mut self, mean: [f32; 3], log_scale: [f32; 3], rotation: [f32; 4], logit: f32, rng: &mut ChaCha8Rng) {

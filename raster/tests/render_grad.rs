@@ -20,8 +20,7 @@ use inssplat_raster::render::{AlphaCutoff, RenderOptions, render_backward, rende
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-mod support;
-use support::Scene;
+use crate::support::Scene;
 
 impl Scene {
     /// The parameter of `kind` number `i` (flattened), mutably.

@@ -4,11 +4,10 @@
 //! JSON and markdown files are written, and that bad arguments are named errors. Also
 //! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
 
-mod support;
 
 use inssplat_e2e::inssplat;
 use serde_json::Value;
-use support::s;
+use crate::support::{self, s};
 
 #[test]
 fn eval_reports_every_metric_per_view_count() {

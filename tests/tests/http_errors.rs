@@ -5,11 +5,9 @@
 //! loopback with a tiny exported network; the service stays up and a valid request succeeds
 //! afterwards.
 
-mod support;
-#[path = "support/http.rs"]
-mod http;
 
-use http::{Server, multipart, png};
+use crate::support;
+use crate::support::http::{Server, multipart, png};
 use inssplat_proto::api::{QueryResponse, ReconstructResponse};
 
 const KEY: &str = "test-key-3c1f";

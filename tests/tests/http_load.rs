@@ -3,14 +3,11 @@
 //! nothing answers 5xx, resident memory stays bounded, and requests whose client has gone are
 //! dropped before they cost compute. Prints the accepted requests' p50/p99 latency.
 
-mod support;
-#[path = "support/http.rs"]
-mod http;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use http::{Server, multipart, percentile, png};
+use crate::support::http::{Server, multipart, percentile, png};
 
 const CLIENTS: usize = 20;
 const QUEUE: usize = 4;

@@ -3,13 +3,10 @@
 //! scene finish); after each restart on the same data directory the job resumes, and it ends
 //! with exactly 10 results: none lost, none run into a second scene folder.
 
-mod support;
-#[path = "support/http.rs"]
-mod http;
 
 use std::time::{Duration, Instant};
 
-use http::{Server, multipart, png};
+use crate::support::http::{Server, multipart, png};
 use inssplat_proto::api::{JobAccepted, JobState, JobStatus};
 
 const SCENES: usize = 10;

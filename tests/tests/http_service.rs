@@ -4,13 +4,11 @@
 //! ground truth and followed by server-sent events, cancelling, the metrics, the OpenAPI
 //! document, and a graceful stop on SIGTERM.
 
-mod support;
-#[path = "support/http.rs"]
-mod http;
 
 use std::time::Duration;
 
-use http::{Server, multipart, png, scene_photos};
+use crate::support;
+use crate::support::http::{Server, multipart, png, scene_photos};
 use inssplat_proto::api::{JobAccepted, JobState, JobStatus, QueryResponse, ReconstructResponse};
 
 /// The shipped network (its labels are meaningful, so a query finds what it names).

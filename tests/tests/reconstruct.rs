@@ -6,9 +6,8 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-mod support;
 
-use support::s;
+use crate::support::{self, s};
 
 use inssplat_e2e::inssplat;
 use inssplat_proto::api::ReconstructResponse;

@@ -7,7 +7,6 @@
 //! that nothing matches. (The 0.1 network names the room shell, not yet the furniture: see
 //! `models/inssplat-default.md`.)
 
-mod support;
 
 use std::path::PathBuf;
 
@@ -15,7 +14,7 @@ use inssplat_e2e::inssplat;
 use inssplat_proto::api::{QueryResponse, ReconstructResponse};
 use inssplat_proto::dataset::Scene;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
-use support::s;
+use crate::support::s;
 
 fn shipped_model() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx")

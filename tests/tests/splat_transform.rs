@@ -4,9 +4,6 @@
 //! our extra columns kept, and convert it to SPZ (Niantic's compressed splat format) with
 //! nothing lost in count.
 
-mod support;
-#[path = "support/web.rs"]
-mod web;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -14,7 +11,7 @@ use std::process::Command;
 use inssplat_e2e::inssplat;
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use serde_json::Value;
-use support::s;
+use crate::support::{s, web};
 
 /// Runs splat-transform (quiet) with `args`, checks it succeeded, and returns what it printed.
 fn splat_transform(node: &Path, web_dir: &Path, args: &[&str]) -> String {

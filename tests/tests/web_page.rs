@@ -7,19 +7,15 @@
 //! from `/jobs` must be followed there to the end, with a link to the result. Nothing may be
 //! requested from anywhere but the service. The screenshots stay in `target/tmp/web_page/`.
 
-mod support;
-#[path = "support/http.rs"]
-mod http;
-#[path = "support/web.rs"]
-mod web;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use http::Server;
+use crate::support::http::Server;
+use crate::support::web;
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use serde_json::Value;
-use support::s;
+use crate::support::s;
 
 const VIEWS: usize = 4;
 

@@ -2,8 +2,6 @@
 //! location): agreement with an independent numpy implementation, sane similarity ordering,
 //! batching that does not change vectors, the label cache, and input normalization.
 
-#[path = "reference/vectors.rs"]
-mod vectors;
 
 use inssplat_text::{EMBEDDING_DIM, Embedding, LabelCache, TextEmbedder, TextError, cosine};
 
@@ -21,9 +19,9 @@ fn max_abs_diff(a: &Embedding, b: &Embedding) -> f32 {
 #[test]
 fn matches_the_numpy_reference_to_1e_4() {
     let e = embedder();
-    let texts: Vec<&str> = vectors::REFERENCE.iter().map(|(t, _)| *t).collect();
+    let texts: Vec<&str> = crate::vectors::REFERENCE.iter().map(|(t, _)| *t).collect();
     let batched = e.embed(&texts).unwrap();
-    for ((text, want), got) in vectors::REFERENCE.iter().zip(&batched) {
+    for ((text, want), got) in crate::vectors::REFERENCE.iter().zip(&batched) {
         let alone = e.embed_one(text).unwrap();
         for (name, v) in [("batched", got), ("alone", &alone)] {
             let diff = max_abs_diff(v, want);

@@ -54,7 +54,7 @@ impl Features {
 /// The BRIEF test pairs every view uses: isotropic Gaussian around the patch centre
 /// (σ = PATCH/5, the BRIEF paper's choice), clipped to the patch, from a fixed seed.
 pub fn test_pairs() -> Vec<TestPair> {
-    let mut rng = ChaCha8Rng::seed_from_u64(0x6272_6965_66);
+    let mut rng = ChaCha8Rng::seed_from_u64(0x0062_7269_6566);
     let centre = (PATCH / 2) as f32;
     let sigma = PATCH as f32 / 5.0;
     let mut coord = || loop {

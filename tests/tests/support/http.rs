@@ -2,9 +2,6 @@
 //! bound address it prints), and speaks raw HTTP/1.1 over loopback, so a test can send exactly
 //! the malformed bytes it means to (truncated bodies, bad headers) and read any answer.
 
-// Each test binary includes this module and uses part of it.
-#![allow(dead_code)]
-
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
@@ -17,7 +14,6 @@ use inssplat_proto::api::ErrorBody;
 pub struct Server {
     child: Child,
     pub addr: SocketAddr,
-    pub data: PathBuf,
     pub log: PathBuf,
 }
 
@@ -48,7 +44,7 @@ impl Server {
         let addr = first.strip_prefix("listening on http://").unwrap_or_else(|| panic!("unexpected first line {first:?}")).parse().unwrap();
         // Keep draining stdout so the server never blocks on it.
         std::thread::spawn(move || for _ in lines {});
-        Server { child, addr, data: data.to_path_buf(), log }
+        Server { child, addr, log }
     }
 
     pub fn wait_ready(&self, limit: Duration) {

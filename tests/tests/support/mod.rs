@@ -1,8 +1,8 @@
 //! Fixtures shared by the end-to-end tests: a tiny network exported by the trainer (random
 //! weights: these tests check plumbing, not accuracy) and procedural scenes.
 
-// Each test binary includes this module and uses part of it.
-#![allow(dead_code)]
+pub mod http;
+pub mod web;
 
 use std::path::{Path, PathBuf};
 

@@ -2,9 +2,6 @@
 //! installs (`INSSPLAT_WEB_DIR`) and, for the page, Debian's `chromium`. Outside CI a test
 //! without them skips, saying what is missing; under `CI=true` it fails instead.
 
-// Each test binary includes this module and uses part of it.
-#![allow(dead_code)]
-
 use std::path::PathBuf;
 
 /// `name` found on PATH.

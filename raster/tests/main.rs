@@ -1,0 +1,8 @@
+//! The raster crate's integration tests, one test binary (one link) for all of them: the
+//! renderers against references and finite differences, and the post-processing chain.
+
+mod post_pipeline;
+mod post_scene;
+mod render_forward;
+mod render_grad;
+mod support;

@@ -1,0 +1,16 @@
+//! The workspace's end-to-end tests, one test binary (one link) for all of them: each module
+//! starts the real `inssplat` binaries or runs the whole chain on synthesized scenes.
+
+mod chain_synth;
+mod check;
+mod eval;
+mod http_errors;
+mod http_load;
+mod http_resume;
+mod http_service;
+mod reconstruct;
+mod register_synth;
+mod shipped_model;
+mod splat_transform;
+mod support;
+mod web_page;
