@@ -258,3 +258,38 @@ pub fn run_export(args: ExportArgs) -> Result<()> {
     println!("wrote {} ({version}, {} steps, {:.1} MB)", args.out.display(), state.step, std::fs::metadata(&args.out)?.len() as f64 / 1e6);
     Ok(())
 }
+
+#[derive(clap::Args)]
+pub struct ValidateArgs {
+    /// Run folders (each one's newest checkpoint) or checkpoint folders.
+    #[arg(required = true)]
+    checkpoints: Vec<PathBuf>,
+    /// Fixed validation samples (the first 4 are those a run validates on while training).
+    #[arg(long, default_value_t = 32)]
+    samples: usize,
+    /// Folder of validation scenes (default: the val split, synthesized at the run's size).
+    #[arg(long)]
+    val_data: Option<PathBuf>,
+}
+
+pub fn run_validate(args: ValidateArgs) -> Result<()> {
+    if args.samples == 0 {
+        bail!("--samples must be at least 1");
+    }
+    for path in &args.checkpoints {
+        let (dir, step, v) = train::validate_checkpoint(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
+            .with_context(|| format!("validating {}", path.display()))?;
+        println!(
+            "{} (step {step}): val loss {:.4} (rgb {:.4}, geom {:.4}, ins {:.4}, sem {:.4}, bd {:.4}) over {} samples",
+            dir.display(),
+            v.total,
+            v.rgb,
+            v.geometry,
+            v.instance,
+            v.semantic,
+            v.boundary,
+            args.samples
+        );
+    }
+    Ok(())
+}

@@ -25,6 +25,9 @@ enum Command {
     Synth(SynthArgs),
     /// Train the network (or continue a run with --resume).
     Train(Box<cli_train::TrainArgs>),
+    /// The validation loss of a run's newest checkpoint (or a checkpoint) on fixed val samples,
+    /// for choosing between runs and checkpoints.
+    Validate(cli_train::ValidateArgs),
     /// Export a checkpoint's network to ONNX for the server.
     Export(cli_train::ExportArgs),
     /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
@@ -147,6 +150,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
+        Command::Validate(args) => cli_train::run_validate(args),
         Command::Export(args) => cli_train::run_export(args),
         Command::FitScene(args) => cli_fit::run_fit(args),
         Command::LabelTable { out } => {

@@ -1,7 +1,8 @@
 //! The training loop on real synthesized scenes with the real MiniLM teacher: a small network
 //! overfits one scene (the objective falls ≥ 10×), a run interrupted after every step and
-//! resumed ends with exactly the weights and log of an uninterrupted one, and bad data folders
-//! and checkpoints are clear errors that name the path.
+//! resumed ends with exactly the weights and log of an uninterrupted one, validating a
+//! checkpoint afterwards reproduces the run's own validation loss, and bad data folders and
+//! checkpoints are clear errors that name the path.
 
 use std::path::Path;
 use std::process::Command;
@@ -113,6 +114,24 @@ fn an_interrupted_run_resumes_exactly() {
 }
 
 #[test]
+fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
+    let run = tempfile::tempdir().unwrap();
+    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(6);
+    let session = Session { val_every: 2, val_samples: 2, ..quiet_session() };
+    let s = train::train(run.path(), config, tiny_data(), &session).unwrap();
+    let logged = s.last_val.expect("validated at step 2").total;
+    let (dir, step, v) = train::validate_checkpoint(run.path(), 2, None).unwrap();
+    assert_eq!((dir, step), (s.checkpoint.unwrap(), 2));
+    assert!((v.total - logged).abs() <= 1e-5 * logged.abs().max(1.0), "validate {} against the run's {logged}", v.total);
+    // More samples: the first two are the run's, so the mean moves but stays a loss.
+    let (_, _, more) = train::validate_checkpoint(run.path(), 6, None).unwrap();
+    assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
+    let empty = tempfile::tempdir().unwrap();
+    let err = train::validate_checkpoint(empty.path(), 2, None).unwrap_err();
+    assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
+}
+
+#[test]
 fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
     let source = tempfile::tempdir().unwrap();
     let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(4);
@@ -159,6 +178,8 @@ fn bad_data_and_checkpoints_are_named_errors() {
 
     let err = failure(bin().args(["train", "--quiet", "--resume", "--out"]).arg(&run));
     assert!(err.contains("--resume") && err.contains("no checkpoint"), "{err}");
+    let err = failure(bin().arg("validate").arg(&empty));
+    assert!(err.contains("validating") && err.contains(&*empty.to_string_lossy()), "{err}");
 
     // A checkpoint whose state.json describes another network than its weights.
     let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();

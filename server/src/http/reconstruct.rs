@@ -21,7 +21,8 @@ use crate::worker::Task;
 #[derive(ToSchema)]
 #[allow(dead_code)]
 pub struct ReconstructForm {
-    /// 2–16 photos of one scene (PNG, JPEG or WebP), one `images` part each.
+    /// 2–16 photos of one scene (PNG, JPEG or WebP), one `images` part each, in the order they
+    /// were taken (registration places a photo that overlaps no other by that order).
     #[schema(value_type = Vec<String>, format = Binary)]
     images: Vec<Vec<u8>>,
     /// Label vocabulary: labels separated by commas or new lines (default: the server's).

@@ -221,6 +221,29 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
     run_loop(run, net, optim, state, session, &device)
 }
 
+/// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
+/// `samples` fixed samples of `val_data` (default: the val split at the run's size) — the
+/// samples a run validates on while it trains, and as many more as asked: model selection
+/// between runs and checkpoints on more samples than a run spends while training. Returns
+/// the checkpoint folder, its step and the mean loss.
+pub fn validate_checkpoint(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+) -> Result<(PathBuf, u64, LossValues), TrainError> {
+    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+    let state = checkpoint::read_state(&dir)?;
+    let net = checkpoint::load_model(&dir, &state, &Device::flex().autodiff())?;
+    let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
+    let val = val_samples(&state, &session, &label_cache()?)?;
+    if val.is_empty() {
+        return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
+    }
+    let loss = validate(&net, &val, &state.config.loss)
+        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
+    Ok((dir, state.step, loss))
+}
+
 /// A fresh network whose weights depend only on `seed`. The backend's random generator is
 /// process-wide, so seeding and drawing happen under one lock: two runs started in one process
 /// (tests) cannot interleave their draws.
