@@ -4,7 +4,6 @@
 //! JSON and markdown files are written, and that bad arguments are named errors. Also
 //! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
 
-
 use inssplat_e2e::inssplat;
 use serde_json::Value;
 use crate::support::{self, s};

@@ -5,7 +5,6 @@
 //! loopback with a tiny exported network; the service stays up and a valid request succeeds
 //! afterwards.
 
-
 use crate::support;
 use crate::support::http::{Server, multipart, png};
 use inssplat_proto::api::{QueryResponse, ReconstructResponse};

@@ -3,7 +3,6 @@
 //! nothing answers 5xx, resident memory stays bounded, and requests whose client has gone are
 //! dropped before they cost compute. Prints the accepted requests' p50/p99 latency.
 
-
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 

@@ -3,7 +3,6 @@
 //! scene finish); after each restart on the same data directory the job resumes, and it ends
 //! with exactly 10 results: none lost, none run into a second scene folder.
 
-
 use std::time::{Duration, Instant};
 
 use crate::support::http::{Server, multipart, png};

@@ -4,7 +4,6 @@
 //! ground truth and followed by server-sent events, cancelling, the metrics, the OpenAPI
 //! document, and a graceful stop on SIGTERM.
 
-
 use std::time::Duration;
 
 use crate::support;

@@ -6,7 +6,6 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-
 use crate::support::{self, s};
 
 use inssplat_e2e::inssplat;
@@ -33,7 +32,6 @@ fn run(args: &[&str]) -> (bool, String, String) {
     let out = inssplat(args);
     (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
-
 
 #[test]
 fn reconstructs_a_scene_and_writes_every_artefact() {

@@ -4,7 +4,6 @@
 //! our extra columns kept, and convert it to SPZ (Niantic's compressed splat format) with
 //! nothing lost in count.
 
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

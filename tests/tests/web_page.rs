@@ -7,7 +7,6 @@
 //! from `/jobs` must be followed there to the end, with a link to the result. Nothing may be
 //! requested from anywhere but the service. The screenshots stay in `target/tmp/web_page/`.
 
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
