@@ -23,7 +23,17 @@ fn eval_reports_every_metric_per_view_count() {
     for summary in summaries {
         assert_eq!(summary["scenes"], 1);
         let m = &summary["metrics"];
-        for unit in ["semantic_miou", "semantic_macc", "instance_miou", "instance_acc25", "t_miou", "t_sr50", "ssim"] {
+        for unit in [
+            "semantic_miou",
+            "semantic_macc",
+            "instance_miou",
+            "instance_acc25",
+            "context_instance_miou",
+            "context_ceiling_miou",
+            "t_miou",
+            "t_sr50",
+            "ssim",
+        ] {
             let v = m[unit][0].as_f64().unwrap_or_else(|| panic!("{unit} missing: {m}"));
             assert!((0.0..=1.0).contains(&v), "{unit} = {v}");
         }
@@ -37,6 +47,7 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
+    assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 
@@ -63,6 +74,8 @@ fn eval_reports_every_metric_per_view_count() {
         let v = m[unit][0].as_f64().unwrap_or_else(|| panic!("{unit} missing: {m}"));
         assert!((0.0..=1.0).contains(&v), "{unit} = {v}");
     }
+    // The context-view diagnosis reads the 3D clustering's ids, which 2D mode does not use.
+    assert!(m.get("context_ceiling_miou").is_none(), "{m}");
 }
 
 #[test]

@@ -3,6 +3,7 @@
 //! report averages every metric per view count over the scenes that have it, and is written as
 //! JSON (`eval.json`, every scene's numbers included) and a markdown table (`eval.md`).
 
+pub mod ceiling;
 pub mod perturb;
 pub mod scene;
 pub mod sweep;
@@ -71,11 +72,15 @@ pub struct Report {
     pub protocol: String,
 }
 
-const METRICS: [&str; 12] = [
+const METRICS: [&str; 16] = [
     "semantic_miou",
     "semantic_macc",
     "instance_miou",
     "instance_acc25",
+    "context_instance_miou",
+    "context_ceiling_miou",
+    "instances_found",
+    "instances_true",
     "query_iou",
     "t_miou",
     "t_sr50",
@@ -92,6 +97,10 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
         "semantic_macc" => s.semantic_macc,
         "instance_miou" => s.instance_miou,
         "instance_acc25" => s.instance_acc25,
+        "context_instance_miou" => s.context_instance_miou,
+        "context_ceiling_miou" => s.context_ceiling_miou,
+        "instances_found" => Some(s.instances_found as f64),
+        "instances_true" => Some(s.instances_true as f64),
         "query_iou" => s.query_iou,
         "t_miou" => s.t_miou,
         "t_sr50" => s.t_sr50,
@@ -383,6 +392,21 @@ pub fn markdown(r: &Report) -> String {
             s.seconds_median,
             s.gaussians_kept_mean
         );
+    }
+    if r.summaries.iter().any(|s| s.metrics.contains_key("context_ceiling_miou")) {
+        out += "\nInstances on the context views (what limits instance mIoU: the embeddings when the ceiling is low, the clustering when it lies far above the clustering):\n\n";
+        out += "| views | instances found | true instances | inst mIoU, clustering | inst mIoU, nearest true prototype (ceiling) |\n|---|---|---|---|---|\n";
+        for s in &r.summaries {
+            let m = |k: &str| s.metrics.get(k);
+            out += &format!(
+                "| {} | {} | {} | {} | {} |\n",
+                s.views,
+                num(m("instances_found"), 1),
+                num(m("instances_true"), 1),
+                pct(m("context_instance_miou")),
+                pct(m("context_ceiling_miou"))
+            );
+        }
     }
     if !r.robustness.is_empty() {
         let views = r.robustness[0].summary.views;

@@ -21,6 +21,7 @@ use serde::Serialize;
 use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, reconstruct};
 use crate::output::png_bytes;
 use crate::runtime::Model;
+use super::ceiling::{ContextView, context_instances};
 use super::perturb::{self, Perturbation};
 use super::views::{ClusterMode, pixel_labels, segment};
 
@@ -33,6 +34,10 @@ pub struct SceneScores {
     pub semantic_macc: Option<f64>,
     pub instance_miou: Option<f64>,
     pub instance_acc25: Option<f64>,
+    /// Instance mIoU of the clustering on the context views, and the ceiling its embeddings
+    /// allow there ([`super::ceiling`]; 3D clustering only).
+    pub context_instance_miou: Option<f64>,
+    pub context_ceiling_miou: Option<f64>,
     pub query_iou: Option<f64>,
     pub t_miou: Option<f64>,
     pub t_sr50: Option<f64>,
@@ -229,6 +234,18 @@ fn context_scores(
     }
     s.depth_abs_rel = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?.map(|d| d.abs_rel);
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
+    if mode == ClusterMode::ThreeD && pairs.len() == rec.views.len() {
+        let views: Vec<ContextView<'_>> = rec
+            .views
+            .iter()
+            .zip(&pairs)
+            .map(|(v, (ids, truth))| ContextView { gaussians: &v.gaussians, ids, truth })
+            .collect();
+        if let Some((clustered, ceiling)) = context_instances(&rec.scene.instance_embedding, &views).map_err(|e| err(&e))? {
+            s.context_instance_miou = Some(clustered);
+            s.context_ceiling_miou = Some(ceiling);
+        }
+    }
     if let Some(c) = consistency_scores(&pairs).map_err(|e| err(&e))? {
         s.t_miou = Some(c.t_miou);
         s.t_sr50 = Some(c.t_sr);

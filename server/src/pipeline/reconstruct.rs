@@ -16,7 +16,7 @@ use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::register::{RegisterParams, RegisterView, register};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_raster::voxel::{VoxelParams, VoxelReport, voxelize};
+use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
 use rayon::prelude::*;
 
@@ -81,6 +81,9 @@ pub struct ViewResult {
     pub letterbox: Letterbox,
     /// `[H][W]` instance id, 0 = none.
     pub instance_ids: Vec<u32>,
+    /// `[H][W]` 1 + the index in [`Reconstruction::scene`] of the Gaussian this pixel's own
+    /// Gaussian was merged into; 0 where the pixel made none or it was dropped.
+    pub gaussians: Vec<u32>,
     /// `[H][W]` vocabulary index, `NO_LABEL` where none.
     pub labels: Vec<u32>,
     /// `[H][W]` predicted depth in metres.
@@ -242,15 +245,19 @@ pub fn reconstruct_with(
 
     let id_maps: Vec<Vec<u32>> =
         clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
+    let merged_into: Vec<u32> = voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
+    let gaussian_maps = per_pixel.to_pixels(&merged_into);
     let views = decoded
         .into_iter()
         .zip(id_maps)
+        .zip(gaussian_maps.chunks_exact(pixels))
         .enumerate()
-        .map(|(v, (d, ids))| ViewResult {
+        .map(|(v, ((d, ids), gaussians))| ViewResult {
             camera: cameras[v],
             letterbox: d.letterbox,
             labels: label_map(&ids, &label_of_id),
             instance_ids: ids,
+            gaussians: gaussians.to_vec(),
             depth: out.depth[plane(1, v)].to_vec(),
             rgb: (0..pixels).flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8)).collect(),
         })
