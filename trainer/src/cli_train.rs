@@ -88,6 +88,10 @@ pub struct TrainArgs {
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
+    /// Weight of L_ins on the network's own per-pixel embeddings of the input views (what
+    /// inference clusters), added inside L_ins to L_ins on the renders (the paper's: 0).
+    #[arg(long, default_value_t = 0.0)]
+    direct_instance_weight: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -141,6 +145,7 @@ impl TrainArgs {
         let loss = LossConfig::new()
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
+            .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))

@@ -81,6 +81,12 @@ pub struct LossConfig {
     /// w_sem.
     #[config(default = 0.02)]
     pub semantic_weight: f64,
+    /// Weight, inside L_ins, of L_ins on the network's own per-pixel embeddings of the input
+    /// views (the Gaussians' S that inference clusters) beside L_ins on the renders. The paper
+    /// (and 0) supervises renders only; rendering averages neighbouring Gaussians, so pixel-
+    /// scale noise in S costs nothing there but scatters the clustered embeddings. `None`
+    /// (also what configs saved before this term existed read as) means 0.
+    pub direct_instance_weight: Option<f64>,
     /// w_bd.
     #[config(default = 0.02)]
     pub boundary_weight: f64,
@@ -137,7 +143,8 @@ pub struct LossConfig {
 pub struct LossTerms {
     pub rgb: Tensor<1>,
     pub geometry: Tensor<1>,
-    /// Already combined as pull_weight·pull + push_weight·push + cross_weight·cross.
+    /// Already combined as pull_weight·pull + push_weight·push + cross_weight·cross, on the
+    /// renders, plus direct_instance_weight times the same on the input views' own embeddings.
     pub instance: Tensor<1>,
     pub semantic: Tensor<1>,
     pub boundary: Tensor<1>,

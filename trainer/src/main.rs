@@ -128,6 +128,10 @@ struct SynthArgs {
     /// Probability (0-1) of a catalog mesh where a primitive could stand in.
     #[arg(long, default_value_t = 0.6)]
     mesh_share: f32,
+    /// Mark context/target views in every scene, as the test split always does (for choosing
+    /// between models with `inssplat eval` on val scenes).
+    #[arg(long)]
+    eval_views: bool,
     /// Write contact sheets (RGB, depth, instances) of the first N scenes to OUT/preview/.
     #[arg(long, num_args = 0..=1, default_missing_value = "1", default_value_t = 0)]
     preview: u64,
@@ -181,6 +185,7 @@ fn config(a: &SynthArgs) -> Result<SynthConfig> {
         cfg.frames = f;
     }
     cfg.objects = a.objects;
+    cfg.eval_views |= a.eval_views;
     cfg.repeat = a.repeat;
     cfg.texture_contrast = a.texture_contrast;
     cfg.noise = a.noise;

@@ -1,6 +1,6 @@
 //! Synthesized scenes as the trainer and `inssplat eval` will read them: every written
-//! scene passes `Scene::load`, the same seed gives a byte-identical folder, test scenes
-//! carry a valid evaluation split, reserved furniture stays out of train/val, and a missing
+//! scene passes `Scene::load`, the same seed gives a byte-identical folder, test scenes (and
+//! val scenes when asked) carry a valid evaluation split, reserved furniture stays out of train/val, and a missing
 //! furniture folder is a clear error while primitives-only generation needs no files.
 
 use std::collections::BTreeMap;
@@ -72,6 +72,14 @@ fn synth_test_split_marks_context_and_target_views_and_may_show_the_shell() {
     let tmp = tempfile::tempdir().unwrap();
     s.write(tmp.path()).unwrap();
     assert_eq!(Scene::load(tmp.path()).unwrap().eval, Some(eval));
+
+    // Val scenes carry the same split only when asked (model selection with `inssplat eval`).
+    let mut val = small(Split::Val, Furniture::from_env());
+    val.frames = (24, 24);
+    assert!(synth::generate_split(0, &val).unwrap().scene.eval.is_none());
+    val.eval_views = true;
+    let marked = synth::generate_split(0, &val).unwrap().scene.eval.expect("--eval-views marks val scenes");
+    assert_eq!(marked.context_for(8).unwrap().len(), 8);
 }
 
 #[test]

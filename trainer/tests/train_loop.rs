@@ -1,8 +1,9 @@
 //! The training loop on real synthesized scenes with the real MiniLM teacher: a small network
 //! overfits one scene (the objective falls ≥ 10×), a run interrupted after every step and
 //! resumed ends with exactly the weights and log of an uninterrupted one, validating a
-//! checkpoint afterwards reproduces the run's own validation loss, and bad data folders and
-//! checkpoints are clear errors that name the path.
+//! checkpoint afterwards reproduces the run's own validation loss, the direct instance term
+//! adds L_ins of the network's own embeddings (and older configs read as without it), and bad
+//! data folders and checkpoints are clear errors that name the path.
 
 use std::path::Path;
 use std::process::Command;
@@ -10,7 +11,7 @@ use std::time::Duration;
 
 use burn::module::Module;
 use burn::prelude::*;
-use inssplat_trainer::loss::LossConfig;
+use inssplat_trainer::loss::{LossConfig, instance_loss};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
@@ -69,6 +70,41 @@ fn a_small_network_overfits_one_scene() {
     let first = losses[0];
     let last = losses[losses.len() - 5..].iter().sum::<f32>() / 5.0;
     assert!(last * 10.0 <= first, "loss {first} -> {last} (every 10th: {:?})", losses.iter().step_by(10).collect::<Vec<_>>());
+}
+
+#[test]
+fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
+    let sampler = Sampler {
+        source: Source::open(&tiny_data()).unwrap(),
+        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
+        seed: 2,
+        labels: label_cache().unwrap(),
+    };
+    let sample = sampler.sample(0).unwrap();
+    let device = Device::flex();
+    let net = seeded_init(&tiny_model(), 4, &device).unwrap();
+    let paper = LossConfig::new();
+    let direct = paper.clone().with_direct_instance_weight(Some(0.5));
+    let instance = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().instance;
+
+    let (inputs, size) = (sample.inputs, sample.size);
+    let images = Tensor::<4>::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), &device);
+    let out = net.forward(images).unwrap();
+    let own = instance_loss(out.instance, &out.semantic, &sample.ids[..inputs * size * size], &paper).unwrap().total(&paper);
+    let own = own.into_scalar::<f32>();
+    assert!(own > 0.1, "L_ins of a random network's own embeddings: {own}");
+    let added = instance(&direct) - instance(&paper);
+    assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "added {added}, expected 0.5 × {own}");
+    // A weight of 0 is the paper's objective.
+    assert_eq!(instance(&paper.clone().with_direct_instance_weight(Some(0.0))), instance(&paper));
+}
+
+#[test]
+fn a_config_saved_before_the_direct_instance_term_reads_as_without_it() {
+    let mut json: serde_json::Value = serde_json::to_value(LossConfig::new().with_direct_instance_weight(Some(1.0))).unwrap();
+    json.as_object_mut().unwrap().remove("direct_instance_weight");
+    let old: LossConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.direct_instance_weight, None);
 }
 
 #[test]

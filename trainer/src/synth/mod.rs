@@ -143,6 +143,9 @@ pub struct SynthConfig {
     pub reserved: Reserved,
     /// Probability of a catalog mesh where both a mesh and a primitive exist for a label.
     pub mesh_share: f32,
+    /// Mark context/target views (`eval` in transforms.json) for `inssplat eval`: test always,
+    /// val when asked (to choose between models on val scenes).
+    pub eval_views: bool,
 }
 
 impl SynthConfig {
@@ -166,6 +169,7 @@ impl SynthConfig {
             furniture,
             reserved: if split == Split::Test { Reserved::Include } else { Reserved::Exclude },
             mesh_share: 0.6,
+            eval_views: split == Split::Test,
         }
     }
 
@@ -288,7 +292,7 @@ pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, Synth
             instances.push(InstanceLabel { id: u32::from(id), label: surface.label().to_string() });
         }
     }
-    let eval = if cfg.split == Split::Test { eval_split(frames.len()) } else { None };
+    let eval = if cfg.eval_views { eval_split(frames.len()) } else { None };
     let scene = Scene { dir: PathBuf::new(), instances, frames, eval, depth_unit_m: DEFAULT_DEPTH_UNIT_M };
     Ok(Synthesized { scene, credits: credits.into_iter().collect() })
 }

@@ -1,7 +1,8 @@
 //! One training objective evaluation: the network's forward pass on a sample's input views,
 //! its per-pixel Gaussians placed in the world with the ground-truth cameras, rendered by the
 //! differentiable rasterizer into every view of the sample (inputs and held-out targets), and
-//! the five InstanceSplat terms on the renders.
+//! the five InstanceSplat terms on the renders (and, if asked, L_ins on the input views' own
+//! per-pixel embeddings too).
 //!
 //! Gaussians are placed with the ground-truth cameras (in view 0's frame, as the network
 //! predicts them) rather than the predicted ones: the camera head is supervised directly by
@@ -119,10 +120,15 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     )?;
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();
+    let mut instance = instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config);
+    if let Some(weight) = config.direct_instance_weight.filter(|&w| w > 0.0) {
+        let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), &sample.ids[..inputs * pixels], config)?;
+        instance = instance + own.total(config).mul_scalar(weight);
+    }
     let terms = LossTerms {
         rgb: rgb_loss(rgb.clone(), images)?,
         geometry,
-        instance: instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config),
+        instance,
         semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias)?,
         boundary: boundary_rgb_loss(rgb.narrow(0, 0, inputs), input_images, &out.instance, config)?,
     };
