@@ -26,12 +26,12 @@ pub struct ClusterParams {
     pub max_samples: usize,
     /// HDBSCAN: smallest cluster, as a share of the sampled points (at least 2 points); a share
     /// rather than a count keeps what an instance must cover the same whatever the sample size.
-    /// The default, 0.5% with `min_samples` 3, was chosen on 40 val-split scenes at 8 views
-    /// (`synth --split val --eval-views`): with 1% and 10, small objects (a few dozen of the
-    /// 1500 sampled points) never formed a cluster of their own and only 3.8 instances were
-    /// found per scene; with 0.5% and 3, 15.2 (9.5 true objects plus the room shell's parts),
-    /// target-view instance mIoU 10.8 → 16.5 (with the weights of the first 500 steps of 0.3's
-    /// training; see the model card).
+    /// The default, 0.5% with `min_samples` 5, was chosen on 40 val-split scenes at 8 views
+    /// (`synth --split val --eval-views`) with the 0.3 weights: with 1% and 10, small objects
+    /// (a few dozen of the 1500 sampled points) never formed a cluster of their own; 0.5% and 5
+    /// find about as many instances as there are (14.9 per scene for 9.5 true objects plus the
+    /// room shell's parts) and score the context views' instance mIoU 22.9 against 15.8; 0.5%
+    /// and 3 scored 25.1 but split scenes into 22 instances (see the model card).
     pub min_cluster_share: f32,
     /// HDBSCAN: neighbours that define a point's core distance.
     pub min_samples: usize,
@@ -50,7 +50,7 @@ impl ClusterParams {
 
 impl Default for ClusterParams {
     fn default() -> Self {
-        Self { max_samples: 1500, min_cluster_share: 0.005, min_samples: 3, min_cosine: 0.5, seed: 0x1a5e }
+        Self { max_samples: 1500, min_cluster_share: 0.005, min_samples: 5, min_cosine: 0.5, seed: 0x1a5e }
     }
 }
 
