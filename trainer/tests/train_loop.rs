@@ -14,7 +14,7 @@ use burn::prelude::*;
 use inssplat_trainer::loss::{LossConfig, instance_loss};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{Split, Structure};
-use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
+use inssplat_trainer::train::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint, label_cache, seeded_init, update};
 
@@ -28,6 +28,17 @@ fn tiny_data() -> DataSpec {
 
 fn quiet_session() -> Session {
     Session { checkpoint_every: Duration::from_secs(3600), val_every: 0, progress: false, ..Session::default() }
+}
+
+/// Sample `index` of a sampler with seed `seed`: 3 input views and 1 target of a tiny scene.
+fn three_view_sample(seed: u64, index: u64) -> Sample {
+    let sampler = Sampler {
+        source: Source::open(&tiny_data()).unwrap(),
+        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
+        seed,
+        labels: label_cache().unwrap(),
+    };
+    sampler.sample(index).unwrap()
 }
 
 fn params(dir: &Path) -> Vec<f32> {
@@ -51,13 +62,7 @@ fn a_small_network_overfits_one_scene() {
     // α = 0 drops the −α·log(conf) reward, so every term is ≥ 0 and "falls 10×" is meaningful.
     let loss = LossConfig::new().with_depth_conf_alpha(0.0);
     let config = TrainConfig::new(tiny_model(), loss.clone()).with_lr(3e-3).with_weight_decay(0.0).with_grad_clip(0.0);
-    let sampler = Sampler {
-        source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
-        seed: 1,
-        labels: label_cache().unwrap(),
-    };
-    let sample = sampler.sample(5).unwrap();
+    let sample = three_view_sample(1, 5);
     let device = Device::flex().autodiff();
     let mut net = seeded_init(&config.model, 3, &device).unwrap();
     let mut optim = burn::optim::AdamWConfig::new().with_weight_decay(0.0).init();
@@ -74,13 +79,7 @@ fn a_small_network_overfits_one_scene() {
 
 #[test]
 fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
-    let sampler = Sampler {
-        source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
-        seed: 2,
-        labels: label_cache().unwrap(),
-    };
-    let sample = sampler.sample(0).unwrap();
+    let sample = three_view_sample(2, 0);
     let device = Device::flex();
     let net = seeded_init(&tiny_model(), 4, &device).unwrap();
     let paper = LossConfig::new();
