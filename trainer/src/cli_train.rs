@@ -88,6 +88,13 @@ pub struct TrainArgs {
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
+    /// w_sem, the weight of L_sem in the total (the paper's 0.02).
+    #[arg(long, default_value_t = 0.02)]
+    semantic_weight: f64,
+    /// τ > 0: L_sem as the cross-entropy of cos/τ over the sample's labels, balanced per
+    /// instance, instead of the paper's per-pixel cosine (0).
+    #[arg(long, default_value_t = 0.0)]
+    semantic_temperature: f64,
     /// Weight of L_ins on the network's own per-pixel embeddings of the input views (what
     /// inference clusters), added inside L_ins to L_ins on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
@@ -145,6 +152,8 @@ impl TrainArgs {
         let loss = LossConfig::new()
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
+            .with_semantic_weight(self.semantic_weight)
+            .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))

@@ -11,7 +11,8 @@
 //! - [`rgb_loss`]: L_rgb = mean over views, channels and pixels of (Î − I)².
 //! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view.
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
-//! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding).
+//! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
+//!   or a contrastive form over the sample's labels.
 //! - [`boundary`]: L_bd-rgb, Charbonnier RGB error weighted by instance boundaries.
 
 pub mod boundary;
@@ -81,6 +82,10 @@ pub struct LossConfig {
     /// w_sem.
     #[config(default = 0.02)]
     pub semantic_weight: f64,
+    /// τ of the contrastive L_sem (cross-entropy of cos/τ over the sample's labels, balanced
+    /// per instance); `None` (also what configs saved before this form existed read as) is the
+    /// paper's per-pixel cosine.
+    pub semantic_temperature: Option<f64>,
     /// Weight, inside L_ins, of L_ins on the network's own per-pixel embeddings of the input
     /// views (the Gaussians' S that inference clusters) beside L_ins on the renders. The paper
     /// (and 0) supervises renders only; rendering averages neighbouring Gaussians, so pixel-

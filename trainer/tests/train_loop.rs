@@ -2,7 +2,8 @@
 //! overfits one scene (the objective falls ≥ 10×), a run interrupted after every step and
 //! resumed ends with exactly the weights and log of an uninterrupted one, validating a
 //! checkpoint afterwards reproduces the run's own validation loss, the direct instance term
-//! adds L_ins of the network's own embeddings (and older configs read as without it), and bad
+//! adds L_ins of the network's own embeddings (and older configs read as without it or the
+//! contrastive L_sem), and bad
 //! data folders and checkpoints are clear errors that name the path.
 
 use std::path::Path;
@@ -99,11 +100,13 @@ fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
 }
 
 #[test]
-fn a_config_saved_before_the_direct_instance_term_reads_as_without_it() {
-    let mut json: serde_json::Value = serde_json::to_value(LossConfig::new().with_direct_instance_weight(Some(1.0))).unwrap();
+fn a_config_saved_before_the_direct_instance_term_and_contrastive_l_sem_reads_as_without_them() {
+    let new = LossConfig::new().with_direct_instance_weight(Some(1.0)).with_semantic_temperature(Some(0.1));
+    let mut json: serde_json::Value = serde_json::to_value(new).unwrap();
     json.as_object_mut().unwrap().remove("direct_instance_weight");
+    json.as_object_mut().unwrap().remove("semantic_temperature");
     let old: LossConfig = serde_json::from_value(json).unwrap();
-    assert_eq!(old.direct_instance_weight, None);
+    assert_eq!((old.direct_instance_weight, old.semantic_temperature), (None, None));
 }
 
 #[test]

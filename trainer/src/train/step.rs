@@ -129,7 +129,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         rgb: rgb_loss(rgb.clone(), images)?,
         geometry,
         instance,
-        semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias)?,
+        semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias, config.semantic_temperature)?,
         boundary: boundary_rgb_loss(rgb.narrow(0, 0, inputs), input_images, &out.instance, config)?,
     };
     let total = match config.gaussians {
