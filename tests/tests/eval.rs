@@ -1,7 +1,8 @@
 //! `inssplat eval` end to end: a tiny exported network (random weights), one procedural
 //! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
-//! every metric of the protocol is reported within its range for each view count, that the
-//! JSON and markdown files are written, and that bad arguments are named errors. Also
+//! every metric of the protocol is reported within its range for each view count (and the
+//! names each true label got), that the JSON and markdown files are written, and that bad
+//! arguments are named errors. Also
 //! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
 
 use inssplat_e2e::inssplat;
@@ -41,6 +42,14 @@ fn eval_reports_every_metric_per_view_count() {
             let v = m[positive][0].as_f64().unwrap_or_else(|| panic!("{positive} missing: {m}"));
             assert!(v.is_finite() && v >= 0.0, "{positive} = {v}");
         }
+        // Every labelled target pixel is in one row; a label's right share is at most that
+        // of its most common name.
+        let labels = summary["labels"].as_array().unwrap();
+        assert!(!labels.is_empty(), "{summary}");
+        for row in labels {
+            let (right, most) = (row["named_right"].as_f64().unwrap(), row["named_most_share"].as_f64().unwrap());
+            assert!(row["pixels"].as_u64().unwrap() > 0 && (0.0..=1.0).contains(&most) && right <= most + 1e-12, "{row}");
+        }
     }
     let scene = &report["scenes"][0];
     assert!(scene["gaussians_kept"].as_u64().unwrap() > 0);
@@ -48,6 +57,7 @@ fn eval_reports_every_metric_per_view_count() {
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
+    assert!(table.contains("Labels on the target views at 4 views"), "{table}");
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 

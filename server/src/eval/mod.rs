@@ -4,6 +4,7 @@
 //! JSON (`eval.json`, every scene's numbers included) and a markdown table (`eval.md`).
 
 pub mod ceiling;
+pub mod confusion;
 pub mod perturb;
 pub mod scene;
 pub mod sweep;
@@ -49,6 +50,8 @@ pub struct Summary {
     pub metrics: BTreeMap<String, (f64, usize)>,
     pub seconds_median: f64,
     pub gaussians_kept_mean: f64,
+    /// Per true label on the target views: named right, and named most often as.
+    pub labels: Vec<confusion::LabelRow>,
 }
 
 /// The whole evaluation.
@@ -113,7 +116,7 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
     }
 }
 
-fn summarize(views: usize, scores: &[&SceneScores]) -> Summary {
+fn summarize(views: usize, scores: &[&SceneScores], vocabulary: &[String]) -> Summary {
     let metrics = METRICS
         .iter()
         .filter_map(|m| {
@@ -123,12 +126,15 @@ fn summarize(views: usize, scores: &[&SceneScores]) -> Summary {
         .collect();
     let mut secs: Vec<f64> = scores.iter().map(|s| s.seconds).collect();
     secs.sort_by(f64::total_cmp);
+    let mut labels = confusion::Confusion::default();
+    scores.iter().for_each(|s| labels.merge(&s.labels));
     Summary {
         views,
         scenes: scores.len(),
         metrics,
         seconds_median: secs.get(secs.len() / 2).copied().unwrap_or(f64::NAN),
         gaussians_kept_mean: scores.iter().map(|s| s.gaussians_kept as f64).sum::<f64>() / scores.len().max(1) as f64,
+        labels: labels.rows(vocabulary),
     }
 }
 
@@ -211,7 +217,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
     let mut robustness = Vec::new();
     for p in &image_sweeps {
         let scores = run(rv, Some(*p), model)?;
-        robustness.push(RobustRow { kind: p.kind, strength: p.strength, summary: summarize(rv, &scores.iter().collect::<Vec<_>>()) });
+        robustness.push(RobustRow { kind: p.kind, strength: p.strength, summary: summarize(rv, &scores.iter().collect::<Vec<_>>(), &vocabulary) });
     }
     bar.finish_and_clear();
     let at_rv: Vec<&SceneScores> = all.iter().filter(|s| s.views == rv).collect();
@@ -228,14 +234,14 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 .map(|(s, _)| *s)
                 .collect();
             if !group.is_empty() {
-                robustness.push(RobustRow { kind: PerturbKind::Repeats, strength: bucket as f32, summary: summarize(rv, &group) });
+                robustness.push(RobustRow { kind: PerturbKind::Repeats, strength: bucket as f32, summary: summarize(rv, &group, &vocabulary) });
             }
         }
     }
     if !req.perturb.is_empty() {
         failures = worst_scenes(model, labels, &scenes, &at_rv, &vocabulary, req)?;
     }
-    let summaries = req.views.iter().map(|&v| summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>())).collect();
+    let summaries = req.views.iter().map(|&v| summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>(), &vocabulary)).collect();
     Ok(Report {
         model_version: model.model_version.clone(),
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
@@ -405,6 +411,21 @@ pub fn markdown(r: &Report) -> String {
                 num(m("instances_true"), 1),
                 pct(m("context_instance_miou")),
                 pct(m("context_ceiling_miou"))
+            );
+        }
+    }
+    // The names at the view count nearest the paper's headline 8.
+    if let Some(s) = r.summaries.iter().filter(|s| !s.labels.is_empty()).min_by_key(|s| s.views.abs_diff(8)) {
+        out += &format!("\nLabels on the target views at {} views (the 12 with the most pixels):\n\n", s.views);
+        out += "| true label | pixels | named right | named most often | share |\n|---|---|---|---|---|\n";
+        for row in s.labels.iter().take(12) {
+            out += &format!(
+                "| {} | {} | {:.1}% | {} | {:.1}% |\n",
+                row.label,
+                row.pixels,
+                100.0 * row.named_right,
+                row.named_most,
+                100.0 * row.named_most_share
             );
         }
     }

@@ -22,6 +22,7 @@ use crate::pipeline::reconstruct::{InputImage, PipelineConfig, Reconstruction, r
 use crate::output::png_bytes;
 use crate::runtime::Model;
 use super::ceiling::{ContextView, context_instances};
+use super::confusion::Confusion;
 use super::perturb::{self, Perturbation};
 use super::views::{ClusterMode, pixel_labels, segment};
 
@@ -53,6 +54,9 @@ pub struct SceneScores {
     /// Reconstruction wall time (all stages), seconds.
     pub seconds: f64,
     pub stage_ms: BTreeMap<String, f64>,
+    /// Target-view pixels per (true, predicted) label, summed into [`super::Summary::labels`].
+    #[serde(skip)]
+    pub labels: Confusion,
 }
 
 /// Why a scene could not be evaluated.
@@ -307,6 +311,7 @@ fn target_scores(
     s.psnr = mean(&psnrs);
     s.ssim = mean(&ssims);
     if let Some(sem) = semantic_scores(&pred_labels, &gt_labels).map_err(|e| err(&e))? {
+        s.labels.add(&pred_labels, &gt_labels);
         s.semantic_miou = Some(sem.miou);
         s.semantic_macc = Some(sem.macc);
     }
