@@ -12,7 +12,7 @@
 //! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view.
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
 //! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
-//!   or a contrastive form over the sample's labels.
+//!   or a contrastive form over the label vocabulary.
 //! - [`boundary`]: L_bd-rgb, Charbonnier RGB error weighted by instance boundaries.
 
 pub mod boundary;
@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
-pub use semantic::semantic_loss;
+pub use semantic::{SemanticForm, semantic_loss};
 
 /// Added under square roots of squared norms, so that zero vectors normalize to zero with a
 /// finite gradient.
@@ -82,7 +82,7 @@ pub struct LossConfig {
     /// w_sem.
     #[config(default = 0.02)]
     pub semantic_weight: f64,
-    /// τ of the contrastive L_sem (cross-entropy of cos/τ over the sample's labels, balanced
+    /// τ of the contrastive L_sem (cross-entropy of cos/τ over the label vocabulary, balanced
     /// per instance); `None` (also what configs saved before this form existed read as) is the
     /// paper's per-pixel cosine.
     pub semantic_temperature: Option<f64>,

@@ -6,7 +6,7 @@ use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_trainer::loss::{
     BoundaryTerm, LossConfig, LossError, LossTerms, boundary_rgb_loss, boundary_weights, camera_loss, camera_targets,
-    depth_loss, geometry_loss, median_depth, rgb_loss, semantic_loss,
+    SemanticForm, depth_loss, geometry_loss, median_depth, rgb_loss, semantic_loss,
 };
 
 fn tensor<const D: usize>(values: &[f32], shape: [usize; D]) -> Tensor<D> {
@@ -129,7 +129,7 @@ fn loss_semantic_hand_values() {
     let teacher = tensor(&[9.0, 9.0, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0], [3, 3]);
     let weight = tensor(&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [3, 2]);
     let loss = |ids: &[u32], bias: [f32; 3]| {
-        semantic_loss(semantic.clone(), ids, teacher.clone(), weight.clone(), tensor(&bias, [3]), None)
+        semantic_loss(semantic.clone(), ids, teacher.clone(), weight.clone(), tensor(&bias, [3]), SemanticForm::Cosine)
     };
     // b = 0. Pixel 1: (1,0,0)·(1,0,0) → cos 1; pixel 2: (0,1,0)·(0,0,2) → 0; pixel 3: (1,1,0)·(1,0,0) → 1/√2.
     let expected = (0.0 + 1.0 + (1.0 - 0.5f64.sqrt())) / 3.0;
@@ -145,8 +145,9 @@ fn loss_semantic_hand_values() {
 #[test]
 fn loss_semantic_contrastive_hand_values() {
     // 1×5 view, ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id 2 has
-    // another: classes A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). Φ_sem embeds (l0, l1) as
-    // (l0, l1, 1) with W = [[1, 0], [0, 1], [0, 0]] and b = (0, 0, 1).
+    // another: A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). The vocabulary holds B again
+    // (one class) and C = (0, 0, 3), a label the view does not show: three classes. Φ_sem
+    // embeds (l0, l1) as (l0, l1, 1) with W = [[1, 0], [0, 1], [0, 0]] and b = (0, 0, 1).
     let ids = [0, 1, 2, 3, 1];
     let features: [(f32, f32); 5] = [(9.0, 9.0), (1.0, 0.0), (1.0, 1.0), (0.0, 2.0), (3.0, 1.0)];
     let planar: Vec<f32> = features.iter().map(|f| f.0).chain(features.iter().map(|f| f.1)).collect();
@@ -155,14 +156,17 @@ fn loss_semantic_contrastive_hand_values() {
     let weight = tensor(&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [3, 2]);
     let bias = tensor(&[0.0, 0.0, 1.0], [3]);
     let tau = 0.5;
-    let loss = semantic_loss(semantic, &ids, teacher, weight, bias, Some(tau)).unwrap();
-    // Pixel p (label pixels 1..5) has cos_A = l0/|y|, cos_B = l1/|y|, |y| = sqrt(l0² + l1² + 1);
-    // CE of its own class; weights: instance 1 has 2 pixels, instances 2 and 3 one each.
+    let vocabulary = [0.0, 2.0, 0.0, 0.0, 0.0, 3.0];
+    let form = SemanticForm::Contrastive { temperature: tau, vocabulary: &vocabulary };
+    let loss = semantic_loss(semantic, &ids, teacher, weight, bias, form).unwrap();
+    // Pixel p (label pixels 1..5) has cos_A = l0/|y|, cos_B = l1/|y|, cos_C = 1/|y|,
+    // |y| = sqrt(l0² + l1² + 1); CE of its own class; weights: instance 1 has 2 pixels,
+    // instances 2 and 3 one each.
     let ce = |(l0, l1): (f32, f32), own_a: bool| {
         let (l0, l1) = (f64::from(l0), f64::from(l1));
         let n = (l0 * l0 + l1 * l1 + 1.0).sqrt();
-        let (a, b) = (l0 / n / tau, l1 / n / tau);
-        let lse = (a.exp() + b.exp()).ln();
+        let (a, b, c) = (l0 / n / tau, l1 / n / tau, 1.0 / n / tau);
+        let lse = (a.exp() + b.exp() + c.exp()).ln();
         lse - if own_a { a } else { b }
     };
     let expected = (ce(features[1], true) / 2.0 + ce(features[4], true) / 2.0)

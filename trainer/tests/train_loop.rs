@@ -2,9 +2,9 @@
 //! overfits one scene (the objective falls ≥ 10×), a run interrupted after every step and
 //! resumed ends with exactly the weights and log of an uninterrupted one, validating a
 //! checkpoint afterwards reproduces the run's own validation loss, the direct instance term
-//! adds L_ins of the network's own embeddings (and older configs read as without it or the
-//! contrastive L_sem), and bad
-//! data folders and checkpoints are clear errors that name the path.
+//! adds L_ins of the network's own embeddings, samples carry the label vocabulary of the
+//! contrastive L_sem (older configs read as without either), and bad data folders and
+//! checkpoints are clear errors that name the path.
 
 use std::path::Path;
 use std::process::Command;
@@ -97,6 +97,27 @@ fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
     assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "added {added}, expected 0.5 × {own}");
     // A weight of 0 is the paper's objective.
     assert_eq!(instance(&paper.clone().with_direct_instance_weight(Some(0.0))), instance(&paper));
+}
+
+#[test]
+fn a_sample_carries_the_whole_label_vocabulary_for_the_contrastive_l_sem() {
+    let sample = three_view_sample(3, 0);
+    let labels = inssplat_trainer::synth::all_labels();
+    assert_eq!(sample.vocabulary.len(), labels.len() * 384);
+    // Every label the scene shows is a vocabulary row.
+    let rows: Vec<&[f32]> = sample.vocabulary.chunks_exact(384).collect();
+    let shown: std::collections::BTreeSet<u32> = sample.ids.iter().copied().filter(|&i| i != 0).collect();
+    assert!(shown.len() >= 2, "{shown:?}");
+    for id in shown {
+        let row = &sample.teacher[id as usize * 384..(id as usize + 1) * 384];
+        assert!(rows.contains(&row), "instance {id}'s label is not in the vocabulary");
+    }
+    let device = Device::flex();
+    let net = seeded_init(&tiny_model(), 5, &device).unwrap();
+    let semantic = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
+    let contrastive = semantic(&LossConfig::new().with_semantic_temperature(Some(0.1)));
+    let cosine = semantic(&LossConfig::new());
+    assert!(contrastive.is_finite() && contrastive > 0.0 && contrastive != cosine, "{contrastive} vs cosine {cosine}");
 }
 
 #[test]

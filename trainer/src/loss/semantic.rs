@@ -6,12 +6,15 @@
 //!
 //! - the paper's cosine, L_sem = (1/|Ω|) Σ_{p∈Ω} [1 − cos(y_p, t_{id(p)})], Ω = pixels with
 //!   id ≠ 0;
-//! - contrastive with temperature τ: the labels present in the sample are the classes, each
-//!   pixel's logits are cos(y_p, t_k)/τ, and L_sem is the cross-entropy of its own label,
-//!   averaged per instance and then over instances, so the walls and floor that cover most
-//!   pixels count as much as any chair. With label embeddings (not per-pixel image features)
-//!   as the teacher the cosine form is satisfied by a direction between all labels, and with
-//!   shell pixels dominating the mean, 0.3 named every object pixel `wall` or `floor`.
+//! - contrastive with temperature τ: the classes are a label vocabulary (every label the
+//!   synthesizer can produce) plus any label of the sample outside it, each pixel's logits are
+//!   cos(y_p, t_k)/τ, and L_sem is the cross-entropy of its own label, averaged per instance
+//!   and then over instances, so the walls and floor that cover most pixels count as much as
+//!   any chair. With label embeddings (not per-pixel image features) as the teacher the
+//!   cosine form is satisfied by a direction between all labels, and with shell pixels
+//!   dominating the mean, 0.3 named every object pixel `wall` or `floor`. Contrasting only
+//!   the sample's own labels named every object `chair` or `stool` (labels a bed never met in
+//!   its own scene cost it nothing, while inference picks from the whole vocabulary).
 //!
 //! Both are zero when Ω is empty. The 384-d projections are never formed per pixel (at 4 views
 //! of 128×128 they cost about a second a step on two cores): with t̂ a unit teacher row,
@@ -28,15 +31,14 @@ use super::{LossError, NORM_EPS, check_dims, check_len, constant, host, indices,
 /// L_sem of the rendered semantic features `semantic` `[V, d_s, H, W]` with ground-truth `ids`
 /// (`[V][H][W]`, 0 = background); `teacher` `[rows, 384]` holds the label embedding of instance
 /// id `i` in row `i` (row 0 is never read); Φ_sem is `weight` `[384, d_s]` and `bias` `[384]`,
-/// as the network's `sem_proj` returns them. `temperature` `None` is the paper's cosine,
-/// `Some(τ)` the instance-balanced contrastive form.
+/// as the network's `sem_proj` returns them.
 pub fn semantic_loss(
     semantic: Tensor<4>,
     ids: &[u32],
     teacher: Tensor<2>,
     weight: Tensor<2>,
     bias: Tensor<1>,
-    temperature: Option<f64>,
+    form: SemanticForm<'_>,
 ) -> Result<Tensor<1>, LossError> {
     let [v, ds, h, w] = semantic.dims();
     check_len("instance ids", v * h * w, ids.len())?;
@@ -54,19 +56,20 @@ pub fn semantic_loss(
     }
     let l = pixels_last(semantic).select(0, indices(pixels, &device)); // [Q, d_s]
     let norm = projected_norm(l.clone(), weight.clone(), bias.clone());
-    let units = normalize_rows(teacher.clone()); // [rows, 384]
-    match temperature {
-        None => {
+    match form {
+        SemanticForm::Cosine => {
             let q = labels.len();
             let rows = indices(labels.iter().map(|&id| i64::from(id)).collect(), &device);
-            let (along, offset) = along_targets(units.select(0, rows), weight, bias); // [Q, d_s], [Q, 1]
+            let (along, offset) = along_targets(normalize_rows(teacher).select(0, rows), weight, bias); // [Q, d_s], [Q, 1]
             let cos = ((l * along).sum_dim(1) + offset) / norm;
             Ok(cos.neg().add_scalar(1.0).sum().div_scalar(q as f64))
         }
-        Some(tau) => {
-            let classes = Classes::of(&host("semantic teacher", &teacher)?, text, &labels);
+        SemanticForm::Contrastive { temperature: tau, vocabulary } => {
+            check_len("label vocabulary", vocabulary.len() / text * text, vocabulary.len())?;
+            let classes = Classes::of(&host("semantic teacher", &teacher)?, vocabulary, text, &labels);
             let q = labels.len();
-            let table = units.select(0, indices(classes.representatives, &device)); // [K, 384]
+            let k = classes.table.len() / text;
+            let table = normalize_rows(constant(classes.table, [k, text], &device)); // [K, 384]
             let (along, offset) = along_targets(table, weight, bias); // [K, d_s], [K, 1]
             let cos = (l.matmul(along.transpose()) + offset.transpose()) / norm; // [Q, K]
             let log_p = log_softmax(cos.div_scalar(tau), 1);
@@ -94,12 +97,22 @@ fn along_targets(targets: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>) -> (Ten
     (targets.clone().matmul(weight), targets.matmul(bias.reshape([text, 1])))
 }
 
-/// The classes of the contrastive form: the distinct label embeddings among the labelled
-/// pixels' ids (instances with the same label share a class), computed on the host.
+/// What L_sem compares the projected features with.
+#[derive(Debug, Clone, Copy)]
+pub enum SemanticForm<'a> {
+    /// The paper's per-pixel 1 − cos to the pixel's own label.
+    Cosine,
+    /// Cross-entropy of cos/`temperature` over `vocabulary` (`[K][384]` label embeddings, row
+    /// major) and the sample's own labels, balanced per instance.
+    Contrastive { temperature: f64, vocabulary: &'a [f32] },
+}
+
+/// The classes of the contrastive form: the distinct label embeddings of the vocabulary and
+/// of the labelled pixels' ids (instances with the same label share a class), on the host.
 #[derive(Debug, PartialEq)]
 struct Classes {
-    /// Per class, one instance id whose teacher row is its embedding.
-    representatives: Vec<i64>,
+    /// `[K][text]` one embedding per class.
+    table: Vec<f32>,
     /// Per labelled pixel, its class.
     of_pixel: Vec<i64>,
     /// Per labelled pixel, 1 / (pixels of its instance · instances present).
@@ -107,29 +120,32 @@ struct Classes {
 }
 
 impl Classes {
-    /// `teacher` is the `[rows][text]` table, `labels` the instance id of each labelled pixel.
-    fn of(teacher: &[f32], text: usize, labels: &[u32]) -> Self {
+    /// `teacher` is the `[rows][text]` table, `vocabulary` `[K][text]` more labels, `labels`
+    /// the instance id of each labelled pixel.
+    fn of(teacher: &[f32], vocabulary: &[f32], text: usize, labels: &[u32]) -> Self {
         let mut pixels_of: HashMap<u32, usize> = HashMap::new();
         for &id in labels {
             *pixels_of.entry(id).or_default() += 1;
         }
+        let mut table = Vec::new();
         let mut class_of_row: HashMap<Vec<u32>, i64> = HashMap::new();
-        let mut class_of_id: HashMap<u32, i64> = HashMap::new();
-        let mut representatives = Vec::new();
+        let mut class_of = |row: &[f32]| {
+            let key: Vec<u32> = row.iter().map(|x| x.to_bits()).collect();
+            *class_of_row.entry(key).or_insert_with(|| {
+                table.extend_from_slice(row);
+                (table.len() / text) as i64 - 1
+            })
+        };
+        vocabulary.chunks_exact(text).for_each(|row| {
+            class_of(row);
+        });
         let mut ids: Vec<u32> = pixels_of.keys().copied().collect();
         ids.sort_unstable();
-        for id in ids {
-            let row = &teacher[id as usize * text..(id as usize + 1) * text];
-            let key: Vec<u32> = row.iter().map(|x| x.to_bits()).collect();
-            let class = *class_of_row.entry(key).or_insert_with(|| {
-                representatives.push(i64::from(id));
-                representatives.len() as i64 - 1
-            });
-            class_of_id.insert(id, class);
-        }
+        let class_of_id: HashMap<u32, i64> =
+            ids.into_iter().map(|id| (id, class_of(&teacher[id as usize * text..(id as usize + 1) * text]))).collect();
         let instances = pixels_of.len() as f32;
         Classes {
-            representatives,
+            table,
             of_pixel: labels.iter().map(|id| class_of_id[id]).collect(),
             pixel_weight: labels.iter().map(|id| 1.0 / (pixels_of[id] as f32 * instances)).collect(),
         }
@@ -142,12 +158,14 @@ mod tests {
 
     #[test]
     fn instances_with_one_label_share_a_class_and_every_instance_weighs_the_same() {
-        // Rows: 0 unused, 1 and 3 the same label, 2 another.
+        // Rows: 0 unused, 1 and 3 the same label, 2 another. The vocabulary has label 2's
+        // embedding and one the sample does not show; label 1's comes after them.
         let teacher = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0];
+        let vocabulary = [0.0, 1.0, 0.5, 0.5];
         let labels = [3, 1, 1, 2, 1, 3];
-        let c = Classes::of(&teacher, 2, &labels);
-        assert_eq!(c.representatives, [1, 2]);
-        assert_eq!(c.of_pixel, [0, 0, 0, 1, 0, 0]);
+        let c = Classes::of(&teacher, &vocabulary, 2, &labels);
+        assert_eq!(c.table, [0.0, 1.0, 0.5, 0.5, 1.0, 0.0]);
+        assert_eq!(c.of_pixel, [2, 2, 2, 0, 2, 2]);
         let third = 1.0 / 3.0;
         let want = [third / 2.0, third / 3.0, third / 3.0, third, third / 3.0, third / 2.0];
         for (g, w) in c.pixel_weight.iter().zip(want) {

@@ -138,6 +138,9 @@ pub struct Sample {
     pub cameras: Vec<Camera>,
     /// `[rows, 384]`: row `id` is the MiniLM embedding of instance `id`'s label (row 0 zero).
     pub teacher: Vec<f32>,
+    /// `[K, 384]`: the embeddings of every label the synthesizer can produce, the classes of
+    /// the contrastive L_sem.
+    pub vocabulary: Vec<f32>,
 }
 
 impl Sample {
@@ -187,7 +190,9 @@ impl Sample {
         for ((id, _), e) in present.iter().zip(embeddings) {
             teacher[*id as usize * TEXT_DIM..(*id as usize + 1) * TEXT_DIM].copy_from_slice(&e);
         }
-        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher })
+        let all: Vec<&str> = crate::synth::all_labels().into_iter().collect();
+        let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
+        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary })
     }
 }
 

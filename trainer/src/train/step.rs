@@ -22,7 +22,7 @@ use inssplat_raster::render::RenderOptions;
 use super::sample::Sample;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    rgb_loss, semantic_loss,
+    SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{RenderOpError, SplatTensors, render};
@@ -120,6 +120,10 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     )?;
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();
+    let semantic_form = match config.semantic_temperature {
+        Some(temperature) => SemanticForm::Contrastive { temperature, vocabulary: &sample.vocabulary },
+        None => SemanticForm::Cosine,
+    };
     let mut instance = instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config);
     if let Some(weight) = config.direct_instance_weight.filter(|&w| w > 0.0) {
         let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), &sample.ids[..inputs * pixels], config)?;
@@ -129,7 +133,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         rgb: rgb_loss(rgb.clone(), images)?,
         geometry,
         instance,
-        semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias, config.semantic_temperature)?,
+        semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias, semantic_form)?,
         boundary: boundary_rgb_loss(rgb.narrow(0, 0, inputs), input_images, &out.instance, config)?,
     };
     let total = match config.gaussians {
