@@ -91,7 +91,7 @@ pub struct TrainArgs {
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
-    /// τ > 0: L_sem as the cross-entropy of cos/τ over the sample's labels, balanced per
+    /// τ > 0: L_sem as the cross-entropy of cos/τ over the label vocabulary, balanced per
     /// instance, instead of the paper's per-pixel cosine (0).
     #[arg(long, default_value_t = 0.0)]
     semantic_temperature: f64,
