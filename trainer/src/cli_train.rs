@@ -99,6 +99,10 @@ pub struct TrainArgs {
     /// inference clusters), added inside L_ins to L_ins on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
     direct_instance_weight: f64,
+    /// Weight of L_sem on the network's own per-pixel semantic features of the input views
+    /// (what inference names), added inside L_sem to L_sem on the renders (the paper's: 0).
+    #[arg(long, default_value_t = 0.0)]
+    direct_semantic_weight: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -155,6 +159,7 @@ impl TrainArgs {
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
+            .with_direct_semantic_weight((self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight))
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))

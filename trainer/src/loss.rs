@@ -92,6 +92,12 @@ pub struct LossConfig {
     /// scale noise in S costs nothing there but scatters the clustered embeddings. `None`
     /// (also what configs saved before this term existed read as) means 0.
     pub direct_instance_weight: Option<f64>,
+    /// Weight, inside L_sem, of L_sem on the network's own per-pixel semantic features of the
+    /// input views (the Gaussians' L that inference names) beside L_sem on the renders. As with
+    /// S, a render fits the label when the blend of the Gaussians it covers does, whatever each
+    /// Gaussian's own L says. `None` (also what configs saved before this term existed read
+    /// as) means 0.
+    pub direct_semantic_weight: Option<f64>,
     /// w_bd.
     #[config(default = 0.02)]
     pub boundary_weight: f64,
@@ -151,6 +157,8 @@ pub struct LossTerms {
     /// Already combined as pull_weight·pull + push_weight·push + cross_weight·cross, on the
     /// renders, plus direct_instance_weight times the same on the input views' own embeddings.
     pub instance: Tensor<1>,
+    /// On the renders, plus direct_semantic_weight times the same on the input views' own
+    /// semantic features.
     pub semantic: Tensor<1>,
     pub boundary: Tensor<1>,
 }

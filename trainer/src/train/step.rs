@@ -1,8 +1,8 @@
 //! One training objective evaluation: the network's forward pass on a sample's input views,
 //! its per-pixel Gaussians placed in the world with the ground-truth cameras, rendered by the
 //! differentiable rasterizer into every view of the sample (inputs and held-out targets), and
-//! the five InstanceSplat terms on the renders (and, if asked, L_ins on the input views' own
-//! per-pixel embeddings too).
+//! the five InstanceSplat terms on the renders (and, if asked, L_ins and L_sem on the input
+//! views' own per-pixel embeddings and semantic features too).
 //!
 //! Gaussians are placed with the ground-truth cameras (in view 0's frame, as the network
 //! predicts them) rather than the predicted ones: the camera head is supervised directly by
@@ -124,16 +124,22 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         Some(temperature) => SemanticForm::Contrastive { temperature, vocabulary: &sample.vocabulary },
         None => SemanticForm::Cosine,
     };
+    let own_ids = &sample.ids[..inputs * pixels];
     let mut instance = instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config);
     if let Some(weight) = config.direct_instance_weight.filter(|&w| w > 0.0) {
-        let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), &sample.ids[..inputs * pixels], config)?;
+        let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), own_ids, config)?;
         instance = instance + own.total(config).mul_scalar(weight);
+    }
+    let mut semantic = semantic_loss(semantic, &sample.ids, teacher.clone(), weight.clone(), bias.clone(), semantic_form)?;
+    if let Some(direct) = config.direct_semantic_weight.filter(|&w| w > 0.0) {
+        let own = semantic_loss(out.semantic.clone(), own_ids, teacher, weight, bias, semantic_form)?;
+        semantic = semantic + own.mul_scalar(direct);
     }
     let terms = LossTerms {
         rgb: rgb_loss(rgb.clone(), images)?,
         geometry,
         instance,
-        semantic: semantic_loss(semantic, &sample.ids, teacher, weight, bias, semantic_form)?,
+        semantic,
         boundary: boundary_rgb_loss(rgb.narrow(0, 0, inputs), input_images, &out.instance, config)?,
     };
     let total = match config.gaussians {
