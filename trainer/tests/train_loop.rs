@@ -43,6 +43,21 @@ fn three_view_sample(seed: u64, index: u64) -> Sample {
     sampler.sample(index).unwrap()
 }
 
+/// The input views of `sample` as `[inputs, 3, size, size]`.
+fn input_images(sample: &Sample, device: &Device) -> Tensor<4> {
+    let (inputs, size) = (sample.inputs, sample.size);
+    Tensor::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), device)
+}
+
+/// A direct term of weight 0.5 adds half of `own` (the term on the network's own outputs) to
+/// the objective's `without` value, and weight 0 adds nothing.
+fn assert_direct_term_adds_half(what: &str, own: f32, half: f32, without: f32, zero: f32) {
+    assert!(own > 0.1, "{what} of a random network's own outputs: {own}");
+    let added = half - without;
+    assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "{what}: added {added}, expected 0.5 × {own}");
+    assert_eq!(zero, without, "{what}: weight 0");
+}
+
 fn params(dir: &Path) -> Vec<f32> {
     let state = checkpoint::read_state(dir).unwrap();
     let net = checkpoint::load_model(dir, &state, &Device::flex()).unwrap();
@@ -83,9 +98,7 @@ fn a_small_network_overfits_one_scene() {
 /// nearest its label among the vocabulary's, averaged over the instances.
 fn named_right(net: &inssplat_trainer::model::InsSplatNet, sample: &Sample) -> f64 {
     let (inputs, size) = (sample.inputs, sample.size);
-    let device = Device::flex();
-    let images = Tensor::<4>::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), &device);
-    let semantic = net.forward(images).unwrap().semantic.permute([0, 2, 3, 1]);
+    let semantic = net.forward(input_images(sample, &Device::flex())).unwrap().semantic.permute([0, 2, 3, 1]);
     let text: Vec<f32> = net.project_semantic(semantic).into_data().try_to_vec().unwrap();
     let vocabulary: Vec<&[f32]> = sample.vocabulary.chunks_exact(384).collect();
     let cos = |a: &[f32], b: &[f32]| {
@@ -136,16 +149,11 @@ fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
     let direct = paper.clone().with_direct_instance_weight(Some(0.5));
     let instance = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().instance;
 
-    let (inputs, size) = (sample.inputs, sample.size);
-    let images = Tensor::<4>::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), &device);
-    let out = net.forward(images).unwrap();
-    let own = instance_loss(out.instance, &out.semantic, &sample.ids[..inputs * size * size], &paper).unwrap().total(&paper);
-    let own = own.into_scalar::<f32>();
-    assert!(own > 0.1, "L_ins of a random network's own embeddings: {own}");
-    let added = instance(&direct) - instance(&paper);
-    assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "added {added}, expected 0.5 × {own}");
-    // A weight of 0 is the paper's objective.
-    assert_eq!(instance(&paper.clone().with_direct_instance_weight(Some(0.0))), instance(&paper));
+    let out = net.forward(input_images(&sample, &device)).unwrap();
+    let own_ids = &sample.ids[..sample.inputs * sample.size * sample.size];
+    let own = instance_loss(out.instance, &out.semantic, own_ids, &paper).unwrap().total(&paper).into_scalar::<f32>();
+    let zero = instance(&paper.clone().with_direct_instance_weight(Some(0.0)));
+    assert_direct_term_adds_half("L_ins", own, instance(&direct), instance(&paper), zero);
 }
 
 #[test]
@@ -157,18 +165,14 @@ fn the_direct_semantic_term_adds_l_sem_of_the_networks_own_features() {
     let direct = renders.clone().with_direct_semantic_weight(Some(0.5));
     let semantic = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
 
-    let (inputs, size) = (sample.inputs, sample.size);
-    let images = Tensor::<4>::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), &device);
     let teacher = Tensor::<2>::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), 384]), &device);
     let (weight, bias) = net.sem_proj();
     let form = SemanticForm::Contrastive { temperature: 0.1, vocabulary: &sample.vocabulary };
-    let own = semantic_loss(net.forward(images).unwrap().semantic, &sample.ids[..inputs * size * size], teacher, weight, bias, form);
-    let own = own.unwrap().into_scalar::<f32>();
-    assert!(own > 0.1, "L_sem of a random network's own features: {own}");
-    let added = semantic(&direct) - semantic(&renders);
-    assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "added {added}, expected 0.5 × {own}");
-    // A weight of 0 is the objective on the renders alone.
-    assert_eq!(semantic(&renders.clone().with_direct_semantic_weight(Some(0.0))), semantic(&renders));
+    let features = net.forward(input_images(&sample, &device)).unwrap().semantic;
+    let own_ids = &sample.ids[..sample.inputs * sample.size * sample.size];
+    let own = semantic_loss(features, own_ids, teacher, weight, bias, form).unwrap().into_scalar::<f32>();
+    let zero = semantic(&renders.clone().with_direct_semantic_weight(Some(0.0)));
+    assert_direct_term_adds_half("L_sem", own, semantic(&direct), semantic(&renders), zero);
 }
 
 #[test]
