@@ -255,7 +255,8 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         scenes: all,
         protocol: format!(
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
-             similarity fitted to their orientations (chordal mean) and then their centres (least squares); true target cameras mapped into the predicted frame and \
+             similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
+             with --known-poses); true target cameras mapped into the predicted frame and \
              the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization of the Gaussians{}",
             if req.known_poses { " with the TRUE context cameras (--known-poses), not the predicted ones" } else { "" },
             match (&req.pipeline.register, req.known_poses) {

@@ -1,8 +1,10 @@
 //! One scene at one view count, scored by the DESIGN.md protocol: reconstruct from the
 //! scene's context views, align the predicted cameras to the true ones (the similarity fitted to
-//! their orientations and centres, [`inssplat_raster::metrics::pose::pose_alignment`]), render
-//! the clustered scene at every target camera mapped into the predicted frame, and compare with
-//! the ground truth.
+//! their orientations and centres, [`inssplat_raster::metrics::pose::pose_alignment`], with the
+//! scale of the predicted depth: its median ratio to the true depth, which the centres of
+//! cameras turning nearly on the spot do not fix), render the clustered scene at every target
+//! camera mapped into the predicted frame, and compare with the ground truth. With the true
+//! cameras (`--known-poses`) the frame is the true one and the centres' scale (1) is kept.
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -13,7 +15,7 @@ use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::masks::{ids_mask, render_colour};
 use inssplat_raster::label::{QueryRule, query};
 use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
-use inssplat_raster::metrics::pose::camera_errors;
+use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, mask_iou, semantic_scores};
 use inssplat_text::LabelCache;
 use serde::Serialize;
@@ -195,14 +197,21 @@ pub fn evaluate_scene_keeping(
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
         ..SceneScores::default()
     };
-    context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
-    target_scores(&mut s, scene, &context, &targets, &rec, labels, mode, settings.no_aggregation).map_err(&bad)?;
+    let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
+    let scale = match depth_scale {
+        Some(d) if !settings.known_poses => AlignScale::Fixed(d),
+        _ => AlignScale::Centres,
+    };
+    if let Some(to_pred) = align_cameras(&mut s, scene, &context, &rec, scale).map_err(&bad)? {
+        target_scores(&mut s, scene, &targets, &rec, labels, settings, &to_pred).map_err(&bad)?;
+    }
     let names = images.into_iter().map(|i| i.name).collect();
     Ok((s, rec, names))
 }
 
 /// Depth, cameras and cross-view consistency on the context views (in 2D mode each view's
-/// ids are its own, kept distinct from other views').
+/// ids are its own, kept distinct from other views'); returns the depth's median scale (true /
+/// predicted), when the frames have depth.
 fn context_scores(
     s: &mut SceneScores,
     scene: &Scene,
@@ -210,7 +219,7 @@ fn context_scores(
     rec: &Reconstruction,
     labels: &LabelCache,
     mode: ClusterMode,
-) -> Result<(), String> {
+) -> Result<Option<f64>, String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let (mut pred_depth, mut true_depth) = (Vec::new(), Vec::new());
     let mut pairs: Vec<(Vec<u32>, Vec<u32>)> = Vec::new();
@@ -236,7 +245,8 @@ fn context_scores(
             pairs.push((pred, ids.iter().map(|&i| u32::from(i)).collect()));
         }
     }
-    s.depth_abs_rel = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?.map(|d| d.abs_rel);
+    let depth = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?;
+    s.depth_abs_rel = depth.as_ref().map(|d| d.abs_rel);
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
     if mode == ClusterMode::ThreeD && pairs.len() == rec.views.len() {
         let views: Vec<ContextView<'_>> = rec
@@ -254,30 +264,42 @@ fn context_scores(
         s.t_miou = Some(c.t_miou);
         s.t_sr50 = Some(c.t_sr);
     }
-    Ok(())
+    Ok(depth.map(|d| d.scale))
 }
 
-/// Novel-view semantic, instance and query scores and PSNR/SSIM on the target views.
+/// Camera errors of the context views after the alignment of `scale`; returns the map from
+/// the true frame to the predicted one (`None` without cameras).
+fn align_cameras(
+    s: &mut SceneScores,
+    scene: &Scene,
+    context: &[usize],
+    rec: &Reconstruction,
+    scale: AlignScale,
+) -> Result<Option<Similarity>, String> {
+    let pred_cams: Vec<_> = rec.views.iter().map(|v| v.camera).collect();
+    let true_cams: Vec<_> = context.iter().map(|&i| scene.frames[i].camera).collect();
+    let Some(pose) = camera_errors(&pred_cams, &true_cams, scale).map_err(|e| e.to_string())? else { return Ok(None) };
+    s.rotation_deg = Some(pose.rotation_deg);
+    s.translation = Some(pose.translation);
+    Ok(Some(pose.alignment.inverse()))
+}
+
+/// Novel-view semantic, instance and query scores and PSNR/SSIM on the target views, rendered
+/// at the target cameras mapped into the predicted frame by `to_pred`.
 /// Instance mIoU pools every (target view, visible true instance) pair: each instance's best
 /// IoU with one predicted id of that view (the per-image OpenGaussian/LERF protocol, the same
 /// for both clustering modes; cross-view agreement is what T-mIoU measures).
 fn target_scores(
     s: &mut SceneScores,
     scene: &Scene,
-    context: &[usize],
     targets: &[usize],
     rec: &Reconstruction,
     labels: &LabelCache,
-    mode: ClusterMode,
-    no_aggregation: bool,
+    settings: &Settings<'_>,
+    to_pred: &Similarity,
 ) -> Result<(), String> {
+    let mode = settings.cluster;
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let pred_cams: Vec<_> = rec.views.iter().map(|v| v.camera).collect();
-    let true_cams: Vec<_> = context.iter().map(|&i| scene.frames[i].camera).collect();
-    let Some(pose) = camera_errors(&pred_cams, &true_cams).map_err(|e| err(&e))? else { return Ok(()) };
-    s.rotation_deg = Some(pose.rotation_deg);
-    s.translation = Some(pose.translation);
-    let to_pred = pose.alignment.inverse();
 
     let vocabulary = &rec.vocabulary;
     let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
@@ -295,7 +317,7 @@ fn target_scores(
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
         let Some(gt) = &frame.instances else { continue };
         let mut seg = segment(rec, &camera, mode, &texts, &params)?;
-        if no_aggregation {
+        if settings.no_aggregation {
             seg.labels = pixel_labels(rec, &camera, &texts)?;
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
