@@ -82,19 +82,23 @@ pub enum AlignScale {
 /// centre onto the mean true one.
 pub fn pose_alignment(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<Similarity>, MetricError> {
     same_len("camera lists", pred.len(), gt.len())?;
+    Ok(fit(pred, gt, &centres(pred), &centres(gt), scale))
+}
+
+/// [`pose_alignment`] given both lists' centres.
+fn fit(pred: &[Camera], gt: &[Camera], cp: &[DVec3], cg: &[DVec3], scale: AlignScale) -> Option<Similarity> {
     if pred.is_empty() {
-        return Ok(None);
+        return None;
     }
     let sum: DMat3 = pred.iter().zip(gt).fold(DMat3::ZERO, |sum, (p, g)| sum + c2w(g) * c2w(p).transpose());
-    let Some(rotation) = nearest_rotation(sum) else { return Ok(None) };
-    let (cp, cg) = (centres(pred), centres(gt));
+    let rotation = nearest_rotation(sum)?;
     let mean = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len() as f64;
-    let (ms, md) = (mean(&cp), mean(&cg));
+    let (ms, md) = (mean(cp), mean(cg));
     let scale = match scale {
         AlignScale::Fixed(s) => s,
         AlignScale::Centres => {
             let (mut num, mut den) = (0.0, 0.0);
-            for (s, d) in cp.iter().zip(&cg) {
+            for (s, d) in cp.iter().zip(cg) {
                 let rs = rotation * (*s - ms);
                 num += rs.dot(*d - md);
                 den += rs.length_squared();
@@ -102,7 +106,7 @@ pub fn pose_alignment(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Resu
             if den > 1e-18 && num > 0.0 { num / den } else { 1.0 }
         }
     };
-    Ok(Some(Similarity { scale, rotation, translation: md - scale * (rotation * ms) }))
+    Some(Similarity { scale, rotation, translation: md - scale * (rotation * ms) })
 }
 
 fn c2w(c: &Camera) -> DMat3 {
@@ -116,8 +120,9 @@ fn centres(c: &[Camera]) -> Vec<DVec3> {
 /// Camera errors of `pred` against `gt` (same order, view 0 first) after
 /// [`pose_alignment`] with `scale`; `None` for no camera.
 pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<PoseScores>, MetricError> {
-    let Some(alignment) = pose_alignment(pred, gt, scale)? else { return Ok(None) };
+    same_len("camera lists", pred.len(), gt.len())?;
     let (cp, cg) = (centres(pred), centres(gt));
+    let Some(alignment) = fit(pred, gt, &cp, &cg, scale) else { return Ok(None) };
     let rot: Vec<f64> = pred
         .iter()
         .zip(gt)
