@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
@@ -122,6 +123,10 @@ enum Command {
         /// Where instances are clustered: once on the Gaussians, or per view (the paper's mode).
         #[arg(long, value_enum, default_value = "3d")]
         cluster: eval::ClusterMode,
+        /// Weight of the Gaussians' positions beside their instance embeddings when clustering
+        /// in 3D; 0 clusters the embeddings alone (the paper).
+        #[arg(long, default_value_t = ClusterParams::default().position_weight)]
+        position_weight: f32,
         /// Place the network's outputs with the scenes' true context cameras instead of the
         /// predicted ones (scores everything but the camera head).
         #[arg(long)]
@@ -271,7 +276,23 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Serve { args } => inssplat_server::http::serve(args),
-        Command::Eval { data, views, max_scenes, out, model, vocab, cluster, known_poses, no_register, no_aggregation, perturb, sweep, json, threads } => {
+        Command::Eval {
+            data,
+            views,
+            max_scenes,
+            out,
+            model,
+            vocab,
+            cluster,
+            position_weight,
+            known_poses,
+            no_register,
+            no_aggregation,
+            perturb,
+            sweep,
+            json,
+            threads,
+        } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -286,7 +307,11 @@ fn main() -> anyhow::Result<()> {
             let request = eval::EvalRequest {
                 views,
                 extra_vocab: extra,
-                pipeline: PipelineConfig { register: (!no_register).then(RegisterParams::default), ..PipelineConfig::default() },
+                pipeline: PipelineConfig {
+                    register: (!no_register).then(RegisterParams::default),
+                    cluster: ClusterParams { position_weight, ..ClusterParams::default() },
+                    ..PipelineConfig::default()
+                },
                 cluster,
                 known_poses,
                 no_aggregation,

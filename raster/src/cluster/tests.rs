@@ -109,6 +109,36 @@ fn clustering_a_scene_writes_instance_ids() {
 }
 
 #[test]
+fn two_objects_with_one_embedding_part_by_position_only_with_a_position_weight() {
+    // Codes 0 and 1, 200 points each; code 0's points lie in two clusters 4 m apart (two
+    // chairs the network embeds alike), code 1's between them.
+    let (points, codes) = blobs(2, 400, 8);
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let mut jitter = || rng.random_range(-0.3..0.3);
+    let (mut positions, mut truth) = (Vec::new(), Vec::new());
+    for (i, &code) in codes.iter().enumerate() {
+        let (x, object) = match (code, i % 2) {
+            (0, 0) => (-2.0, 0),
+            (0, _) => (2.0, 1),
+            _ => (0.0, 2),
+        };
+        positions.push([x + jitter(), jitter(), jitter()]);
+        truth.push(object);
+    }
+    let positions = normalized_positions(&positions);
+    let weights = vec![1.0; points.len()];
+    let alone = ClusterParams { position_weight: 0.0, ..ClusterParams::default() };
+    let c = cluster_points_at(&points, Some(&positions), &weights, &alone).unwrap();
+    assert_eq!(c.prototypes.len(), 2, "the embeddings alone see two instances");
+    assert_eq!(c, cluster_points(&points, &weights, &alone).unwrap(), "weight 0 ignores the positions");
+    let c = cluster_points_at(&points, Some(&positions), &weights, &ClusterParams::default()).unwrap();
+    assert_bijection(&c.ids, &truth, 3);
+    // Both chairs keep code 0's embedding as their prototype.
+    let chairs: Vec<&Embedding> = c.prototypes.iter().filter(|p| p[0] > 0.9).collect();
+    assert_eq!(chairs.len(), 2, "{:?}", c.prototypes);
+}
+
+#[test]
 fn too_few_points_give_no_instances_and_bad_params_are_named() {
     let (points, _) = blobs(1, 5, 6);
     let c = cluster_points(&points, &[1.0; 5], &ClusterParams::default()).unwrap();
@@ -116,4 +146,7 @@ fn too_few_points_give_no_instances_and_bad_params_are_named() {
     let bad = ClusterParams { min_cosine: 2.0, ..ClusterParams::default() };
     let err = cluster_points(&points, &[1.0; 5], &bad).unwrap_err();
     assert!(err.to_string().contains("min_cosine"), "{err}");
+    let bad = ClusterParams { position_weight: -1.0, ..ClusterParams::default() };
+    let err = cluster_points(&points, &[1.0; 5], &bad).unwrap_err();
+    assert!(err.to_string().contains("position_weight"), "{err}");
 }

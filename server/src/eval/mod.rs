@@ -61,6 +61,8 @@ pub struct Report {
     pub data: String,
     pub vocabulary: Vec<String>,
     pub cluster: ClusterMode,
+    /// Weight of the Gaussians' positions beside their embeddings in 3D clustering.
+    pub position_weight: f32,
     /// Whether the true context cameras replaced the predicted ones.
     pub known_poses: bool,
     /// Whether pixels were named without instance-grounded aggregation.
@@ -247,6 +249,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
         vocabulary,
         cluster: req.cluster,
+        position_weight: req.pipeline.cluster.position_weight,
         known_poses: req.known_poses,
         no_aggregation: req.no_aggregation,
         summaries,
@@ -366,8 +369,8 @@ fn num(v: Option<&(f64, usize)>, digits: usize) -> String {
 /// The markdown table of a report.
 pub fn markdown(r: &Report) -> String {
     let mode = match r.cluster {
-        ClusterMode::ThreeD => "instances clustered once in 3D",
-        ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)",
+        ClusterMode::ThreeD => format!("instances clustered once in 3D (position weight {})", r.position_weight),
+        ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)".to_string(),
     };
     let mut notes = String::new();
     if r.known_poses {

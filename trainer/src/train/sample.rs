@@ -98,14 +98,6 @@ impl Source {
             Source::Synth(cfg) => Ok(synth::generate_split(index, cfg)?.scene),
         }
     }
-
-    /// Number of distinct scenes (`None` for synthesis, which has no end).
-    pub fn len(&self) -> Option<usize> {
-        match self {
-            Source::Folder(paths) => Some(paths.len()),
-            Source::Synth(_) => None,
-        }
-    }
 }
 
 /// How views are drawn for a step.
