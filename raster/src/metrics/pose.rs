@@ -169,6 +169,20 @@ mod tests {
         }
     }
 
+    /// Six true cameras turning on the spot (centres within 5 cm) and the same cameras in the
+    /// predicted frame (the inverse of [`sim`]) with exact orientations and camera i's centre
+    /// moved by `noise(i)`.
+    fn on_the_spot(noise: impl Fn(f32) -> glam::Vec3) -> (Vec<Camera>, Vec<Camera>) {
+        let gt = ring(6, 0.05, 1.5);
+        let to_pred = sim().inverse();
+        let mut pred: Vec<Camera> = gt.iter().map(|c| to_pred.map_camera(c)).collect();
+        for (i, cam) in pred.iter_mut().enumerate() {
+            let centre = cam.center() + noise(i as f32);
+            cam.translation = -(cam.rotation * centre);
+        }
+        (gt, pred)
+    }
+
     #[test]
     fn cameras_moved_by_a_similarity_have_zero_error_and_perturbations_are_measured() {
         let gt = ring(5, 3.0, 1.5);
@@ -210,14 +224,7 @@ mod tests {
     fn noisy_centres_of_a_camera_turning_on_the_spot_do_not_turn_the_alignment() {
         // A person turning on the spot: centres within 5 cm. Predicted orientations are exact,
         // predicted centres carry noise as large as their spread.
-        let gt = ring(6, 0.05, 1.5);
-        let to_pred = sim().inverse();
-        let mut pred: Vec<Camera> = gt.iter().map(|c| to_pred.map_camera(c)).collect();
-        for (i, cam) in pred.iter_mut().enumerate() {
-            let noise = glam::Vec3::new(0.03 * (i as f32).sin(), -0.02 * (i as f32 * 1.7).cos(), 0.025);
-            let centre = cam.center() + noise;
-            cam.translation = -(cam.rotation * centre);
-        }
+        let (gt, pred) = on_the_spot(|i| glam::Vec3::new(0.03 * i.sin(), -0.02 * (i * 1.7).cos(), 0.025));
         let p = camera_errors(&pred, &gt, AlignScale::Centres).unwrap().unwrap();
         assert!(p.rotation_deg < 1e-3, "{p:?}");
         assert!(p.alignment.rotation.abs_diff_eq(sim().rotation, 1e-6), "{p:?}");
@@ -230,14 +237,8 @@ mod tests {
         // predicted up to 50 cm off, as registration's translations are on such a scene: the centres
         // misjudge the scale, and a target camera 1 m away is mapped far from where it sees
         // the predicted scene as it saw the true one. The known scale puts it back.
-        let gt = ring(6, 0.05, 1.5);
+        let (gt, pred) = on_the_spot(|i| glam::Vec3::new(0.5 * (i * 2.3).sin(), -0.4 * (i * 1.7).cos(), 0.3 * i.sin()));
         let to_pred = sim().inverse();
-        let mut pred: Vec<Camera> = gt.iter().map(|c| to_pred.map_camera(c)).collect();
-        for (i, cam) in pred.iter_mut().enumerate() {
-            let noise = glam::Vec3::new(0.5 * (i as f32 * 2.3).sin(), -0.4 * (i as f32 * 1.7).cos(), 0.3 * (i as f32).sin());
-            let centre = cam.center() + noise;
-            cam.translation = -(cam.rotation * centre);
-        }
         let k = Intrinsics::from_fov_y(64, 64, 1.0);
         let target = Camera::look_at(k, glam::Vec3::new(1.0, 1.6, 0.3), glam::Vec3::ZERO, glam::Vec3::Y);
         let x = glam::Vec3::new(0.3, 0.2, -0.4);
