@@ -24,8 +24,9 @@ pub struct TrainArgs {
     /// Folder of training scenes (DATASET.md format), instead of synthesizing them.
     #[arg(long, conflicts_with = "resume")]
     data: Option<PathBuf>,
-    /// Start from the weights of this run's newest checkpoint (or this checkpoint folder), with
-    /// a fresh optimizer and schedule; the network shape flags are then ignored.
+    /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
+    /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
+    /// schedule; the network shape flags are then ignored.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
@@ -62,6 +63,10 @@ pub struct TrainArgs {
     /// Consecutive steps sharing one scene.
     #[arg(long, default_value_t = 2)]
     scene_reuse: u64,
+    /// The scene of the first step (scene i is seed split base + i): a fine-tune can start on
+    /// scenes the earlier runs never saw.
+    #[arg(long, default_value_t = 0)]
+    first_scene: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Square input resolution.
@@ -173,6 +178,7 @@ impl TrainArgs {
             .with_max_views(self.max_views)
             .with_targets(self.targets)
             .with_scene_reuse(self.scene_reuse)
+            .with_first_scene(self.first_scene)
             .with_seed(self.seed)
     }
 

@@ -276,3 +276,66 @@ fn export_declares_the_signature() {
         assert!(allowed.contains(&op), "unexpected op {op}");
     }
 }
+
+fn shipped_model() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx")
+}
+
+/// The shipped model read back into a burn network computes what ONNX Runtime computes from
+/// the file itself: training can go on from a release whose run folder is gone.
+#[test]
+fn the_shipped_model_reads_back_into_a_network_with_parity() {
+    let device = Device::flex();
+    let path = shipped_model();
+    let (net, meta) = inssplat_trainer::export::import_onnx(&path, &device).expect("import the shipped model");
+    let c = net.config();
+    assert_eq!((c.image_size, c.dim, c.depth, c.heads, c.sem_dim), (128, 192, 6, 3, 16));
+    assert!(meta.train_steps > 0, "the release records its steps");
+    let mut session = session_of(&std::fs::read(&path).expect("read the shipped model"));
+    check_views(2, &net, &mut session, &device);
+}
+
+/// A file with one weight taken out, and a file that is not ONNX, are refused with errors
+/// naming the file and the weight.
+#[test]
+fn an_onnx_file_without_a_weight_or_not_onnx_is_refused_by_name() {
+    use prost::Message;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let net = network(&Device::flex());
+    let mut model = to_model_proto(&net, &ExportMeta { model_version: "x".into(), train_steps: 3 }).expect("export");
+    let graph = model.graph.as_mut().expect("graph");
+    let before = graph.initializer.len();
+    graph.initializer.retain(|t| !t.name.as_deref().unwrap_or_default().starts_with("blocks.1.fc1.weight_"));
+    assert_eq!(graph.initializer.len(), before - 1);
+    let path = dir.path().join("holed.onnx");
+    std::fs::write(&path, model.encode_to_vec()).expect("write");
+    let err = inssplat_trainer::export::import_onnx(&path, &Device::flex()).expect_err("a missing weight").to_string();
+    assert!(err.contains("holed.onnx") && err.contains("blocks.1.fc1.weight"), "{err}");
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, b"not a model at all").expect("write");
+    let err = inssplat_trainer::export::import_onnx(&junk, &Device::flex()).expect_err("not ONNX").to_string();
+    assert!(err.contains("junk.onnx") && err.contains("not an ONNX model"), "{err}");
+}
+
+/// `--init-from model.onnx`: a fine-tune starts from an exported file's weights and records it.
+#[test]
+fn a_fine_tune_starts_from_an_exported_onnx_file() {
+    use inssplat_trainer::loss::LossConfig;
+    use inssplat_trainer::synth::{Split, Structure};
+    use inssplat_trainer::train::sample::DataSpec;
+    use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let source = network(&Device::flex());
+    let onnx = dir.path().join("start.onnx");
+    export_onnx(&source, &onnx, &ExportMeta { model_version: "start".into(), train_steps: 41 }).expect("export");
+    let config = TrainConfig::new(ModelConfig::new(), LossConfig::new()).with_steps(2).with_warmup(1).with_max_views(3).with_first_scene(5);
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
+    let session = Session { val_every: 0, progress: false, ..Session::default() };
+    let run = dir.path().join("run");
+    let summary = train::fine_tune(&run, config, data, &onnx, &session).expect("fine-tune from ONNX");
+    let state = checkpoint::read_state(&summary.checkpoint.expect("a checkpoint")).expect("state");
+    let from = state.init_from.expect("init_from recorded");
+    assert_eq!((from.checkpoint.as_path(), from.step, state.step), (onnx.as_path(), 41, 2));
+    assert_eq!(state.config.model, *source.config(), "the file's shape, not the default one");
+}

@@ -36,7 +36,7 @@ fn quiet_session() -> Session {
 fn three_view_sample(seed: u64, index: u64) -> Sample {
     let sampler = Sampler {
         source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1 },
+        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1, first_scene: 0 },
         seed,
         labels: label_cache().unwrap(),
     };

@@ -12,6 +12,7 @@
 //! Runtime.
 
 mod graph;
+mod import;
 mod net;
 pub mod onnx_pb;
 
@@ -22,6 +23,7 @@ use prost::Message;
 
 use crate::model::InsSplatNet;
 use graph::Graph;
+pub use import::{ImportError, import_onnx};
 use onnx_pb::{
     DATA_TYPE_FLOAT, GraphProto, ModelProto, OperatorSetIdProto, StringStringEntryProto,
     TensorShapeProto, TypeProto, ValueInfoProto, tensor_shape_proto::Dimension,
@@ -34,6 +36,9 @@ pub const OPSET: i64 = 17;
 pub const IR_VERSION: i64 = 8;
 /// Name of the symbolic view-count dimension.
 pub const VIEWS_DIM: &str = "N";
+/// Metadata key of the network's whole [`crate::model::ModelConfig`] as JSON, which
+/// [`import_onnx`] reads back (the server does not need it).
+pub const META_MODEL_CONFIG: &str = "inssplat.model_config";
 
 /// What the exported file says about where it came from.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -111,6 +116,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         (sig::META_RESOLUTION, resolution),
         (sig::META_SEM_DIM, c.sem_dim.to_string()),
         (sig::META_TRAIN_STEPS, meta.train_steps.to_string()),
+        (META_MODEL_CONFIG, serde_json::to_string(c).expect("a ModelConfig (numbers only) serializes")),
     ];
     Ok(ModelProto {
         ir_version: Some(IR_VERSION),

@@ -70,13 +70,16 @@ pub struct TrainConfig {
     /// Consecutive steps that share one scene.
     #[config(default = 2)]
     pub scene_reuse: u64,
+    /// The scene of step 0: a later part of training can start on scenes no earlier part saw.
+    #[config(default = 0)]
+    pub first_scene: u64,
     #[config(default = 0)]
     pub seed: u64,
 }
 
 impl TrainConfig {
     fn plan(&self) -> ViewPlan {
-        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse }
+        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse, first_scene: self.first_scene }
     }
 
     fn schedule(&self) -> Schedule {
@@ -151,6 +154,8 @@ pub enum TrainError {
     Exists(PathBuf),
     #[error("{0} has no checkpoint")]
     NoCheckpoint(PathBuf),
+    #[error(transparent)]
+    Import(#[from] crate::export::ImportError),
 }
 
 /// How a session ended.
@@ -182,9 +187,9 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 }
 
 /// Starts a new run in `run` from the weights of the newest checkpoint of `from` (a run or a
-/// checkpoint folder) with a fresh optimizer and schedule: a fine-tune, or one arm of an
-/// ablation that all start from the same network. The network shape is the checkpoint's;
-/// `config.model` is replaced by it.
+/// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
+/// fine-tune, or one arm of an ablation that all start from the same network. The network
+/// shape is the source's; `config.model` is replaced by it.
 pub fn fine_tune(
     run: &Path,
     mut config: TrainConfig,
@@ -195,14 +200,20 @@ pub fn fine_tune(
     if checkpoint::latest(run)?.is_some() {
         return Err(TrainError::Exists(run.to_path_buf()));
     }
-    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
-    let source = checkpoint::read_state(&dir)?;
-    config.model = source.config.model.clone();
-    config.validate()?;
     let device = Device::flex().autodiff();
-    let net = checkpoint::load_model(&dir, &source, &device)?;
+    let (net, init_from) = if from.is_file() {
+        let (net, meta) = crate::export::import_onnx(from, &device)?;
+        (net, checkpoint::InitFrom { checkpoint: from.to_path_buf(), step: meta.train_steps })
+    } else {
+        let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+        let source = checkpoint::read_state(&dir)?;
+        let net = checkpoint::load_model(&dir, &source, &device)?;
+        (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
+    };
+    config.model = net.config().clone();
+    config.validate()?;
     let optim = optimizer(&config);
-    let init_from = Some(checkpoint::InitFrom { checkpoint: dir, step: source.step });
+    let init_from = Some(init_from);
     let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from };
     run_loop(run, net, optim, state, session, &device)
 }
@@ -355,7 +366,7 @@ fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCac
         },
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
-    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1 };
+    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0 };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
 }

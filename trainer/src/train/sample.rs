@@ -2,7 +2,7 @@
 //! in the DATASET.md format or synthesized on the fly, and turned into host arrays the step
 //! feeds to the network and the losses.
 //!
-//! A sample is a pure function of (seed, step): the scene is `offset + step / reuse` (a scene
+//! A sample is a pure function of (seed, step): the scene is `first_scene + step / reuse` (a scene
 //! serves `reuse` consecutive steps with different views), the view count and the views come
 //! from a ChaCha RNG seeded with the seed and the step. Resuming at step s therefore sees
 //! exactly the data an uninterrupted run would have seen. [`Prefetcher`] builds the samples of
@@ -110,6 +110,8 @@ pub struct ViewPlan {
     pub targets: usize,
     /// Consecutive steps that share one scene.
     pub reuse: u64,
+    /// The scene of step 0.
+    pub first_scene: u64,
 }
 
 /// One step's data on the host. Views `0..inputs` are the network's input; the rest are
@@ -221,7 +223,7 @@ pub struct Sampler {
 impl Sampler {
     /// The scene `step` draws from.
     pub fn scene_index(&self, step: u64) -> u64 {
-        step / self.plan.reuse.max(1)
+        self.plan.first_scene + step / self.plan.reuse.max(1)
     }
 
     /// The sample of `step`.
