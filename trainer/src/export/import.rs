@@ -4,11 +4,11 @@
 //! The shape comes from the file: the whole [`ModelConfig`] from its metadata
 //! ([`super::META_MODEL_CONFIG`]); for files written before that key existed (the 0.4
 //! release), resolution and d_s from the signature metadata, token width, patch, layers and
-//! decoder width from the weights' shapes, everything else from the defaults. Each parameter is read from the initializer the exporter named
-//! after its module path. The network is then exported again and its graph compared with the
-//! file's, node for node and weight for weight, so a file this trainer did not write, or one
-//! written for a shape the defaults miss (heads, output scales), is refused rather than loaded
-//! wrong.
+//! decoder width from the weights' shapes, everything else from the defaults. Each parameter
+//! is read from the initializer the exporter named after its module path. The network is then
+//! exported again and its graph compared with the file's, node for node and weight for
+//! weight, so a file this trainer did not write, or one written for a shape the defaults miss
+//! (heads, output scales), is refused rather than loaded wrong.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -44,10 +44,15 @@ pub fn import_onnx(path: &Path, device: &Device) -> Result<(InsSplatNet, ExportM
     let bytes = std::fs::read(path).map_err(|e| ImportError::Read { path: path.to_path_buf(), problem: e.to_string() })?;
     let foreign = |problem: String| ImportError::Foreign { path: path.to_path_buf(), problem };
     let model = ModelProto::decode(bytes.as_slice()).map_err(|e| foreign(format!("not an ONNX model: {e}")))?;
-    let meta = metadata(&model).map_err(foreign)?;
+    let props: Props<'_> = model
+        .metadata_props
+        .iter()
+        .filter_map(|p| Some((p.key.as_deref()?, p.value.as_deref()?)))
+        .collect();
+    let meta = metadata(&props).map_err(foreign)?;
     let graph = model.graph.as_ref().ok_or_else(|| foreign("the model has no graph".into()))?;
     let weights = weights(graph).map_err(foreign)?;
-    let config = config(&model, &weights).map_err(foreign)?;
+    let config = config(&props, &weights).map_err(foreign)?;
     let mut net = crate::train::seeded_init(&config, 0, device).map_err(|e| foreign(format!("model shape {config:?}: {e}")))?;
     let tensors = parameters(&net, &weights).map_err(foreign)?;
     let result = net.apply(tensors, None, None, false);
@@ -63,12 +68,10 @@ pub fn import_onnx(path: &Path, device: &Device) -> Result<(InsSplatNet, ExportM
     Ok((net, meta))
 }
 
-fn metadata(model: &ModelProto) -> Result<ExportMeta, String> {
-    let props: HashMap<&str, &str> = model
-        .metadata_props
-        .iter()
-        .filter_map(|p| Some((p.key.as_deref()?, p.value.as_deref()?)))
-        .collect();
+/// The file's metadata, key to value.
+type Props<'a> = HashMap<&'a str, &'a str>;
+
+fn metadata(props: &Props<'_>) -> Result<ExportMeta, String> {
     let get = |key: &str| props.get(key).copied().ok_or_else(|| format!("metadata has no {key}"));
     let io = get(sig::META_IO_VERSION)?;
     if io != sig::IO_VERSION {
@@ -104,10 +107,10 @@ fn weight(t: &TensorProto) -> Result<Weight, String> {
 
 /// The network shape (checked afterwards by exporting again): the metadata's configuration,
 /// or else resolution and d_s from the metadata, the rest from weight shapes and the defaults.
-fn config(model: &ModelProto, weights: &HashMap<String, Weight>) -> Result<ModelConfig, String> {
-    let prop = |key: &str| model.metadata_props.iter().find(|p| p.key.as_deref() == Some(key)).and_then(|p| p.value.clone());
+fn config(props: &Props<'_>, weights: &HashMap<String, Weight>) -> Result<ModelConfig, String> {
+    let prop = |key: &str| props.get(key).copied();
     if let Some(json) = prop(super::META_MODEL_CONFIG) {
-        return serde_json::from_str(&json).map_err(|e| format!("metadata {}: {e}", super::META_MODEL_CONFIG));
+        return serde_json::from_str(json).map_err(|e| format!("metadata {}: {e}", super::META_MODEL_CONFIG));
     }
     let dims = |name: &str| weights.get(name).map(|w| w.dims.clone()).ok_or_else(|| format!("no weight {name}"));
     let resolution = prop(sig::META_RESOLUTION).ok_or_else(|| format!("metadata has no {}", sig::META_RESOLUTION))?;

@@ -213,8 +213,7 @@ pub fn fine_tune(
     config.model = net.config().clone();
     config.validate()?;
     let optim = optimizer(&config);
-    let init_from = Some(init_from);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from };
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: Some(init_from) };
     run_loop(run, net, optim, state, session, &device)
 }
 
