@@ -1,7 +1,7 @@
 //! inssplat-proto: the contracts every other inssplat crate speaks. Cameras (OpenCV inside,
 //! one conversion from the dataset's nerfstudio convention), `GaussianScene` (structure of
 //! arrays) and its PLY form, the scene dataset format of DATASET.md, the model's I/O
-//! signature, and the HTTP request/response types. It depends on no other workspace crate
+//! signature and its shape classifier, and the HTTP request/response types. It depends on no other workspace crate
 //! and on nothing heavy (no ONNX Runtime, GPU or training framework).
 
 pub mod camera;
@@ -11,5 +11,6 @@ pub mod ply;
 pub use camera::{Camera, CameraError, Intrinsics};
 pub use gaussian::{GaussianScene, INSTANCE_DIM};
 pub mod dataset;
+pub mod shape;
 pub mod signature;
 pub mod api;

@@ -89,6 +89,8 @@ pub const META_MODEL_VERSION: &str = "inssplat.model_version";
 pub const META_RESOLUTION: &str = "inssplat.resolution";
 pub const META_SEM_DIM: &str = "inssplat.sem_dim";
 pub const META_TRAIN_STEPS: &str = "inssplat.train_steps";
+/// Optional: the shape classifier ([`crate::shape::ShapeClassifier`]) as JSON.
+pub const META_SHAPE_CLASSIFIER: &str = "inssplat.shape_classifier";
 
 /// Looks up a tensor of the signature by name.
 pub fn spec(name: &str) -> Option<&'static TensorSpec> {

@@ -8,6 +8,7 @@
 //! renders per-Gaussian ids into per-view id maps.
 
 pub mod masks;
+pub mod shape;
 
 use inssplat_proto::GaussianScene;
 use inssplat_proto::gaussian::LengthMismatch;
