@@ -26,6 +26,13 @@ pub const DESCRIPTOR: [&str; 11] = [
 /// Entries of [`DESCRIPTOR`] that are lengths.
 pub const LENGTHS: usize = 5;
 
+/// An instance's descriptor and the label it should get: what the classifier is fitted on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LabelledDescriptor {
+    pub label: String,
+    pub descriptor: [f32; DESCRIPTOR.len()],
+}
+
 /// One fully connected layer: `y = W·x + b`, `W` row-major `[outputs][inputs]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Dense {

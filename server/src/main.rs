@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::register::RegisterParams;
-use inssplat_server::pipeline::reconstruct::{PipelineConfig, reconstruct_with};
+use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
@@ -45,6 +45,10 @@ enum Command {
         /// Label vocabulary: a file with one label per line, or a comma-separated list.
         #[arg(long, env = "INSSPLAT_VOCAB")]
         vocab: Option<String>,
+        /// Weight of the model's shape classifier (size, height above the floor, colour)
+        /// beside the semantic features when naming instances; 0 names by the features alone.
+        #[arg(long, default_value_t = DEFAULT_SHAPE_WEIGHT)]
+        shape_weight: f32,
         /// Print the result as JSON on stdout.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -127,6 +131,14 @@ enum Command {
         /// in 3D; 0 clusters the embeddings alone (the paper).
         #[arg(long, default_value_t = ClusterParams::default().position_weight)]
         position_weight: f32,
+        /// Weight of the shape classifier (size, height above the floor, colour) beside the
+        /// semantic features when naming instances; 0 names by the features alone (the paper).
+        #[arg(long, default_value_t = DEFAULT_SHAPE_WEIGHT)]
+        shape_weight: f32,
+        /// Write every found instance's shape descriptor with its majority true label here
+        /// (JSON), for `inssplat-train fit-shapes --examples` (use train-split scenes).
+        #[arg(long)]
+        shape_examples: Option<PathBuf>,
         /// Place the network's outputs with the scenes' true context cameras instead of the
         /// predicted ones (scores everything but the camera head).
         #[arg(long)]
@@ -194,7 +206,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Reconstruct { inputs, out, model, vocab, json, threads } => {
+        Command::Reconstruct { inputs, out, model, vocab, shape_weight, json, threads } => {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
@@ -204,7 +216,8 @@ fn main() -> anyhow::Result<()> {
             bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
-            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &PipelineConfig::default(), &|stage| {
+            let config = PipelineConfig { shape_weight, ..PipelineConfig::default() };
+            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
                 bar.set_message(format!("{views} views: {stage}"))
             });
             bar.finish_and_clear();
@@ -285,6 +298,8 @@ fn main() -> anyhow::Result<()> {
             vocab,
             cluster,
             position_weight,
+            shape_weight,
+            shape_examples,
             known_poses,
             no_register,
             no_aggregation,
@@ -310,6 +325,7 @@ fn main() -> anyhow::Result<()> {
                 pipeline: PipelineConfig {
                     register: (!no_register).then(RegisterParams::default),
                     cluster: ClusterParams { position_weight, ..ClusterParams::default() },
+                    shape_weight,
                     ..PipelineConfig::default()
                 },
                 cluster,
@@ -331,6 +347,11 @@ fn main() -> anyhow::Result<()> {
             }
             let report = eval::evaluate(&mut model, &labels, &dirs, &request)?;
             let table = eval::markdown(&report);
+            if let Some(path) = &shape_examples {
+                output::write_atomic(path, serde_json::to_string(&report.shape_examples)?.as_bytes())
+                    .with_context(|| format!("--shape-examples {}", path.display()))?;
+                eprintln!("{} shape examples written to {}", report.shape_examples.len(), path.display());
+            }
             if let Some(out) = &out {
                 std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;
                 output::write_atomic(&out.join("eval.json"), serde_json::to_string_pretty(&report)?.as_bytes())?;

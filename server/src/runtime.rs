@@ -1,11 +1,13 @@
 //! The network under ONNX Runtime: finds the shared library (`ORT_DYLIB_PATH` or the setup
 //! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
-//! `proto::signature` (an error names the file and the tensor), sets intra-op threads from the
+//! `proto::signature` (an error names the file and the tensor), reads the shape classifier the
+//! file may carry, sets intra-op threads from the
 //! core count, warms up, and runs batches of views into planar output arrays.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use inssplat_proto::shape::ShapeClassifier;
 use inssplat_proto::signature::{self, TensorSpec};
 use ort::session::Session;
 use ort::value::{TensorElementType, TensorRef, ValueType};
@@ -56,6 +58,8 @@ pub struct Model {
     pub resolution: usize,
     pub sem_dim: usize,
     pub model_version: String,
+    /// The shape classifier stored with the network, if the file carries one.
+    pub shapes: Option<ShapeClassifier>,
 }
 
 /// Default place of the library unpacked by scripts/setup, relative to the workspace.
@@ -143,8 +147,17 @@ impl Model {
         };
         let sem_dim = number(signature::META_SEM_DIM)?;
         let model_version = get(signature::META_MODEL_VERSION)?;
+        let shapes = meta
+            .custom(signature::META_SHAPE_CLASSIFIER)
+            .map(|json| ShapeClassifier::from_json(&json))
+            .transpose()
+            .map_err(|e| RuntimeError::Metadata {
+                path: path.to_path_buf(),
+                key: signature::META_SHAPE_CLASSIFIER,
+                problem: e.to_string(),
+            })?;
         drop(meta);
-        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version };
+        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
         model.run(&warm, 2)?;
         Ok(model)

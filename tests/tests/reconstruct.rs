@@ -173,3 +173,62 @@ fn renders_novel_view_masks_on_the_gpu_when_asked_and_says_so() {
     let same = cpu_mask.pixels().zip(gpu_mask.pixels()).filter(|(a, b)| a == b).count();
     assert!(same as f64 >= 0.95 * (32.0 * 32.0), "{same} of 1024 pixels agree");
 }
+
+/// The tiny model with a shape classifier whose one label is "lamp" (every descriptor gets
+/// probability 1), or with `json` stored as the classifier verbatim.
+fn with_classifier(name: &str, json: Option<&str>) -> PathBuf {
+    use inssplat_proto::shape::{DESCRIPTOR, Dense, ShapeClassifier};
+    let (dir, model, _) = fixtures();
+    let d = DESCRIPTOR.len();
+    let lamp = ShapeClassifier {
+        labels: vec!["lamp".into()],
+        mean: vec![0.0; d],
+        std: vec![1.0; d],
+        layers: vec![Dense { inputs: d, outputs: 1, weight: vec![0.0; d], bias: vec![0.0] }],
+        provenance: "hand-made".into(),
+    };
+    let path = dir.path().join(name);
+    inssplat_trainer::shapes::attach(model, &path, &lamp, None).unwrap();
+    if let Some(json) = json {
+        // Replace the stored JSON (attach only writes valid classifiers).
+        use inssplat_trainer::export::onnx_pb::ModelProto;
+        use prost::Message;
+        let mut proto = ModelProto::decode(std::fs::read(&path).unwrap().as_slice()).unwrap();
+        for p in &mut proto.metadata_props {
+            if p.key.as_deref() == Some(inssplat_proto::signature::META_SHAPE_CLASSIFIER) {
+                p.value = Some(json.into());
+            }
+        }
+        std::fs::write(&path, proto.encode_to_vec()).unwrap();
+    }
+    path
+}
+
+#[test]
+fn the_shape_classifier_in_a_model_file_names_the_instances_by_its_weight() {
+    let (dir, _, scene) = fixtures();
+    let model = with_classifier("lamp.onnx", None);
+    let labels_at = |weight: &str| -> Vec<String> {
+        let out = dir.path().join(format!("shape-{weight}"));
+        let (ok, stdout, stderr) =
+            run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--shape-weight", weight, "--json"]);
+        assert!(ok, "{stderr}");
+        let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+        assert!(!r.instances.is_empty());
+        r.instances.into_iter().map(|i| i.label).collect()
+    };
+    let strong = labels_at("1000");
+    assert!(strong.iter().all(|l| l == "lamp"), "{strong:?}");
+    let none = labels_at("0");
+    assert!(none.iter().any(|l| l != "lamp"), "without the classifier the random network names: {none:?}");
+}
+
+#[test]
+fn a_model_file_with_a_broken_shape_classifier_is_refused_by_key() {
+    let (dir, _, scene) = fixtures();
+    let model = with_classifier("broken.onnx", Some(r#"{"labels": ["lamp"], "mean": [0], "std": [1], "layers": []}"#));
+    let out = dir.path().join("broken-out");
+    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model)]);
+    assert!(!ok);
+    assert!(stderr.contains("broken.onnx") && stderr.contains("inssplat.shape_classifier") && stderr.contains("mean/std"), "{stderr}");
+}

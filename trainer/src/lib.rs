@@ -9,4 +9,5 @@ pub mod model;
 pub mod synth;
 pub mod loss;
 pub mod render_op;
+pub mod shapes;
 pub mod train;

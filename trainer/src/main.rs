@@ -1,7 +1,8 @@
 //! `inssplat-train`: the trainer's command line. Each job is a subcommand: `synth` writes
 //! procedural scenes in the DATASET.md format (with a progress bar, dataset statistics at
 //! the end and optional contact-sheet previews); `train` starts or resumes a training run;
-//! `export` writes a run's network as the ONNX file the server loads.
+//! `export` writes a run's network as the ONNX file the server loads; `fit-shapes` adds the
+//! shape classifier to one.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -33,6 +34,9 @@ enum Command {
     /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
     /// context views (true cameras), then score instance mIoU on its target views.
     FitScene(cli_fit::FitArgs),
+    /// Fit the shape classifier (objects' size, height above the floor and colour → label)
+    /// on synthesized rooms and store it in a model file.
+    FitShapes(cli_shapes::FitShapesArgs),
     /// Write the MiniLM embeddings of every synthesizable label to a file, for training
     /// without the text model (INSSPLAT_LABEL_TABLE=FILE).
     LabelTable {
@@ -43,6 +47,7 @@ enum Command {
 }
 
 mod cli_fit;
+mod cli_shapes;
 mod cli_train;
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -157,6 +162,7 @@ fn main() -> Result<()> {
         Command::Validate(args) => cli_train::run_validate(args),
         Command::Export(args) => cli_train::run_export(args),
         Command::FitScene(args) => cli_fit::run_fit(args),
+        Command::FitShapes(args) => cli_shapes::run_fit_shapes(args),
         Command::LabelTable { out } => {
             let n = inssplat_trainer::train::labels::write_label_table(&out)?;
             println!("wrote {} ({n} labels)", out.display());

@@ -1,11 +1,13 @@
 //! The trainer's integration tests, one test binary (one link) for all of them: synthesis,
-//! model, losses and their gradients, the training loop, export parity and fit-scene.
+//! model, losses and their gradients, the training loop, export parity, fit-scene and the
+//! shape classifier.
 
 mod export_parity;
 mod fit_scene;
 mod loss_instance;
 mod loss_terms;
 mod model_forward;
+mod shapes;
 mod render_op_grad;
 mod synth_cli;
 mod synth_dataset;

@@ -16,6 +16,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::dataset::Scene;
+use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
 use serde::Serialize;
 
@@ -68,6 +69,9 @@ pub struct Report {
     /// Whether pixels were named without instance-grounded aggregation.
     pub no_aggregation: bool,
     pub summaries: Vec<Summary>,
+    /// Every scene's [`SceneScores::shape_examples`] (the plain view-count runs).
+    #[serde(skip)]
+    pub shape_examples: Vec<LabelledDescriptor>,
     /// Robustness sweeps: metric means per perturbation and strength.
     pub robustness: Vec<RobustRow>,
     /// The worst scenes (with `--perturb`).
@@ -253,6 +257,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         known_poses: req.known_poses,
         no_aggregation: req.no_aggregation,
         summaries,
+        shape_examples: all.iter_mut().flat_map(|s| std::mem::take(&mut s.shape_examples)).collect(),
         robustness,
         failures,
         scenes: all,

@@ -17,6 +17,7 @@ use inssplat_raster::label::{QueryRule, query};
 use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, mask_iou, semantic_scores};
+use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
 use serde::Serialize;
 
@@ -59,6 +60,10 @@ pub struct SceneScores {
     /// Target-view pixels per (true, predicted) label, summed into [`super::Summary::labels`].
     #[serde(skip)]
     pub labels: Confusion,
+    /// Each found instance's shape descriptor with its true label ([`shape_examples`]), for
+    /// `inssplat-train fit-shapes --examples`.
+    #[serde(skip)]
+    pub shape_examples: Vec<LabelledDescriptor>,
 }
 
 /// Why a scene could not be evaluated.
@@ -248,6 +253,9 @@ fn context_scores(
     let depth = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?;
     s.depth_abs_rel = depth.as_ref().map(|d| d.abs_rel);
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
+    if mode == ClusterMode::ThreeD {
+        s.shape_examples = shape_examples(scene, rec, &pairs);
+    }
     if mode == ClusterMode::ThreeD && pairs.len() == rec.views.len() {
         let views: Vec<ContextView<'_>> = rec
             .views
@@ -265,6 +273,43 @@ fn context_scores(
         s.t_sr50 = Some(c.t_sr);
     }
     Ok(depth.map(|d| d.scale))
+}
+
+/// Labels of the room shell, which an instance is named for only when they hold most of it
+/// and objects hold under [`OBJECT_SHARE`] of its labelled pixels.
+const SHELL: [&str; 3] = ["wall", "floor", "ceiling"];
+/// Share of an instance's labelled context pixels an object needs to name it.
+const OBJECT_SHARE: f64 = 0.25;
+
+/// The true label of each found instance (`pairs` of found and true id maps of the context
+/// views), with the instance's descriptor: the object label with the most of its pixels when
+/// objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that hold an object
+/// and a piece of floor are named for the object, as a user would), else the label with the
+/// most. Instances without labelled pixels are left out.
+fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
+    let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
+    for (found, truth) in pairs {
+        for (&f, &t) in found.iter().zip(*truth) {
+            if let (true, Some(label)) = (f > 0, scene.label_of(t as u16)) {
+                *votes.entry(f).or_default().entry(label).or_default() += 1;
+            }
+        }
+    }
+    let top = |it: &mut dyn Iterator<Item = (&&str, &usize)>| it.max_by_key(|(_, n)| **n).map(|(l, _)| l.to_string());
+    rec.descriptors
+        .iter()
+        .filter_map(|(id, d)| {
+            let v = votes.get(id)?;
+            let total: usize = v.values().sum();
+            let objects: usize = v.iter().filter(|(l, _)| !SHELL.contains(l)).map(|(_, n)| n).sum();
+            let label = if objects as f64 >= OBJECT_SHARE * total as f64 {
+                top(&mut v.iter().filter(|(l, _)| !SHELL.contains(l)))
+            } else {
+                top(&mut v.iter())
+            }?;
+            Some(LabelledDescriptor { label, descriptor: *d })
+        })
+        .collect()
 }
 
 /// Camera errors of the context views after the alignment of `scale`; returns the map from

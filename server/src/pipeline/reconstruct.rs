@@ -1,6 +1,6 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
-//! → cluster once in 3D → semantic prototypes → text labels → per-view instance and label
-//! maps. An input view's maps need no rendering: each pixel's own Gaussian was merged into one
+//! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
+//! of each instance's size and colour → text labels → per-view instance and label maps. An input view's maps need no rendering: each pixel's own Gaussian was merged into one
 //! clustered Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in
 //! every view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's
 //! target views). Every stage is timed.
@@ -9,12 +9,14 @@ use std::time::Instant;
 
 use glam::{Quat, Vec3};
 use inssplat_proto::api::{InstanceOut, StageTiming};
+use inssplat_proto::shape::DESCRIPTOR;
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::register::{RegisterParams, RegisterView, register};
+use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
@@ -43,6 +45,9 @@ fn stage_err(stage: &'static str) -> impl Fn(&dyn std::fmt::Display) -> Pipeline
     move |e| PipelineError::Stage { stage, message: e.to_string() }
 }
 
+/// Default [`PipelineConfig::shape_weight`].
+pub const DEFAULT_SHAPE_WEIGHT: f32 = 1.0;
+
 /// Tunables of the post-processing stages.
 #[derive(Debug, Clone)]
 pub struct PipelineConfig {
@@ -56,6 +61,10 @@ pub struct PipelineConfig {
     /// the model resolution), used instead of the network's camera head; the network's depth,
     /// Gaussians and features are placed with them. `None`: the predicted cameras.
     pub known_poses: Option<Vec<Camera>>,
+    /// Weight of the shape classifier's text-space direction added to each instance's
+    /// semantic prototype before naming (0, or a model without a classifier, names by the
+    /// semantic features alone).
+    pub shape_weight: f32,
 }
 
 impl Default for PipelineConfig {
@@ -65,6 +74,7 @@ impl Default for PipelineConfig {
             cluster: ClusterParams::default(),
             register: Some(RegisterParams::default()),
             known_poses: None,
+            shape_weight: DEFAULT_SHAPE_WEIGHT,
         }
     }
 }
@@ -98,6 +108,8 @@ pub struct Reconstruction {
     pub views: Vec<ViewResult>,
     pub instances: Vec<InstanceOut>,
     pub prototypes: Vec<InstancePrototype>,
+    /// Each instance's shape descriptor (ids with too few Gaussians left out).
+    pub descriptors: Vec<(u32, [f32; DESCRIPTOR.len()])>,
     pub vocabulary: Vec<String>,
     /// Φ_sem of the network: weight `[384][d_s]` and bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
@@ -222,12 +234,21 @@ pub fn reconstruct_with(
     let scene = &mut voxelized.scene;
 
     let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
-    let (prototypes, matches) = clock.time("label", || -> Result<_, PipelineError> {
+    let (prototypes, matches, descriptors) = clock.time("label", || -> Result<_, PipelineError> {
+        let err = stage_err("label");
+        let mut prototypes = semantic_prototypes(scene, &projection).map_err(|e| err(&e))?;
+        let (_, descriptors) = instance_descriptors(scene, &cameras);
+        if let Some(classifier) = model.shapes.as_ref().filter(|_| config.shape_weight > 0.0) {
+            let probabilities: Vec<(u32, Vec<f32>)> =
+                descriptors.iter().map(|(id, d)| (*id, classifier.probabilities(d))).collect();
+            let names: Vec<&str> = classifier.labels.iter().map(String::as_str).collect();
+            let texts = labels.embed(&names).map_err(|e| err(&e))?;
+            fuse(&mut prototypes, &probabilities, &texts, config.shape_weight);
+        }
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
-        let texts = labels.embed(&words).map_err(|e| stage_err("label")(&e))?;
-        let prototypes = semantic_prototypes(scene, &projection).map_err(|e| stage_err("label")(&e))?;
-        let matches = assign_labels(&prototypes, &texts).map_err(|e| stage_err("label")(&e))?;
-        Ok((prototypes, matches))
+        let texts = labels.embed(&words).map_err(|e| err(&e))?;
+        let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
+        Ok((prototypes, matches, descriptors))
     })?;
     let k = clustering.prototypes.len();
     let mut label_of_id = vec![None; k];
@@ -268,6 +289,7 @@ pub fn reconstruct_with(
         views,
         instances,
         prototypes,
+        descriptors,
         vocabulary: vocabulary.to_vec(),
         sem_proj_weight: out.sem_proj_weight.clone(),
         sem_proj_bias: out.sem_proj_bias.clone(),

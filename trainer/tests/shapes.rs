@@ -1,0 +1,95 @@
+//! The shape classifier on real synthesized rooms: descriptors measured from true depth stand
+//! on the floor the code finds, an MLP fitted on some rooms names the objects of others better
+//! than the most common label does, and `attach` stores it in a real exported model file.
+
+use burn::prelude::*;
+use inssplat_proto::dataset::Scene;
+use inssplat_proto::shape::{LabelledDescriptor, ShapeClassifier};
+use inssplat_proto::signature as sig;
+use inssplat_trainer::export::onnx_pb::ModelProto;
+use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::shapes::{FitShapesConfig, accuracy, attach, draw_views, fit, scene_examples};
+use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use prost::Message;
+
+fn room(split: Split, index: u64) -> Scene {
+    let mut cfg = SynthConfig::new(split, Furniture::Primitives);
+    (cfg.width, cfg.height, cfg.frames) = (48, 48, (12, 12));
+    cfg.structure = Structure::Instances;
+    synth::generate_split(index, &cfg).unwrap().scene
+}
+
+fn examples(split: Split, rooms: std::ops::Range<u64>) -> Vec<LabelledDescriptor> {
+    rooms
+        .flat_map(|i| {
+            let scene = room(split, i);
+            scene_examples(&scene, &draw_views(scene.frames.len(), i))
+        })
+        .collect()
+}
+
+#[test]
+fn descriptors_of_a_room_stand_on_the_floor_found_in_it() {
+    let scene = room(Split::Train, 3);
+    let all: Vec<usize> = (0..scene.frames.len()).collect();
+    let ex = scene_examples(&scene, &all);
+    let labels: Vec<&str> = scene.instances.iter().map(|i| i.label.as_str()).collect();
+    assert!(ex.iter().all(|e| labels.contains(&e.label.as_str())));
+    let floor = ex.iter().find(|e| e.label == "floor").expect("the floor is an instance");
+    // The floor is flat and at height 0 (descriptor: height extent, …, bottom, top).
+    assert!(floor.descriptor[0] < 0.05 && floor.descriptor[3].abs() < 0.05, "{floor:?}");
+    let walls: Vec<_> = ex.iter().filter(|e| e.label == "wall").collect();
+    assert!(!walls.is_empty() && walls.iter().all(|w| w.descriptor[0] > 1.5), "{walls:?}");
+    for e in ex.iter().filter(|e| !["floor", "wall", "ceiling"].contains(&e.label.as_str())) {
+        assert!(e.descriptor[3] > -0.1 && e.descriptor[4] < 3.5, "{e:?}");
+    }
+}
+
+#[test]
+fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
+    let train = examples(Split::Train, 0..40);
+    let held_out = examples(Split::Val, 0..12);
+    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (c, report) = fit(&train, &held_out, &config, &|_, _| {}).unwrap();
+    let common = {
+        let mut counts = std::collections::BTreeMap::<&str, usize>::new();
+        train.iter().for_each(|e| *counts.entry(&e.label).or_default() += 1);
+        let top = counts.into_iter().max_by_key(|(_, n)| *n).unwrap().0;
+        held_out.iter().filter(|e| e.label == top).count() as f64 / held_out.len() as f64
+    };
+    let acc = report.held_out_accuracy.unwrap();
+    assert!(acc > common + 0.2, "held-out accuracy {acc} against {common} for the most common label");
+    assert_eq!(Some(acc), accuracy(&c, &held_out));
+    assert!(report.train_accuracy >= acc);
+    assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
+}
+
+#[test]
+fn attach_stores_the_classifier_in_a_model_file_and_refuses_other_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let net = ModelConfig::new().with_image_size(32).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32);
+    let net = net.init(&Device::flex()).unwrap();
+    let plain = tmp.path().join("plain.onnx");
+    export_onnx(&net, &plain, &ExportMeta { model_version: "v1".into(), train_steps: 3 }).unwrap();
+    let (c, _) = fit(&examples(Split::Train, 0..4), &[], &FitShapesConfig { epochs: 5, ..Default::default() }, &|_, _| {}).unwrap();
+    let with = tmp.path().join("with.onnx");
+    attach(&plain, &with, &c, Some("v2")).unwrap();
+    // Attaching again replaces the entry instead of adding one.
+    attach(&with, &with, &c, None).unwrap();
+    let proto = ModelProto::decode(std::fs::read(&with).unwrap().as_slice()).unwrap();
+    let get = |k: &str| -> Vec<String> {
+        proto.metadata_props.iter().filter(|p| p.key.as_deref() == Some(k)).filter_map(|p| p.value.clone()).collect()
+    };
+    assert_eq!(get(sig::META_MODEL_VERSION), ["v2"]);
+    assert_eq!(get(sig::META_TRAIN_STEPS), ["3"]);
+    let stored = get(sig::META_SHAPE_CLASSIFIER);
+    assert_eq!(stored.len(), 1);
+    assert_eq!(ShapeClassifier::from_json(&stored[0]).unwrap(), c);
+    let before = ModelProto::decode(std::fs::read(&plain).unwrap().as_slice()).unwrap();
+    assert_eq!(proto.graph, before.graph);
+    let text = tmp.path().join("notes.txt");
+    std::fs::write(&text, "not a model").unwrap();
+    let err = attach(&text, &with, &c, None).unwrap_err().to_string();
+    assert!(err.contains("notes.txt") && err.contains("not an ONNX model"), "{err}");
+}
