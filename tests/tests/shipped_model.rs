@@ -4,8 +4,8 @@
 //! least one instance carries a label that is right (its pixels are mostly that label in the
 //! ground truth), a query for that label returns masks that overlap the label's true pixels
 //! in all 16 views (IoU printed and bounded below), and a query for something absent says
-//! that nothing matches. (The 0.4 network names the room shell and chairs, not yet most other
-//! furniture: see `models/inssplat-default.md`.)
+//! that nothing matches. (The 0.5 model names the room shell, chairs and a few other pieces
+//! of furniture, not yet most: see `models/inssplat-default.md`.)
 
 use std::path::PathBuf;
 
