@@ -1,9 +1,10 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
 //! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
-//! of each instance's size and colour → text labels → per-view instance and label maps. An input view's maps need no rendering: each pixel's own Gaussian was merged into one
-//! clustered Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in
-//! every view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's
-//! target views). Every stage is timed.
+//! of each instance's size and colour → text labels → per-view instance and label maps. An
+//! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
+//! Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in every
+//! view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's target
+//! views). Every stage is timed.
 
 use std::time::Instant;
 
