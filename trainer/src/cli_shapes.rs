@@ -54,23 +54,15 @@ pub struct FitShapesArgs {
 }
 
 pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
-    let furniture = if a.primitives_only {
-        Furniture::Primitives
-    } else {
-        anyhow::ensure!(
-            a.furniture_dir.is_dir(),
-            "--furniture-dir / INSSPLAT_FURNITURE_DIR: {} is not a folder (install sweethome3d-furniture, or pass --primitives-only)",
-            a.furniture_dir.display()
-        );
-        Furniture::Catalog(a.furniture_dir.clone())
-    };
+    // Furniture is needed only for the rooms synthesized here, not with example files.
+    let furniture = || crate::furniture(a.primitives_only, &a.furniture_dir);
     let train = match &a.examples {
         Some(path) => read_examples(path, "--examples")?,
-        None => examples(Split::Train, a.first_scene, a.scenes, &furniture)?,
+        None => examples(Split::Train, a.first_scene, a.scenes, &furniture()?)?,
     };
     let held_out = match &a.held_out {
         Some(path) => read_examples(path, "--held-out")?,
-        None => examples(Split::Val, 0, a.val_scenes, &furniture)?,
+        None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
     let config = FitShapesConfig { epochs: a.epochs, hidden: a.hidden, ..FitShapesConfig::default() };
     let bar = bar(config.epochs as u64, "epochs");

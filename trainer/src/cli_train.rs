@@ -9,7 +9,7 @@ use burn::prelude::*;
 use inssplat_trainer::export::{ExportMeta, export_onnx};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
-use inssplat_trainer::synth::{self, Split, Structure};
+use inssplat_trainer::synth::{self, Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, describe};
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
@@ -183,16 +183,10 @@ impl TrainArgs {
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {
-        if self.primitives_only {
-            return Ok(None);
-        }
-        if !self.furniture_dir.is_dir() {
-            bail!(
-                "--furniture-dir / INSSPLAT_FURNITURE_DIR: {} is not a folder (install sweethome3d-furniture, or pass --primitives-only)",
-                self.furniture_dir.display()
-            );
-        }
-        Ok(Some(self.furniture_dir.clone()))
+        Ok(match crate::furniture(self.primitives_only, &self.furniture_dir)? {
+            Furniture::Catalog(dir) => Some(dir),
+            Furniture::Primitives => None,
+        })
     }
 
     fn session(&self) -> Result<Session> {

@@ -171,20 +171,24 @@ fn main() -> Result<()> {
     }
 }
 
+/// Where synthesized furniture comes from, per `--primitives-only` and `--furniture-dir`
+/// (shared by every subcommand that synthesizes); a missing folder is an error naming the flag.
+fn furniture(primitives_only: bool, dir: &Path) -> Result<Furniture> {
+    if primitives_only {
+        return Ok(Furniture::Primitives);
+    }
+    if !dir.is_dir() {
+        bail!(
+            "--furniture-dir / INSSPLAT_FURNITURE_DIR: {} is not a folder (install the Debian package \
+             sweethome3d-furniture, or pass --primitives-only)",
+            dir.display()
+        );
+    }
+    Ok(Furniture::Catalog(dir.to_path_buf()))
+}
+
 fn config(a: &SynthArgs) -> Result<SynthConfig> {
-    let furniture = if a.primitives_only {
-        Furniture::Primitives
-    } else {
-        if !a.furniture_dir.is_dir() {
-            bail!(
-                "--furniture-dir / INSSPLAT_FURNITURE_DIR: {} is not a folder (install the Debian package \
-                 sweethome3d-furniture, or pass --primitives-only)",
-                a.furniture_dir.display()
-            );
-        }
-        Furniture::Catalog(a.furniture_dir.clone())
-    };
-    let mut cfg = SynthConfig::new(a.split, furniture);
+    let mut cfg = SynthConfig::new(a.split, furniture(a.primitives_only, &a.furniture_dir)?);
     cfg.width = a.width.unwrap_or(a.size);
     cfg.height = a.height.unwrap_or(a.size);
     if let Some(f) = a.frames {
