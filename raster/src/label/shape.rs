@@ -81,12 +81,19 @@ pub fn ground(points: &[Vec3], up_prior: Vec3) -> Ground {
             continue;
         }
         let d = n.dot(a);
+        let (mut below, mut inliers) = (0usize, 0usize);
+        for p in &sample {
+            let h = n.dot(*p) - d;
+            if h < -3.0 * tol {
+                below += 1;
+            } else if h.abs() < tol {
+                inliers += 1;
+            }
+        }
         // A floor has (almost) nothing below it.
-        let below = sample.iter().filter(|p| n.dot(**p) < d - 3.0 * tol).count();
         if below * 20 > sample.len() {
             continue;
         }
-        let inliers = sample.iter().filter(|p| (n.dot(**p) - d).abs() < tol).count();
         if inliers > best.0 {
             best = (inliers, Ground { up: n, floor: d, found: true });
         }
