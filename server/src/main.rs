@@ -151,6 +151,10 @@ enum Command {
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
         no_aggregation: bool,
+        /// Also score the text queries under a grid of query rules (minimum score, margin to
+        /// the best, margin to the instance's own label) and add the best to the report.
+        #[arg(long)]
+        query_rules: bool,
         /// Robustness sweeps at 8 views (noise, blur, exposure, overlap, repeats), a table of
         /// each metric against the strength, and the worst scenes' previews under --out.
         #[arg(long, value_enum, value_delimiter = ',')]
@@ -303,6 +307,7 @@ fn main() -> anyhow::Result<()> {
             known_poses,
             no_register,
             no_aggregation,
+            query_rules,
             perturb,
             sweep,
             json,
@@ -331,6 +336,7 @@ fn main() -> anyhow::Result<()> {
                 cluster,
                 known_poses,
                 no_aggregation,
+                query_rules,
                 perturb,
                 out: out.clone(),
                 progress: !json,

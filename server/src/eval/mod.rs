@@ -6,6 +6,7 @@
 pub mod ceiling;
 pub mod confusion;
 pub mod perturb;
+pub mod query_rules;
 pub mod scene;
 pub mod sweep;
 pub mod views;
@@ -53,6 +54,8 @@ pub struct Summary {
     pub gaussians_kept_mean: f64,
     /// Per true label on the target views: named right, and named most often as.
     pub labels: Vec<confusion::LabelRow>,
+    /// Query IoU per rule of [`query_rules::grid`], best first (with `--query-rules`).
+    pub query_rules: Vec<query_rules::RuleRow>,
 }
 
 /// The whole evaluation.
@@ -81,7 +84,7 @@ pub struct Report {
     pub protocol: String,
 }
 
-const METRICS: [&str; 16] = [
+const METRICS: [&str; 17] = [
     "semantic_miou",
     "semantic_macc",
     "instance_miou",
@@ -91,6 +94,7 @@ const METRICS: [&str; 16] = [
     "instances_found",
     "instances_true",
     "query_iou",
+    "query_false_positive",
     "t_miou",
     "t_sr50",
     "psnr",
@@ -111,6 +115,7 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
         "instances_found" => Some(s.instances_found as f64),
         "instances_true" => Some(s.instances_true as f64),
         "query_iou" => s.query_iou,
+        "query_false_positive" => s.query_false_positive,
         "t_miou" => s.t_miou,
         "t_sr50" => s.t_sr50,
         "psnr" => s.psnr,
@@ -141,6 +146,7 @@ fn summarize(views: usize, scores: &[&SceneScores], vocabulary: &[String]) -> Su
         seconds_median: secs.get(secs.len() / 2).copied().unwrap_or(f64::NAN),
         gaussians_kept_mean: scores.iter().map(|s| s.gaussians_kept as f64).sum::<f64>() / scores.len().max(1) as f64,
         labels: labels.rows(vocabulary),
+        query_rules: query_rules::summarize(&scores.iter().map(|s| s.query_by_rule.as_slice()).collect::<Vec<_>>()),
     }
 }
 
@@ -156,6 +162,8 @@ pub struct EvalRequest {
     pub known_poses: bool,
     /// Pixels named from their own semantic features (see [`Settings`]).
     pub no_aggregation: bool,
+    /// Score the text queries under every rule of [`query_rules::grid`] too.
+    pub query_rules: bool,
     /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
     pub perturb: Vec<PerturbKind>,
     /// Where failure previews go (with `perturb`).
@@ -203,8 +211,17 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
     let runs = scenes.len() * (req.views.len() + image_sweeps.len());
     let bar = if req.progress { ProgressBar::new(runs as u64) } else { ProgressBar::hidden() };
     bar.set_style(ProgressStyle::with_template("{spinner} eval {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
+    let rules = if req.query_rules { query_rules::grid() } else { Vec::new() };
     let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
-        let settings = Settings { vocabulary: &vocabulary, pipeline: &req.pipeline, cluster: req.cluster, perturbation, known_poses: req.known_poses, no_aggregation: req.no_aggregation };
+        let settings = Settings {
+            vocabulary: &vocabulary,
+            pipeline: &req.pipeline,
+            cluster: req.cluster,
+            perturbation,
+            known_poses: req.known_poses,
+            no_aggregation: req.no_aggregation,
+            query_rules: &rules,
+        };
         scenes
             .iter()
             .map(|scene| {
@@ -437,6 +454,9 @@ pub fn markdown(r: &Report) -> String {
                 100.0 * row.named_most_share
             );
         }
+    }
+    for s in r.summaries.iter().filter(|s| !s.query_rules.is_empty()) {
+        out += &query_rules::markdown(s.views, &s.query_rules, 10);
     }
     if !r.robustness.is_empty() {
         let views = r.robustness[0].summary.views;

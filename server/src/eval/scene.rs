@@ -12,11 +12,11 @@ use std::time::Instant;
 use image::RgbImage;
 use inssplat_proto::dataset::Scene;
 use inssplat_raster::cluster::ClusterParams;
-use inssplat_raster::label::masks::{ids_mask, render_colour};
-use inssplat_raster::label::{QueryRule, query};
+use inssplat_raster::label::QueryRule;
+use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
-use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, mask_iou, semantic_scores};
+use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
 use serde::Serialize;
@@ -27,6 +27,7 @@ use crate::runtime::Model;
 use super::ceiling::{ContextView, context_instances};
 use super::confusion::Confusion;
 use super::perturb::{self, Perturbation};
+use super::query_rules::{QueryScores, query_scores};
 use super::views::{ClusterMode, pixel_labels, segment};
 
 /// Every number of one (scene, view count); `None` where the scene cannot give it.
@@ -43,6 +44,9 @@ pub struct SceneScores {
     pub context_instance_miou: Option<f64>,
     pub context_ceiling_miou: Option<f64>,
     pub query_iou: Option<f64>,
+    /// Share of queries for labels the scene lacks (the room shell aside) that returned an
+    /// instance ([`super::query_rules::QueryScores::false_positive`]).
+    pub query_false_positive: Option<f64>,
     pub t_miou: Option<f64>,
     pub t_sr50: Option<f64>,
     pub psnr: Option<f64>,
@@ -64,6 +68,9 @@ pub struct SceneScores {
     /// `inssplat-train fit-shapes --examples`.
     #[serde(skip)]
     pub shape_examples: Vec<LabelledDescriptor>,
+    /// The queries under each of [`Settings::query_rules`].
+    #[serde(skip)]
+    pub query_by_rule: Vec<QueryScores>,
 }
 
 /// Why a scene could not be evaluated.
@@ -105,6 +112,8 @@ pub struct Settings<'a> {
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
     pub no_aggregation: bool,
+    /// Query rules scored beside the default one (`--query-rules`).
+    pub query_rules: &'a [QueryRule],
 }
 
 /// The context frames of `scene` for `views` views (after an overlap perturbation), checked.
@@ -350,7 +359,7 @@ fn target_scores(
     let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
     let texts = labels.embed(&words).map_err(|e| err(&e))?;
     let params = ClusterParams::default();
-    let (mut pred_labels, mut gt_labels, mut ious, mut segs, mut gts) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut pred_labels, mut gt_labels, mut ious, mut segs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
     for &t in targets {
         let frame = &scene.frames[t];
@@ -372,7 +381,6 @@ fn target_scores(
         pred_labels.extend_from_slice(&seg.labels);
         gt_labels.extend(true_labels(scene, gt, vocabulary));
         segs.push(seg);
-        gts.push(gt_ids);
     }
     let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     s.psnr = mean(&psnrs);
@@ -384,23 +392,16 @@ fn target_scores(
     }
     s.instance_miou = mean(&ious);
     s.instance_acc25 = (!ious.is_empty()).then(|| ious.iter().filter(|&&x| x > 0.25).count() as f64 / ious.len() as f64);
-    // Text queries: each label present in the target views; per view its returned
-    // instances' mask, pooled over views, against the union of that label's true instances.
-    let present: std::collections::BTreeSet<u32> = gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
-    let mut query_ious = Vec::new();
-    for l in present {
-        let text = &texts[l as usize];
-        let mut got = Vec::with_capacity(gt_labels.len());
-        for seg in &segs {
-            let hits: Vec<u32> =
-                query(&seg.prototypes, text, &seg.own_scores, &QueryRule::default()).map_err(|e| err(&e))?.iter().map(|h| h.id).collect();
-            got.extend(ids_mask(&seg.ids, &hits));
-        }
-        let want: Vec<bool> = gt_labels.iter().map(|g| *g == l).collect();
-        if let Some(iou) = mask_iou(&got, &want).map_err(|e| err(&e))? {
-            query_ious.push(iou);
-        }
-    }
-    s.query_iou = mean(&query_ious);
+    // Text queries: the default rule first, then the rules being compared.
+    let rules: Vec<QueryRule> = std::iter::once(QueryRule::default()).chain(settings.query_rules.iter().copied()).collect();
+    let held = scene.label_vocabulary();
+    let absent: Vec<u32> = (0..vocabulary.len() as u32)
+        .filter(|&i| !held.contains(&vocabulary[i as usize]) && !SHELL.contains(&vocabulary[i as usize].as_str()))
+        .collect();
+    let mut by_rule = query_scores(&segs, &gt_labels, &absent, &texts, &rules)?;
+    let default = by_rule.remove(0);
+    s.query_iou = default.iou;
+    s.query_false_positive = default.false_positive;
+    s.query_by_rule = by_rule;
     Ok(())
 }
