@@ -1,14 +1,9 @@
 //! The shape classifier: a small MLP from an instance's shape descriptor (its size, height
 //! above the floor and colour, [`DESCRIPTOR`]) to a probability over the training labels.
-//! A classifier may also read the network's own opinion ([`ShapeClassifier::feature_scores`]):
-//! the cosine of the instance's semantic prototype with each label's text embedding, so that
-//! it learns when to follow the features (chairs, which the network knows) and when the shape.
 //! The trainer fits it on synthesized rooms and stores it in the model file as JSON under
 //! [`crate::signature::META_SHAPE_CLASSIFIER`]; the server reads it back to name instances
 //! by what they look like in 3D as well as by their semantic features. Only the contract and
 //! the forward pass live here: computing descriptors is `inssplat_raster::label::shape`'s.
-
-use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
@@ -36,10 +31,6 @@ pub const LENGTHS: usize = 5;
 pub struct LabelledDescriptor {
     pub label: String,
     pub descriptor: [f32; DESCRIPTOR.len()],
-    /// Cosine of the instance's semantic prototype with each label's text embedding (empty
-    /// where the instance has no prototype, as for true objects).
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub feature_scores: BTreeMap<String, f32>,
 }
 
 /// One fully connected layer: `y = W·x + b`, `W` row-major `[outputs][inputs]`.
@@ -52,18 +43,13 @@ pub struct Dense {
 }
 
 /// The classifier: standardize (`(x − mean) / std`), dense layers with ReLU between them,
-/// softmax over `labels`. Its input is the descriptor, followed, when
-/// [`Self::feature_scores`], by the feature scores of `labels` in order ([`Self::input`]).
+/// softmax over `labels`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ShapeClassifier {
     pub labels: Vec<String>,
     pub mean: Vec<f32>,
     pub std: Vec<f32>,
     pub layers: Vec<Dense>,
-    /// Whether the input goes on with the cosine of the instance's semantic prototype with
-    /// each of `labels`' text embeddings.
-    #[serde(default)]
-    pub feature_scores: bool,
     /// How it was fitted (scenes, instances, held-out accuracy), for people.
     #[serde(default)]
     pub provenance: String,
@@ -90,26 +76,13 @@ impl ShapeClassifier {
         serde_json::to_string(self).expect("numbers and strings serialize")
     }
 
-    /// Length of the input: the descriptor, and a feature score per label when
-    /// [`Self::feature_scores`].
-    pub fn input_len(&self) -> usize {
-        DESCRIPTOR.len() + if self.feature_scores { self.labels.len() } else { 0 }
-    }
-
-    /// The input for one instance: `descriptor`, then (when [`Self::feature_scores`]) its
-    /// `scores`, one per label in [`Self::labels`] order.
-    pub fn input(&self, descriptor: &[f32; DESCRIPTOR.len()], scores: &[f32]) -> Vec<f32> {
-        let scores = if self.feature_scores { scores } else { &[] };
-        descriptor.iter().chain(scores).copied().collect()
-    }
-
-    /// Shapes agree from the input through every layer to the labels, and every number
+    /// Shapes agree from the descriptor through every layer to the labels, and every number
     /// is finite.
     pub fn validate(&self) -> Result<(), ShapeError> {
         let bad = |m: String| Err(ShapeError::Invalid(m));
-        let d = self.input_len();
+        let d = DESCRIPTOR.len();
         if self.mean.len() != d || self.std.len() != d {
-            return bad(format!("mean/std have {}/{} entries, the input {d}", self.mean.len(), self.std.len()));
+            return bad(format!("mean/std have {}/{} entries, the descriptor {d}", self.mean.len(), self.std.len()));
         }
         if self.std.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
             return bad("std has an entry that is not positive and finite".into());
@@ -136,11 +109,9 @@ impl ShapeClassifier {
         Ok(())
     }
 
-    /// Probability of each label (in [`Self::labels`] order) for one [`Self::input`] (of
-    /// [`Self::input_len`] entries; a valid classifier's layers read exactly that many).
-    pub fn probabilities(&self, input: &[f32]) -> Vec<f32> {
-        debug_assert_eq!(input.len(), self.input_len());
-        let mut x: Vec<f32> = input.iter().zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
+    /// Probability of each label (in [`Self::labels`] order) for one descriptor.
+    pub fn probabilities(&self, descriptor: &[f32; DESCRIPTOR.len()]) -> Vec<f32> {
+        let mut x: Vec<f32> = descriptor.iter().zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
         for (i, l) in self.layers.iter().enumerate() {
             let relu = i + 1 < self.layers.len();
             x = l
@@ -175,7 +146,6 @@ mod tests {
             mean: vec![0.0; d],
             std: vec![1.0; d],
             layers: vec![Dense { inputs: d, outputs: 2, weight, bias: vec![0.0, 0.0] }],
-            feature_scores: false,
             provenance: String::new(),
         }
     }
@@ -190,30 +160,6 @@ mod tests {
         assert!((p[0] - 1.0 / (1.0 + (-2.0f32).exp())).abs() < 1e-6, "{p:?}");
         let back = ShapeClassifier::from_json(&c.to_json()).unwrap();
         assert_eq!(back, c);
-    }
-
-    #[test]
-    fn feature_scores_extend_the_input_in_label_order() {
-        let mut c = two_way();
-        assert!(c.validate().is_ok());
-        c.feature_scores = true;
-        // The layer still reads the descriptor alone.
-        assert!(c.validate().unwrap_err().to_string().contains("mean/std have 11/11 entries, the input 13"));
-        let d = DESCRIPTOR.len();
-        c.mean.resize(d + 2, 0.0);
-        c.std.resize(d + 2, 1.0);
-        // Logits: the feature scores of "tall" and "long", swapped.
-        let mut weight = vec![0.0; 2 * (d + 2)];
-        weight[d + 1] = 1.0;
-        weight[(d + 2) + d] = 1.0;
-        c.layers[0] = Dense { inputs: d + 2, outputs: 2, weight, bias: vec![0.0, 0.0] };
-        assert!(c.validate().is_ok());
-        let x = c.input(&[0.0; DESCRIPTOR.len()], &[0.0, 3.0]);
-        assert_eq!(x.len(), d + 2);
-        assert_eq!(&x[d..], &[0.0, 3.0]);
-        let p = c.probabilities(&x);
-        assert!(p[0] > 0.9, "{p:?}");
-        assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
     }
 
     #[test]

@@ -323,11 +323,6 @@ fn main() -> anyhow::Result<()> {
                 None => Vec::new(),
             };
             let mut model = Model::load(&model, default_threads(threads))?;
-            if shape_examples.is_some() && model.shapes.is_some() && shape_weight > 0.0 {
-                anyhow::bail!(
-                    "--shape-examples: the model carries a shape classifier; pass --shape-weight 0 so that the examples hold the semantic features before it"
-                );
-            }
             let labels = text_labels()?;
             let request = eval::EvalRequest {
                 views,

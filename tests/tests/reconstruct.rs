@@ -185,7 +185,6 @@ fn with_classifier(name: &str, json: Option<&str>) -> PathBuf {
         mean: vec![0.0; d],
         std: vec![1.0; d],
         layers: vec![Dense { inputs: d, outputs: 1, weight: vec![0.0; d], bias: vec![0.0] }],
-        feature_scores: false,
         provenance: "hand-made".into(),
     };
     let path = dir.path().join(name);

@@ -4,8 +4,6 @@
 //! same `inssplat_raster::label::shape` code the server runs on its Gaussians; an MLP fitted
 //! to them with cross-entropy, the lengths rescaled at random each epoch (the network's depth
 //! has a scale error of its own); and [`attach`], which stores the result in a model file.
-//! Examples that carry feature scores (the pipeline's own instances, from `inssplat eval
-//! --shape-examples`) give a classifier that reads them too.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -18,7 +16,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use glam::Vec3;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{Dense, LENGTHS, LabelledDescriptor, ShapeClassifier};
+use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier};
 use inssplat_proto::signature::{META_MODEL_VERSION, META_SHAPE_CLASSIFIER};
 use inssplat_raster::label::shape::{camera_up, descriptor, ground};
 use prost::Message;
@@ -71,7 +69,7 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
         .iter()
         .filter_map(|(id, (p, c))| {
             let label = scene.instances.iter().find(|i| i.id == u32::from(*id))?.label.clone();
-            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, feature_scores: BTreeMap::new() })
+            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)? })
         })
         .collect()
 }
@@ -134,16 +132,12 @@ pub fn fit(
     let mut labels: Vec<String> = train.iter().map(|e| e.label.clone()).collect();
     labels.sort();
     labels.dedup();
-    let with_scores = !train[0].feature_scores.is_empty();
-    if train.iter().any(|e| e.feature_scores.is_empty() == with_scores) {
-        return Err("some examples carry feature scores and some do not".into());
-    }
-    let rows: Vec<Vec<f32>> = train.iter().map(|e| example_input(&labels, with_scores, e)).collect::<Result<_, _>>()?;
-    let d = rows[0].len();
+    let d = DESCRIPTOR.len();
     let n = train.len() as f32;
-    let mean: Vec<f32> = (0..d).map(|a| rows.iter().map(|r| r[a]).sum::<f32>() / n).collect();
-    let std: Vec<f32> =
-        (0..d).map(|a| (rows.iter().map(|r| (r[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4)).collect();
+    let mean: Vec<f32> = (0..d).map(|a| train.iter().map(|e| e.descriptor[a]).sum::<f32>() / n).collect();
+    let std: Vec<f32> = (0..d)
+        .map(|a| (train.iter().map(|e| (e.descriptor[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4))
+        .collect();
     let targets: Vec<i64> = train.iter().map(|e| labels.binary_search(&e.label).expect("from train") as i64).collect();
 
     let device = Device::flex().autodiff();
@@ -158,9 +152,9 @@ pub fn fit(
     let mut final_loss = f32::NAN;
     for epoch in 0..config.epochs {
         let mut x = Vec::with_capacity(train.len() * d);
-        for r in &rows {
+        for e in train {
             let s = if log_j > 0.0 { rng.random_range(-log_j..log_j).exp() } else { 1.0 };
-            x.extend((0..d).map(|a| (r[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]));
+            x.extend((0..d).map(|a| (e.descriptor[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]));
         }
         let x = Tensor::<2>::from_data(TensorData::new(x, [train.len(), d]), &device);
         let loss = ce.forward(mlp.forward(x), y.clone());
@@ -187,41 +181,27 @@ pub fn fit(
             Ok(Dense { inputs, outputs, weight, bias })
         })
         .collect::<Result<Vec<_>, String>>()?;
-    let classifier = ShapeClassifier { labels, mean, std, layers, feature_scores: with_scores, provenance: String::new() };
+    let classifier = ShapeClassifier { labels, mean, std, layers, provenance: String::new() };
     classifier.validate().map_err(|e| e.to_string())?;
     let report = FitShapesReport {
-        train_accuracy: accuracy(&classifier, train)?.unwrap_or(0.0),
-        held_out_accuracy: accuracy(&classifier, held_out).map_err(|e| format!("held-out examples: {e}"))?,
+        train_accuracy: accuracy(&classifier, train).unwrap_or(0.0),
+        held_out_accuracy: accuracy(&classifier, held_out),
         final_loss,
     };
     Ok((classifier, report))
 }
 
-/// The classifier input of `e` ([`ShapeClassifier::input`]) for `labels`; with
-/// `with_scores`, every label needs a feature score in `e`.
-fn example_input(labels: &[String], with_scores: bool, e: &LabelledDescriptor) -> Result<Vec<f32>, String> {
-    let scores = labels
+/// Share of `examples` whose most probable label is theirs.
+pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor]) -> Option<f64> {
+    let right = examples
         .iter()
-        .filter(|_| with_scores)
-        .map(|l| {
-            e.feature_scores.get(l).copied().ok_or_else(|| {
-                format!("an example (label `{}`) has no feature score for `{l}` (add it to the evaluation's --vocab)", e.label)
-            })
+        .filter(|e| {
+            let p = c.probabilities(&e.descriptor);
+            let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]));
+            best.is_some_and(|b| c.labels[b] == e.label)
         })
-        .collect::<Result<Vec<f32>, String>>()?;
-    Ok(e.descriptor.iter().chain(&scores).copied().collect())
-}
-
-/// Share of `examples` whose most probable label is theirs (`None` without examples); an
-/// error when `c` reads feature scores that an example lacks.
-pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor]) -> Result<Option<f64>, String> {
-    let mut right = 0;
-    for e in examples {
-        let p = c.probabilities(&example_input(&c.labels, c.feature_scores, e)?);
-        let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]));
-        right += usize::from(best.is_some_and(|b| c.labels[b] == e.label));
-    }
-    Ok((!examples.is_empty()).then(|| right as f64 / examples.len() as f64))
+        .count();
+    (!examples.is_empty()).then(|| right as f64 / examples.len() as f64)
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -254,52 +234,4 @@ pub fn attach(model: &Path, out: &Path, classifier: &ShapeClassifier, version: O
         set(META_MODEL_VERSION, v.to_string());
     }
     std::fs::write(out, proto.encode_to_vec()).map_err(io(out))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Examples whose label only their feature scores tell (the descriptors are noise).
-    fn by_scores(n: usize, seed: u64) -> Vec<LabelledDescriptor> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let labels = ["bed", "lamp", "sofa"];
-        (0..n)
-            .map(|i| {
-                let label = labels[i % 3];
-                let feature_scores =
-                    labels.iter().map(|l| (l.to_string(), if *l == label { 0.6 } else { 0.3 } + rng.random_range(-0.1..0.1))).collect();
-                LabelledDescriptor { label: label.into(), descriptor: std::array::from_fn(|_| rng.random_range(0.0..1.0)), feature_scores }
-            })
-            .collect()
-    }
-
-    #[test]
-    fn a_classifier_learns_from_feature_scores_when_the_examples_carry_them() {
-        let config = FitShapesConfig { epochs: 200, hidden: 16, ..FitShapesConfig::default() };
-        let (c, report) = fit(&by_scores(120, 1), &by_scores(60, 2), &config, &|_, _| {}).unwrap();
-        assert!(c.feature_scores);
-        assert_eq!(c.mean.len(), inssplat_proto::shape::DESCRIPTOR.len() + 3);
-        assert!(report.held_out_accuracy.unwrap() > 0.9, "{report:?}");
-        // Without scores the same descriptors say nothing.
-        let plain: Vec<LabelledDescriptor> =
-            by_scores(120, 1).into_iter().map(|e| LabelledDescriptor { feature_scores: BTreeMap::new(), ..e }).collect();
-        let held: Vec<LabelledDescriptor> =
-            by_scores(60, 2).into_iter().map(|e| LabelledDescriptor { feature_scores: BTreeMap::new(), ..e }).collect();
-        let (c, report) = fit(&plain, &held, &config, &|_, _| {}).unwrap();
-        assert!(!c.feature_scores);
-        assert!(report.held_out_accuracy.unwrap() < 0.6, "{report:?}");
-    }
-
-    #[test]
-    fn examples_without_a_needed_score_are_refused_by_name() {
-        let mut train = by_scores(30, 3);
-        train[4].feature_scores.remove("lamp");
-        let e = fit(&train, &[], &FitShapesConfig { epochs: 2, ..Default::default() }, &|_, _| {}).unwrap_err();
-        assert!(e.contains("no feature score for `lamp`"), "{e}");
-        let mut mixed = by_scores(30, 3);
-        mixed[7].feature_scores.clear();
-        let e = fit(&mixed, &[], &FitShapesConfig { epochs: 2, ..Default::default() }, &|_, _| {}).unwrap_err();
-        assert!(e.contains("some do not"), "{e}");
-    }
 }

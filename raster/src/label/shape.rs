@@ -173,13 +173,6 @@ pub fn instance_descriptors(scene: &GaussianScene, cameras: &[Camera]) -> (Groun
     (ground, out)
 }
 
-/// The cosine of a prototype's embedding with each of `label_texts` (the classifier's
-/// [`inssplat_proto::shape::ShapeClassifier::feature_scores`]).
-pub fn feature_scores<T: AsRef<[f32]>>(prototype: &[f32], label_texts: &[T]) -> Vec<f32> {
-    let p = normalized(prototype);
-    label_texts.iter().map(|t| normalized(t.as_ref()).iter().zip(&p).map(|(a, b)| a * b).sum()).collect()
-}
-
 /// Adds `weight` × the unit text-space direction Σ p_k·t̂_k (the classifier's probabilities
 /// over its labels, whose text embeddings are `label_texts`) to each prototype whose id has
 /// probabilities, and normalizes again.

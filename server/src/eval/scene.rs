@@ -14,7 +14,6 @@ use inssplat_proto::dataset::Scene;
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::QueryRule;
 use inssplat_raster::label::masks::render_colour;
-use inssplat_raster::label::shape::feature_scores;
 use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
@@ -264,9 +263,7 @@ fn context_scores(
     s.depth_abs_rel = depth.as_ref().map(|d| d.abs_rel);
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
     if mode == ClusterMode::ThreeD {
-        let words: Vec<&str> = rec.vocabulary.iter().map(String::as_str).collect();
-        let vocabulary_texts = labels.embed(&words).map_err(|e| err(&e))?;
-        s.shape_examples = shape_examples(scene, rec, &pairs, &vocabulary_texts);
+        s.shape_examples = shape_examples(scene, rec, &pairs);
     }
     if mode == ClusterMode::ThreeD && pairs.len() == rec.views.len() {
         let views: Vec<ContextView<'_>> = rec
@@ -297,16 +294,8 @@ const OBJECT_SHARE: f64 = 0.25;
 /// views), with the instance's descriptor: the object label with the most of its pixels when
 /// objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that hold an object
 /// and a piece of floor are named for the object, as a user would), else the label with the
-/// most. Instances without labelled pixels are left out. Each example carries its
-/// prototype's feature score with every word of the vocabulary (`vocabulary_texts`, in
-/// `rec.vocabulary` order): the prototypes as named, so with a shape classifier's direction
-/// fused in unless the shape weight is 0.
-fn shape_examples<T: AsRef<[f32]>>(
-    scene: &Scene,
-    rec: &Reconstruction,
-    pairs: &[(&[u32], &[u32])],
-    vocabulary_texts: &[T],
-) -> Vec<LabelledDescriptor> {
+/// most. Instances without labelled pixels are left out.
+fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
     let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
     for (found, truth) in pairs {
         for (&f, &t) in found.iter().zip(*truth) {
@@ -327,13 +316,7 @@ fn shape_examples<T: AsRef<[f32]>>(
             } else {
                 top(&mut v.iter())
             }?;
-            let feature_scores = rec
-                .prototypes
-                .iter()
-                .find(|p| p.id == *id)
-                .map(|p| rec.vocabulary.iter().cloned().zip(feature_scores(&p.embedding, vocabulary_texts)).collect())
-                .unwrap_or_default();
-            Some(LabelledDescriptor { label, descriptor: *d, feature_scores })
+            Some(LabelledDescriptor { label, descriptor: *d })
         })
         .collect()
 }

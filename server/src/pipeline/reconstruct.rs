@@ -17,7 +17,7 @@ use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::register::{RegisterParams, RegisterView, register};
-use inssplat_raster::label::shape::{feature_scores, fuse, instance_descriptors};
+use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
 use inssplat_text::LabelCache;
@@ -240,18 +240,10 @@ pub fn reconstruct_with(
         let mut prototypes = semantic_prototypes(scene, &projection).map_err(|e| err(&e))?;
         let (_, descriptors) = instance_descriptors(scene, &cameras);
         if let Some(classifier) = model.shapes.as_ref().filter(|_| config.shape_weight > 0.0) {
+            let probabilities: Vec<(u32, Vec<f32>)> =
+                descriptors.iter().map(|(id, d)| (*id, classifier.probabilities(d))).collect();
             let names: Vec<&str> = classifier.labels.iter().map(String::as_str).collect();
             let texts = labels.embed(&names).map_err(|e| err(&e))?;
-            let probabilities: Vec<(u32, Vec<f32>)> = descriptors
-                .iter()
-                .map(|(id, d)| {
-                    let scores = prototypes
-                        .iter()
-                        .find(|p| p.id == *id)
-                        .map_or_else(|| vec![0.0; texts.len()], |p| feature_scores(&p.embedding, &texts));
-                    (*id, classifier.probabilities(&classifier.input(d, &scores)))
-                })
-                .collect();
             fuse(&mut prototypes, &probabilities, &texts, config.shape_weight);
         }
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
