@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_raster::cluster::ClusterParams;
+use inssplat_raster::cluster::split::SplitParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
@@ -135,6 +136,11 @@ enum Command {
         /// semantic features when naming instances; 0 names by the features alone (the paper).
         #[arg(long, default_value_t = DEFAULT_SHAPE_WEIGHT)]
         shape_weight: f32,
+        /// Split each clustered instance into its parts apart in 3D: Gaussians in touching
+        /// cells of a grid of this edge (in voxel edges) are connected; 0 keeps the
+        /// clustering's instances.
+        #[arg(long, default_value_t = SplitParams::default().cell_voxels)]
+        split_cell: f32,
         /// Write every found instance's shape descriptor with its majority true label here
         /// (JSON), for `inssplat-train fit-shapes --examples` (use train-split scenes).
         #[arg(long)]
@@ -303,6 +309,7 @@ fn main() -> anyhow::Result<()> {
             cluster,
             position_weight,
             shape_weight,
+            split_cell,
             shape_examples,
             known_poses,
             no_register,
@@ -330,6 +337,7 @@ fn main() -> anyhow::Result<()> {
                 pipeline: PipelineConfig {
                     register: (!no_register).then(RegisterParams::default),
                     cluster: ClusterParams { position_weight, ..ClusterParams::default() },
+                    split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,
                     ..PipelineConfig::default()
                 },

@@ -12,6 +12,7 @@
 //! comparison.
 
 pub mod per_view;
+pub mod split;
 
 use hdbscan::{Hdbscan, HdbscanError, HdbscanHyperParams};
 use inssplat_proto::gaussian::{LengthMismatch, sigmoid};

@@ -14,7 +14,8 @@ use inssplat_proto::shape::DESCRIPTOR;
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
-use inssplat_raster::cluster::{ClusterParams, cluster_instances};
+use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
+use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::register::{RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
@@ -54,6 +55,9 @@ pub const DEFAULT_SHAPE_WEIGHT: f32 = 1.0;
 pub struct PipelineConfig {
     pub voxel: VoxelParams,
     pub cluster: ClusterParams,
+    /// Split each clustered instance into its parts apart in 3D (`None`: keep the
+    /// clustering's instances).
+    pub split: Option<SplitParams>,
     /// Register the views from matched keypoints and the predicted depth (the "register"
     /// stage; views it cannot reach keep the camera head's pose). `None`: the camera head's
     /// poses as they are.
@@ -73,6 +77,7 @@ impl Default for PipelineConfig {
         Self {
             voxel: VoxelParams::default(),
             cluster: ClusterParams::default(),
+            split: Some(SplitParams::default()),
             register: Some(RegisterParams::default()),
             known_poses: None,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
@@ -229,8 +234,15 @@ pub fn reconstruct_with(
     let per_pixel = per_pixel.map_err(|e| stage_err("backproject")(&e))?;
     let mut voxelized =
         clock.time("voxelize", || voxelize(&per_pixel.scene, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;
-    let clustering = clock
-        .time("cluster", || cluster_instances(&mut voxelized.scene, &config.cluster))
+    clock
+        .time("cluster", || {
+            cluster_instances(&mut voxelized.scene, &config.cluster)?;
+            if let Some(split) = &config.split {
+                let cell = split.cell_voxels * voxelized.report.voxel_size;
+                split_disconnected(&voxelized.scene.means, &mut voxelized.scene.instance_id, cell, split);
+            }
+            Ok::<_, ClusterError>(())
+        })
         .map_err(|e| stage_err("cluster")(&e))?;
     let scene = &mut voxelized.scene;
 
@@ -251,7 +263,7 @@ pub fn reconstruct_with(
         let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
         Ok((prototypes, matches, descriptors))
     })?;
-    let k = clustering.prototypes.len();
+    let k = scene.instance_id.iter().copied().max().unwrap_or(0) as usize;
     let mut label_of_id = vec![None; k];
     for (p, m) in prototypes.iter().zip(&matches) {
         label_of_id[p.id as usize - 1] = m.map(|m| m.label);
