@@ -100,16 +100,15 @@ pub fn split_disconnected(means: &[[f32; 3]], ids: &mut [u32], cell: f32, params
     let mut list: Vec<(u32, usize, u32)> =
         (0..means.len()).filter(|&r| size[r] > 0).map(|r| (ids[r], size[r], r as u32)).collect();
     list.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(b.1.cmp(&a.1)).then(a.2.cmp(&b.2)));
-    let mut next = ids.iter().copied().max().unwrap_or(0) + 1;
+    let first_new = ids.iter().copied().max().unwrap_or(0) + 1;
+    let mut next = first_new;
     let mut new_id = vec![0u32; means.len()];
-    let mut added = 0;
     for group in list.chunk_by(|a, b| a.0 == b.0) {
         let total: usize = group.iter().map(|g| g.1).sum();
         let least = ((params.min_share * total as f32).ceil() as usize).max(params.min_gaussians);
         for &(_, _, root) in group.iter().skip(1).filter(|g| g.1 >= least) {
             new_id[root as usize] = next;
             next += 1;
-            added += 1;
         }
     }
     for &i in &kept {
@@ -118,7 +117,7 @@ pub fn split_disconnected(means: &[[f32; 3]], ids: &mut [u32], cell: f32, params
             ids[i as usize] = n;
         }
     }
-    added
+    (next - first_new) as usize
 }
 
 #[cfg(test)]

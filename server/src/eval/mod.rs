@@ -127,12 +127,17 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
     }
 }
 
+/// The mean of `v`, `None` when it is empty.
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
 fn summarize(views: usize, scores: &[&SceneScores], vocabulary: &[String]) -> Summary {
     let metrics = METRICS
         .iter()
         .filter_map(|m| {
             let v: Vec<f64> = scores.iter().filter_map(|s| metric(s, m)).filter(|x| x.is_finite()).collect();
-            (!v.is_empty()).then(|| (m.to_string(), (v.iter().sum::<f64>() / v.len() as f64, v.len())))
+            Some((m.to_string(), (mean(&v)?, v.len())))
         })
         .collect();
     let mut secs: Vec<f64> = scores.iter().map(|s| s.seconds).collect();

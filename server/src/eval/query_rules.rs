@@ -10,6 +10,7 @@ use inssplat_raster::label::{QueryRule, query};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, mask_iou};
 use serde::Serialize;
 
+use super::mean;
 use super::views::ViewSegmentation;
 
 /// The rules `--query-rules` scores: min score {0.2, 0.3, 0.4, 0.5} × margin {0.05, 0.1, 0.2,
@@ -48,6 +49,8 @@ pub fn query_scores<T: AsRef<[f32]>>(
     rules: &[QueryRule],
 ) -> Result<Vec<QueryScores>, String> {
     let present: std::collections::BTreeSet<u32> = gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
+    // Each present label's true pixels, the same under every rule.
+    let wants: Vec<(u32, Vec<bool>)> = present.into_iter().map(|l| (l, gt_labels.iter().map(|g| *g == l).collect())).collect();
     let hits = |l: u32, rule: &QueryRule| -> Result<Vec<Vec<u32>>, String> {
         segs.iter()
             .map(|seg| {
@@ -56,16 +59,14 @@ pub fn query_scores<T: AsRef<[f32]>>(
             })
             .collect()
     };
-    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     rules
         .iter()
         .map(|rule| {
             let mut ious = Vec::new();
-            for &l in &present {
-                let per_view = hits(l, rule)?;
+            for (l, want) in &wants {
+                let per_view = hits(*l, rule)?;
                 let got: Vec<bool> = segs.iter().zip(&per_view).flat_map(|(seg, ids)| ids_mask(&seg.ids, ids)).collect();
-                let want: Vec<bool> = gt_labels.iter().map(|g| *g == l).collect();
-                if let Some(iou) = mask_iou(&got, &want).map_err(|e| e.to_string())? {
+                if let Some(iou) = mask_iou(&got, want).map_err(|e| e.to_string())? {
                     ious.push(iou);
                 }
             }
@@ -95,7 +96,6 @@ pub fn summarize(per_scene: &[&[QueryScores]]) -> Vec<RuleRow> {
     if per_scene.iter().all(|s| s.is_empty()) {
         return Vec::new();
     }
-    let mean = |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     let mut rows: Vec<RuleRow> = grid()
         .iter()
         .enumerate()
@@ -103,8 +103,8 @@ pub fn summarize(per_scene: &[&[QueryScores]]) -> Vec<RuleRow> {
             min_score: r.min_score,
             margin: r.margin,
             label_margin: r.label_margin.is_finite().then_some(r.label_margin),
-            query_iou: mean(per_scene.iter().filter_map(|s| s.get(i)?.iou).collect()),
-            false_positive: mean(per_scene.iter().filter_map(|s| s.get(i)?.false_positive).collect()),
+            query_iou: mean(&per_scene.iter().filter_map(|s| s.get(i)?.iou).collect::<Vec<_>>()),
+            false_positive: mean(&per_scene.iter().filter_map(|s| s.get(i)?.false_positive).collect::<Vec<_>>()),
         })
         .collect();
     rows.sort_by(|a, b| b.query_iou.unwrap_or(0.0).total_cmp(&a.query_iou.unwrap_or(0.0)));

@@ -27,6 +27,7 @@ use crate::runtime::Model;
 use super::ceiling::{ContextView, context_instances};
 use super::confusion::Confusion;
 use super::perturb::{self, Perturbation};
+use super::mean;
 use super::query_rules::{QueryScores, query_scores};
 use super::views::{ClusterMode, pixel_labels, segment};
 
@@ -382,7 +383,6 @@ fn target_scores(
         gt_labels.extend(true_labels(scene, gt, vocabulary));
         segs.push(seg);
     }
-    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
     s.psnr = mean(&psnrs);
     s.ssim = mean(&ssims);
     if let Some(sem) = semantic_scores(&pred_labels, &gt_labels).map_err(|e| err(&e))? {
