@@ -255,10 +255,12 @@ pub(crate) fn backward(
         }
     });
 
+    // The projection's vector–Jacobian product is linear in the incoming gradient, so a
+    // Gaussian that reached no pixel (outside the view, or behind opaque ones) owes nothing.
     let params: Vec<_> = (0..n)
         .into_par_iter()
         .map(|i| match state.projected[i].as_ref() {
-            Some(p) => project_backward(
+            Some(p) if !projected_grads[i].is_zero() => project_backward(
                 &state.view,
                 splats.means[i],
                 splats.log_scales[i],
@@ -266,7 +268,7 @@ pub(crate) fn backward(
                 p,
                 &projected_grads[i],
             ),
-            None => Default::default(),
+            _ => Default::default(),
         })
         .collect();
     // The camera's gradient sums every Gaussian's share; the view used the normalized

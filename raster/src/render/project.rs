@@ -75,6 +75,13 @@ pub(crate) struct ProjectedGrad {
     pub depth: f32,
 }
 
+impl ProjectedGrad {
+    /// Whether every gradient is exactly zero (the Gaussian reached no pixel).
+    pub fn is_zero(&self) -> bool {
+        self.xy.iter().chain(&self.conic).chain([&self.opacity, &self.depth]).all(|&g| g == 0.0)
+    }
+}
+
 /// Gradients w.r.t. one Gaussian's parameters, and its share of the camera's.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct ParamGrad {
