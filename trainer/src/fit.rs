@@ -4,7 +4,7 @@
 //! colours and 8-d instance embeddings are optimized on that one scene with the trainer's
 //! renderer and losses (L_rgb + w·L_ins against the context views' true instance masks) until
 //! the loss stops falling. The fitted scene is then clustered in 3D exactly as the pipeline
-//! clusters a network's output, rendered at the scene's target cameras, and scored with the
+//! clusters a network's output (instances split into their parts apart in 3D included), rendered at the scene's target cameras, and scored with the
 //! evaluation's instance metric (pooled over target views and visible instances), so its
 //! time and instance mIoU stand next to `inssplat eval`'s numbers for the feed-forward model.
 
@@ -16,10 +16,12 @@ use burn::prelude::*;
 use inssplat_proto::{GaussianScene, INSTANCE_DIM};
 use inssplat_proto::dataset::Scene;
 use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
+use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::render_instance_ids;
 use inssplat_raster::metrics::segmentation::instance_scores;
 use inssplat_raster::render::RenderOptions;
+use inssplat_raster::voxel::{VoxelParams, robust_extent};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -212,7 +214,12 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let seconds = start.elapsed().as_secs_f64();
     let mut fitted_scene = to_scene(&fitted.valid());
     let clustering = cluster_instances(&mut fitted_scene, &ClusterParams::default()).map_err(|e| bad(e.to_string()))?;
-    let k = clustering.prototypes.len();
+    // The pipeline's split of instances into their parts apart in 3D, with its cell: the
+    // voxel edge the pipeline would use for these Gaussians.
+    let split = SplitParams::default();
+    let cell = split.cell_voxels * robust_extent(&fitted_scene.means) * VoxelParams::default().extent_fraction;
+    let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
+    let k = clustering.prototypes.len() + added;
     let mut ious = Vec::new();
     for &t in &eval.target {
         let frame = &scene.frames[t];

@@ -1,5 +1,6 @@
 //! Fixtures shared by the end-to-end tests: a tiny network exported by the trainer (random
-//! weights: these tests check plumbing, not accuracy) and procedural scenes.
+//! weights from a fixed seed, so every run checks the same network: these tests check
+//! plumbing, not accuracy) and procedural scenes.
 
 pub mod http;
 pub mod web;
@@ -9,8 +10,9 @@ use std::path::{Path, PathBuf};
 use burn::prelude::Device;
 use inssplat_trainer::export::{ExportMeta, export_onnx};
 use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::train::seeded_init;
 
-/// Exports a tiny random 32×32 network to `dir/tiny.onnx`.
+/// Exports a tiny random 32×32 network (always the same weights) to `dir/tiny.onnx`.
 pub fn tiny_model(dir: &Path) -> PathBuf {
     let config = ModelConfig::new()
         .with_image_size(32)
@@ -19,7 +21,7 @@ pub fn tiny_model(dir: &Path) -> PathBuf {
         .with_heads(2)
         .with_decoder_dim(32)
         .with_decoder_min_dim(16);
-    let net = config.init(&Device::flex()).unwrap();
+    let net = seeded_init(&config, 7, &Device::flex()).unwrap();
     let model = dir.join("tiny.onnx");
     export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
     model
