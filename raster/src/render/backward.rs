@@ -3,47 +3,45 @@
 //! Each tile writes the gradient it owes every Gaussian of its list into that list entry's
 //! own slot (no atomics, and sums happen in a fixed order, so results do not depend on the
 //! thread count); the slots are then summed per Gaussian and pushed through the projection.
-//! A pixel's feature channels are processed four at a time (channels padded to a multiple of
-//! four with zeros), so the per-pair dot product and gradient run in SSE lanes; of the
-//! features composited behind a Gaussian the walk carries only their dot product with the
-//! pixel's incoming gradient, one number per pixel instead of one per channel.
+//! Like the forward, the walk handles four pixels of a row at a time (`wide::f32x4` lanes,
+//! masked where a pixel is outside the Gaussian's span or already finished): the incoming
+//! feature gradients are kept channel-planar so that a channel of four pixels is one load.
+//! Of the features composited behind a Gaussian the walk carries only their dot product with
+//! the pixel's incoming gradient, one number per pixel instead of one per channel.
 
 use glam::Mat3;
 use inssplat_proto::Camera;
 use rayon::prelude::*;
-use wide::f32x4;
+use wide::{f32x4, u32x4};
 
 use super::composite::{Ellipse, TILE_PIXELS, pixel_offset, span};
-use super::lanes::{LANES, chunk_starts, gaussian_values};
+use super::lanes::{LANES, chunk_starts, column_offsets, gaussian_values, span_mask};
 use super::project::{ProjectedGrad, project_backward, quaternion_vjp};
 use super::{CameraGrad, ForwardState, SplatGrads, Splats, TILE};
 
-/// Channel groups of four that hold `channels` (the last one padded with zeros).
-fn channel_groups(channels: usize) -> usize {
-    channels.div_ceil(4)
+/// Per-pixel arrays of a tile, with room for the lanes a group may reach past its last pixel.
+const PADDED: usize = TILE_PIXELS + LANES;
+
+/// Four consecutive pixels of `a` from `p`.
+#[inline(always)]
+fn load(a: &[f32], p: usize) -> f32x4 {
+    f32x4::new(a[p..p + LANES].try_into().unwrap())
 }
 
-/// `values` as zero-padded groups of four written into `out` (`values.len()` ≤ 4·`out.len()`).
-fn load_groups(values: &[f32], out: &mut [f32x4]) {
-    let (whole, rest) = values.as_chunks::<4>();
-    for (o, w) in out.iter_mut().zip(whole) {
-        *o = f32x4::new(*w);
-    }
-    if let Some(o) = out.get_mut(whole.len()) {
-        let mut last = [0.0; 4];
-        last[..rest.len()].copy_from_slice(rest);
-        *o = f32x4::new(last);
-    }
+/// Writes four consecutive pixels of `a` from `p`.
+#[inline(always)]
+fn store(a: &mut [f32], p: usize, v: f32x4) {
+    a[p..p + LANES].copy_from_slice(v.as_array());
 }
 
-/// Per-pixel gradients on the raw sums the compositor forms, pixel-major within a tile.
+/// Per-pixel gradients on the raw sums the compositor forms, row-major within a tile.
 struct TileGrads {
-    /// dL/dF for each pixel, `[pixel][channel group]` (see [`channel_groups`]).
-    features: Vec<f32x4>,
+    /// dL/dF, channel-planar: `[channel][PADDED]`.
+    features: Vec<f32>,
     /// dL/d(Σ w·z).
-    depth_sum: Vec<f32>,
+    depth_sum: [f32; PADDED],
     /// dL/d(1 − T_final), the depth normalization folded in.
-    alpha: Vec<f32>,
+    alpha: [f32; PADDED],
 }
 
 /// Number of gradient slots per intersection before the feature channels: x, y, conic a, b,
@@ -54,15 +52,9 @@ const GEOM: usize = 7;
 /// gradients on S and on A.
 fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[f32], d_alpha: &[f32]) -> TileGrads {
     let c = state.channels;
-    let groups = channel_groups(c);
     let (w, h) = (state.width as usize, state.height as usize);
     let (tx, ty) = (tile % state.bins.tiles_x as usize, tile / state.bins.tiles_x as usize);
-    let mut g = TileGrads {
-        features: vec![f32x4::ZERO; TILE_PIXELS * groups],
-        depth_sum: vec![0.0; TILE_PIXELS],
-        alpha: vec![0.0; TILE_PIXELS],
-    };
-    let mut gathered = vec![0.0; c];
+    let mut g = TileGrads { features: vec![0.0; c * PADDED], depth_sum: [0.0; PADDED], alpha: [0.0; PADDED] };
     for ly in 0..TILE as usize {
         let y = ty * TILE as usize + ly;
         if y >= h {
@@ -74,8 +66,9 @@ fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[
                 break;
             }
             let (p, pix) = (ly * TILE as usize + lx, y * w + x);
-            gathered.iter_mut().enumerate().for_each(|(ch, v)| *v = d_features[ch * w * h + pix]);
-            load_groups(&gathered, &mut g.features[p * groups..(p + 1) * groups]);
+            for ch in 0..c {
+                g.features[ch * PADDED + p] = d_features[ch * w * h + pix];
+            }
             let alpha = 1.0 - state.transmittance[pix];
             let denom = alpha.max(1e-10);
             g.depth_sum[p] = d_depth[pix] / denom;
@@ -90,25 +83,19 @@ fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[
 /// (`GEOM + channels` floats per entry) into `slots`.
 fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &mut [f32]) {
     let c = state.channels;
-    let groups = channel_groups(c);
     let stride = GEOM + c;
     let (w, h) = (state.width as usize, state.height as usize);
     let origin =
         [(tile % state.bins.tiles_x as usize) as u32 * TILE, (tile / state.bins.tiles_x as usize) as u32 * TILE];
     let ranks = state.bins.isects(tile);
-    let mut t = [0.0f32; TILE_PIXELS];
-    let mut t_final = [0.0f32; TILE_PIXELS];
-    let mut last = [0u32; TILE_PIXELS];
+    let mut t = [0.0f32; PADDED];
+    let mut t_final = [0.0f32; PADDED];
+    let mut last = [0u32; PADDED];
     // dL/dF · (Σ over later Gaussians of w·f + T_final·bg) per pixel: the dot product is
     // carried instead of the sum, since each step adds w·(dL/dF · f), which the pair needs
     // anyway.
-    let mut buf_dot = [0.0f32; TILE_PIXELS];
-    let mut background = vec![f32x4::ZERO; groups];
-    load_groups(&state.background, &mut background);
-    // The current Gaussian's features, and the feature gradient it collects over its pixels.
-    let mut f = vec![f32x4::ZERO; groups];
-    let mut g_features = vec![f32x4::ZERO; groups];
-    let mut buf_depth = [0.0f32; TILE_PIXELS];
+    let mut buf_dot = [0.0f32; PADDED];
+    let mut buf_depth = [0.0f32; PADDED];
     for p in 0..TILE_PIXELS {
         let (x, y) = (origin[0] as usize + p % TILE as usize, origin[1] as usize + p / TILE as usize);
         if x < w && y < h {
@@ -116,23 +103,25 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
             t[p] = state.transmittance[pix];
             t_final[p] = t[p];
             last[p] = state.last[pix];
-            let gf = &grads.features[p * groups..(p + 1) * groups];
-            let bg_dot = gf.iter().zip(&background).fold(f32x4::ZERO, |acc, (&g, &b)| acc + g * b);
-            buf_dot[p] = t[p] * bg_dot.reduce_add();
+            let bg_dot: f32 = (0..c).map(|ch| grads.features[ch * PADDED + p] * state.background[ch]).sum();
+            buf_dot[p] = t[p] * bg_dot;
         }
     }
+    // Per channel, the feature gradient the current Gaussian collects, one lane per column.
+    let mut g_features = vec![f32x4::ZERO; c];
     let row_last: Vec<u32> = last.chunks(TILE as usize).map(|row| row.iter().copied().max().unwrap_or(0)).collect();
     let end = row_last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..end).rev() {
         let rank = ranks[k] as usize;
         let g = &state.bins.sorted[rank];
         let Some((y0, y1)) = span(g.xy[1], g.extent[1], origin[1]) else { continue };
-        load_groups(&state.bins.sorted_features[rank * c..(rank + 1) * c], &mut f);
+        let f = &state.bins.sorted_features[rank * c..(rank + 1) * c];
         g_features.fill(f32x4::ZERO);
-        // The geometry slots, summed in registers: x, y, conic a, b, c, opacity (before its
-        // 1/o), depth.
-        let mut geom = [0.0f32; GEOM];
+        // The geometry slots, lane sums: x, y, conic a, b, c, opacity (before its 1/o), depth.
+        let mut geom = [f32x4::ZERO; GEOM];
         let [a, b, cc] = g.conic;
+        let depth = f32x4::splat(g.depth);
+        let stamp = u32x4::splat(k as u32);
         let ellipse = Ellipse::new(g);
         for (y, &row_end) in row_last.iter().enumerate().take(y1 + 1).skip(y0) {
             if k as u32 >= row_end {
@@ -141,57 +130,59 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
             let dy = pixel_offset(origin[1], y, g.xy[1]);
             let Some((x0, x1)) = ellipse.row_span(dy, origin[0]) else { continue };
             for base in chunk_starts(x0, x1) {
-                let values = gaussian_values(g, origin[0], base, dy).to_array();
-                for x in base.max(x0)..=(base + LANES - 1).min(x1) {
-                    let p = y * TILE as usize + x;
-                    if k as u32 >= last[p] {
-                        continue;
-                    }
-                    let dx = pixel_offset(origin[0], x, g.xy[0]);
-                    let v = values[x - base];
-                    let (alpha, dalpha_dv) = state.cutoff.alpha(v);
-                    if alpha <= 0.0 {
-                        continue;
-                    }
-                    // α ≤ 0.999, so 1/(1 − α) ≤ 1000.
-                    let inv = 1.0 / (1.0 - alpha);
-                    let t_k = t[p] * inv;
-                    t[p] = t_k;
-                    let weight = alpha * t_k;
-                    let gf = &grads.features[p * groups..(p + 1) * groups];
-                    // dF_c/dα = T_k f_c − (Σ_{later} w f_c + T_final bg_c) / (1 − α).
-                    let mut dot_f = f32x4::ZERO;
-                    for ((&gfc, &fc), sc) in gf.iter().zip(&f).zip(&mut g_features) {
-                        dot_f += gfc * fc;
-                        *sc += gfc * weight;
-                    }
-                    let dot_f = dot_f.reduce_add();
-                    let mut g_alpha = t_k * dot_f - inv * buf_dot[p];
-                    buf_dot[p] += weight * dot_f;
-                    g_alpha += grads.depth_sum[p] * (t_k * g.depth - buf_depth[p] * inv);
-                    g_alpha += grads.alpha[p] * t_final[p] * inv;
-                    buf_depth[p] += weight * g.depth;
-                    geom[6] += grads.depth_sum[p] * weight;
-
-                    // v = o·exp(power): dv/do = v/o, dv/dpower = v.
-                    let g_power = g_alpha * dalpha_dv * v;
-                    geom[5] += g_power;
-                    // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.
-                    geom[0] += g_power * (a * dx + b * dy);
-                    geom[1] += g_power * (b * dx + cc * dy);
-                    geom[2] -= 0.5 * g_power * dx * dx;
-                    geom[3] -= g_power * dx * dy;
-                    geom[4] -= 0.5 * g_power * dy * dy;
+                let p = y * TILE as usize + base;
+                let v = gaussian_values(g, origin[0], base, dy);
+                let alpha = state.cutoff.alpha_lanes(v);
+                // Lanes of this row's span, not past the pixel's last contributor, with α > 0.
+                let live = u32x4::new(last[p..p + LANES].try_into().unwrap()).simd_gt(stamp);
+                let on = f32x4::from_bits(span_mask(base, x0, x1) & live) & alpha.simd_gt(f32x4::ZERO);
+                if on.to_bitmask() == 0 {
+                    continue;
                 }
+                let alpha = on.select(alpha, f32x4::ZERO);
+                // α ≤ 0.999, so 1/(1 − α) ≤ 1000.
+                let inv = f32x4::ONE / (f32x4::ONE - alpha);
+                let t_p = load(&t, p);
+                let t_k = t_p * inv;
+                store(&mut t, p, on.select(t_k, t_p));
+                let weight = alpha * t_k;
+                // dF_c/dα = T_k f_c − (Σ_{later} w f_c + T_final bg_c) / (1 − α).
+                let mut dot_f = f32x4::ZERO;
+                for ((ch, &fc), acc) in f.iter().enumerate().zip(&mut g_features) {
+                    let gf = load(&grads.features[ch * PADDED..], p);
+                    dot_f += gf * fc;
+                    *acc += gf * weight;
+                }
+                let buf_dot_p = load(&buf_dot, p);
+                let buf_depth_p = load(&buf_depth, p);
+                let depth_sum = load(&grads.depth_sum, p);
+                let mut g_alpha = t_k * dot_f - inv * buf_dot_p;
+                g_alpha += depth_sum * (t_k * depth - buf_depth_p * inv);
+                g_alpha += load(&grads.alpha, p) * load(&t_final, p) * inv;
+                store(&mut buf_dot, p, buf_dot_p + weight * dot_f);
+                store(&mut buf_depth, p, buf_depth_p + weight * depth);
+                geom[6] += depth_sum * weight;
+
+                // v = o·exp(power): dv/do = v/o, dv/dpower = v.
+                let g_power = on.select(g_alpha * state.cutoff.alpha_slope_lanes(v) * v, f32x4::ZERO);
+                let dx = column_offsets(origin[0], base, g.xy[0]);
+                geom[5] += g_power;
+                // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.
+                geom[0] += g_power * (dx * a + b * dy);
+                geom[1] += g_power * (dx * b + cc * dy);
+                geom[2] -= g_power * dx * dx * 0.5;
+                geom[3] -= g_power * dx * dy;
+                geom[4] -= g_power * (0.5 * dy * dy);
             }
         }
-        if geom[5] != 0.0 {
-            geom[5] /= g.opacity;
+        let mut sums = geom.map(f32x4::reduce_add);
+        if sums[5] != 0.0 {
+            sums[5] /= g.opacity;
         }
         let slot = &mut slots[k * stride..(k + 1) * stride];
-        slot[..GEOM].copy_from_slice(&geom);
-        for (dst, src) in slot[GEOM..].iter_mut().zip(g_features.iter().flat_map(|g| g.to_array())) {
-            *dst = src;
+        slot[..GEOM].copy_from_slice(&sums);
+        for (dst, acc) in slot[GEOM..].iter_mut().zip(&g_features) {
+            *dst = acc.reduce_add();
         }
     }
 }

@@ -13,7 +13,7 @@ use wide::{f32x4, u32x4};
 
 use super::lanes::{LANES, chunk_starts, gaussian_values, span_mask};
 use super::project::Projected;
-use super::{ALPHA_MAX, ALPHA_MIN, AlphaCutoff, T_MIN, TILE};
+use super::{ALPHA_MIN, AlphaCutoff, T_MIN, TILE};
 
 /// Pixels in one tile.
 pub(crate) const TILE_PIXELS: usize = (TILE * TILE) as usize;
@@ -25,22 +25,6 @@ impl AlphaCutoff {
             AlphaCutoff::Hard => ALPHA_MIN,
             AlphaCutoff::Smooth => 0.5 * ALPHA_MIN,
         }
-    }
-
-    /// Alpha of a pair whose opacity × Gaussian is `v`, and dα/dv.
-    #[inline(always)]
-    pub(crate) fn alpha(self, v: f32) -> (f32, f32) {
-        let (a, da) = match self {
-            AlphaCutoff::Hard if v < ALPHA_MIN => (0.0, 0.0),
-            AlphaCutoff::Hard => (v, 1.0),
-            AlphaCutoff::Smooth => {
-                // α = v·s(t), s the smoothstep of t = (v − ½/255)·255 on [0, 1].
-                let t = ((v - 0.5 * ALPHA_MIN) / ALPHA_MIN).clamp(0.0, 1.0);
-                let s = t * t * (3.0 - 2.0 * t);
-                (v * s, s + v * 6.0 * t * (1.0 - t) / ALPHA_MIN)
-            }
-        };
-        if a > ALPHA_MAX { (ALPHA_MAX, 0.0) } else { (a, da) }
     }
 }
 

@@ -39,11 +39,18 @@ fn exp_neg(x: f32x4) -> f32x4 {
 /// is `dy` below the Gaussian's.
 #[inline(always)]
 pub(crate) fn gaussian_values(g: &Projected, origin_x: u32, base: usize, dy: f32) -> f32x4 {
-    let columns = i32x4::splat(origin_x as i32 + base as i32) + LANE_INDEX;
-    let dx = columns.round_float() + 0.5 - g.xy[0];
+    let dx = column_offsets(origin_x, base, g.xy[0]);
     let [a, b, c] = g.conic;
     let power = (dx * a * dx + c * dy * dy) * -0.5 - dx * b * dy;
     exp_neg(power) * g.opacity
+}
+
+/// Offsets from `centre` of the centres of the four pixels `origin_x + base + 0..4` of a row
+/// (lane by lane what `pixel_offset` gives).
+#[inline(always)]
+pub(crate) fn column_offsets(origin_x: u32, base: usize, centre: f32) -> f32x4 {
+    let columns = i32x4::splat(origin_x as i32 + base as i32) + LANE_INDEX;
+    columns.round_float() + 0.5 - centre
 }
 
 /// All-ones lanes for the columns `base + 0..4` that lie in `[x0, x1]`.
@@ -61,7 +68,9 @@ pub(crate) fn chunk_starts(x0: usize, x1: usize) -> impl Iterator<Item = usize> 
 }
 
 impl AlphaCutoff {
-    /// [`AlphaCutoff::alpha`] (without the derivative) on four values; equal to it lane by lane.
+    /// Alpha of four pairs whose opacity × Gaussian is `v`: `v` itself from 1/255 on (hard
+    /// cutoff), or v·s(t) with s the smoothstep of t = (v − ½/255)·255 on [0, 1] (smooth);
+    /// at most [`ALPHA_MAX`].
     #[inline(always)]
     pub(crate) fn alpha_lanes(self, v: f32x4) -> f32x4 {
         let a = match self {
@@ -72,5 +81,22 @@ impl AlphaCutoff {
             }
         };
         a.fast_min(f32x4::splat(ALPHA_MAX))
+    }
+
+    /// dα/dv of [`AlphaCutoff::alpha_lanes`] on four values (0 where α is clamped at the maximum).
+    #[inline(always)]
+    pub(crate) fn alpha_slope_lanes(self, v: f32x4) -> f32x4 {
+        let (a, slope) = match self {
+            AlphaCutoff::Hard => {
+                let on = !v.simd_lt(f32x4::splat(ALPHA_MIN));
+                (v & on, f32x4::ONE & on)
+            }
+            AlphaCutoff::Smooth => {
+                let t = ((v - 0.5 * ALPHA_MIN) / ALPHA_MIN).fast_max(f32x4::ZERO).fast_min(f32x4::ONE);
+                let s = t * t * (f32x4::splat(3.0) - t * 2.0);
+                (v * s, s + v * t * (f32x4::ONE - t) * (6.0 / ALPHA_MIN))
+            }
+        };
+        a.simd_gt(f32x4::splat(ALPHA_MAX)).select(f32x4::ZERO, slope)
     }
 }
