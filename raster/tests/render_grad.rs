@@ -191,6 +191,12 @@ fn gradients_of_depth_alone() {
 }
 
 #[test]
+fn gradients_of_depth_without_feature_channels() {
+    let cam = camera();
+    check(&scene(&cam, 0, &[], 2), &cam, &[], Outputs::DepthOnly, 11);
+}
+
+#[test]
 fn gradients_of_alpha_alone() {
     let cam = camera();
     check(&scene(&cam, 1, &[], 3), &cam, &[], Outputs::AlphaOnly, 12);

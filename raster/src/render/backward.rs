@@ -222,7 +222,10 @@ pub(crate) fn backward(
     let mut projected_grads = vec![ProjectedGrad::default(); n];
     let mut features = vec![0.0f32; n * c];
     let per_part = n.div_ceil(rayon::current_num_threads()).max(1);
-    let parts = projected_grads.par_chunks_mut(per_part).zip(features.par_chunks_mut((per_part * c).max(1)));
+    // One feature range per part, empty ones when there are no channels.
+    let mut feature_parts: Vec<&mut [f32]> = features.chunks_mut((per_part * c).max(1)).collect();
+    feature_parts.resize_with(n.div_ceil(per_part), Default::default);
+    let parts = projected_grads.par_chunks_mut(per_part).zip(feature_parts);
     parts.enumerate().for_each(|(part, (pgs, feats))| {
         let owned = part * per_part..part * per_part + pgs.len();
         for (isect, &rank) in state.bins.rank_from_isect.iter().enumerate() {
