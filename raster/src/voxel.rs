@@ -96,6 +96,14 @@ pub enum VoxelError {
     Temperature(f32),
 }
 
+impl VoxelParams {
+    /// The voxel edge for Gaussians whose [`robust_extent`] is `extent`:
+    /// [`VoxelParams::extent_fraction`] of it (1e-6 when it is 0).
+    pub fn voxel_size(&self, extent: f32) -> f32 {
+        if extent > 0.0 { extent * self.extent_fraction } else { 1e-6 }
+    }
+}
+
 /// Largest 5–95 percentile range of the means over the three axes (0 for fewer than 2).
 pub fn robust_extent(means: &[[f32; 3]]) -> f32 {
     if means.len() < 2 {
@@ -133,7 +141,7 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized
         .collect();
     let kept_means: Vec<[f32; 3]> = kept.iter().map(|&i| scene.means[i as usize]).collect();
     let extent = robust_extent(&kept_means);
-    let voxel_size = if extent > 0.0 { extent * params.extent_fraction } else { 1e-6 };
+    let voxel_size = params.voxel_size(extent);
     let inv = 1.0 / voxel_size;
     let mut keyed: Vec<([i64; 3], u32)> = kept_means
         .par_iter()

@@ -38,7 +38,7 @@ fn eval_reports_every_metric_per_view_count() {
             assert!((0.0..=1.0).contains(&v), "{unit} = {v}");
         }
         // SSIM is a correlation: an image unlike the truth (this network's weights are
-        // random and unseeded) may score slightly below 0.
+        // random) may score slightly below 0.
         let ssim = m["ssim"][0].as_f64().unwrap_or_else(|| panic!("ssim missing: {m}"));
         assert!((-1.0..=1.0).contains(&ssim), "ssim = {ssim}");
         for positive in ["psnr", "depth_abs_rel", "rotation_deg", "translation"] {

@@ -4,9 +4,10 @@
 //! colours and 8-d instance embeddings are optimized on that one scene with the trainer's
 //! renderer and losses (L_rgb + w·L_ins against the context views' true instance masks) until
 //! the loss stops falling. The fitted scene is then clustered in 3D exactly as the pipeline
-//! clusters a network's output (instances split into their parts apart in 3D included), rendered at the scene's target cameras, and scored with the
-//! evaluation's instance metric (pooled over target views and visible instances), so its
-//! time and instance mIoU stand next to `inssplat eval`'s numbers for the feed-forward model.
+//! clusters a network's output (instances split into their parts apart in 3D included),
+//! rendered at the scene's target cameras, and scored with the evaluation's instance metric
+//! (pooled over target views and visible instances), so its time and instance mIoU stand
+//! next to `inssplat eval`'s numbers for the feed-forward model.
 
 use std::time::Instant;
 
@@ -217,7 +218,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     // The pipeline's split of instances into their parts apart in 3D, with its cell: the
     // voxel edge the pipeline would use for these Gaussians.
     let split = SplitParams::default();
-    let cell = split.cell_voxels * robust_extent(&fitted_scene.means) * VoxelParams::default().extent_fraction;
+    let cell = split.cell_voxels * VoxelParams::default().voxel_size(robust_extent(&fitted_scene.means));
     let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
     let mut ious = Vec::new();
