@@ -132,7 +132,7 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
             for base in chunk_starts(x0, x1) {
                 let p = y * TILE as usize + base;
                 let v = gaussian_values(g, origin[0], base, dy);
-                let alpha = state.cutoff.alpha_lanes(v);
+                let (alpha, slope) = state.cutoff.alpha_and_slope_lanes(v);
                 // Lanes of this row's span, not past the pixel's last contributor, with α > 0.
                 let live = u32x4::new(last[p..p + LANES].try_into().unwrap()).simd_gt(stamp);
                 let on = f32x4::from_bits(span_mask(base, x0, x1) & live) & alpha.simd_gt(f32x4::ZERO);
@@ -164,7 +164,7 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
                 geom[6] += depth_sum * weight;
 
                 // v = o·exp(power): dv/do = v/o, dv/dpower = v.
-                let g_power = on.select(g_alpha * state.cutoff.alpha_slope_lanes(v) * v, f32x4::ZERO);
+                let g_power = on.select(g_alpha * slope * v, f32x4::ZERO);
                 let dx = column_offsets(origin[0], base, g.xy[0]);
                 geom[5] += g_power;
                 // power = −½(a dx² + 2b dx dy + c dy²), dx = px − u.

@@ -73,19 +73,13 @@ impl AlphaCutoff {
     /// at most [`ALPHA_MAX`].
     #[inline(always)]
     pub(crate) fn alpha_lanes(self, v: f32x4) -> f32x4 {
-        let a = match self {
-            AlphaCutoff::Hard => v & !v.simd_lt(f32x4::splat(ALPHA_MIN)),
-            AlphaCutoff::Smooth => {
-                let t = ((v - 0.5 * ALPHA_MIN) / ALPHA_MIN).fast_max(f32x4::ZERO).fast_min(f32x4::ONE);
-                v * (t * t * (f32x4::splat(3.0) - t * 2.0))
-            }
-        };
-        a.fast_min(f32x4::splat(ALPHA_MAX))
+        self.alpha_and_slope_lanes(v).0
     }
 
-    /// dα/dv of [`AlphaCutoff::alpha_lanes`] on four values (0 where α is clamped at the maximum).
+    /// [`AlphaCutoff::alpha_lanes`] and dα/dv (0 where α is clamped at the maximum), from one
+    /// evaluation: the backward needs both, the forward only the first.
     #[inline(always)]
-    pub(crate) fn alpha_slope_lanes(self, v: f32x4) -> f32x4 {
+    pub(crate) fn alpha_and_slope_lanes(self, v: f32x4) -> (f32x4, f32x4) {
         let (a, slope) = match self {
             AlphaCutoff::Hard => {
                 let on = !v.simd_lt(f32x4::splat(ALPHA_MIN));
@@ -97,6 +91,7 @@ impl AlphaCutoff {
                 (v * s, s + v * t * (f32x4::ONE - t) * (6.0 / ALPHA_MIN))
             }
         };
-        a.simd_gt(f32x4::splat(ALPHA_MAX)).select(f32x4::ZERO, slope)
+        let max = f32x4::splat(ALPHA_MAX);
+        (a.fast_min(max), a.simd_gt(max).select(f32x4::ZERO, slope))
     }
 }
