@@ -26,7 +26,7 @@ pub struct TrainArgs {
     data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
     /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
-    /// schedule; the network shape flags are then ignored.
+    /// schedule; the network shape flags are then ignored, but for --image-skips.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
@@ -87,6 +87,12 @@ pub struct TrainArgs {
     /// Width of the compact semantic feature.
     #[arg(long, default_value_t = 16)]
     sem_dim: usize,
+    /// Add a convolutional image encoder whose features reach every decoder stage through
+    /// skips, with this many channels at full resolution (doubled per halving). With
+    /// --init-from, grows a network that has none: its weights are kept and the encoder starts
+    /// with no effect on the output.
+    #[arg(long)]
+    image_skips: Option<usize>,
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
@@ -157,7 +163,8 @@ impl TrainArgs {
             .with_depth(self.depth)
             .with_heads(self.heads)
             .with_decoder_dim(self.decoder_dim)
-            .with_sem_dim(self.sem_dim);
+            .with_sem_dim(self.sem_dim)
+            .with_image_skips(self.image_skips);
         let loss = LossConfig::new()
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)

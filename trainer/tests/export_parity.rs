@@ -2,7 +2,8 @@
 //! with randomised weights (larger than the initial ones, so every activation leaves its
 //! linear range) is exported, run through the real ONNX Runtime (`ORT_DYLIB_PATH`, set by
 //! `.deps/env`) at 2 and at 5 views — the dynamic view axis — and every signature output is
-//! compared with burn's, element by element. Also checks the graph's declared I/O and metadata
+//! compared with burn's, element by element (with the image encoder's skips, and without them
+//! in the shipped model read back). Also checks the graph's declared I/O and metadata
 //! against `inssplat_proto::signature`.
 
 use burn::module::{Module, ModuleMapper, Param};
@@ -42,9 +43,12 @@ impl ModuleMapper for Perturb {
     }
 }
 
+/// The small network with an image encoder, so that parity covers its skips too (the
+/// shipped model, read back below, covers the decoder without them).
 fn network(device: &Device) -> InsSplatNet {
     device.seed(7);
     small_config()
+        .with_image_skips(Some(4))
         .init(device)
         .expect("valid config")
         .map(&mut Perturb { std: 0.15 })
@@ -193,8 +197,8 @@ fn export_matches_burn_forward_at_2_and_5_views() {
     assert_eq!(metadata.custom(sig::META_TRAIN_STEPS).as_deref(), Some("0"));
 }
 
-/// A network after three real training steps (synthesized scenes, every loss), saved to a
-/// checkpoint and loaded back as `inssplat-train export` does.
+/// A network with an image encoder after three real training steps (synthesized scenes, every
+/// loss), saved to a checkpoint and loaded back as `inssplat-train export` does.
 #[test]
 fn a_briefly_trained_checkpoint_exports_with_parity() {
     use inssplat_trainer::loss::LossConfig;
@@ -203,7 +207,7 @@ fn a_briefly_trained_checkpoint_exports_with_parity() {
     use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
     let run = tempfile::tempdir().expect("temp dir");
-    let config = TrainConfig::new(small_config(), LossConfig::new()).with_steps(3).with_warmup(1).with_max_views(3);
+    let config = TrainConfig::new(small_config().with_image_skips(Some(4)), LossConfig::new()).with_steps(3).with_warmup(1).with_max_views(3);
     let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let summary = train::train(run.path(), config, data, &session).expect("train");
@@ -338,4 +342,29 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let from = state.init_from.expect("init_from recorded");
     assert_eq!((from.checkpoint.as_path(), from.step, state.step), (onnx.as_path(), 41, 2));
     assert_eq!(state.config.model, *source.config(), "the file's shape, not the default one");
+}
+
+/// `--init-from M --image-skips K` on a network without an image encoder: the grown network
+/// computes exactly what the source did (the skips join through zero layers), has the encoder's
+/// weights besides, and exports and reads back with parity.
+#[test]
+fn growing_an_image_encoder_keeps_the_output_and_exports_with_parity() {
+    let device = Device::flex();
+    device.seed(11);
+    let source = small_config().init(&device).expect("valid config").map(&mut Perturb { std: 0.15 });
+    let grown = inssplat_trainer::train::add_image_skips(&source, 4, 5, &device).expect("grow");
+    assert_eq!(grown.config().image_skips, Some(4));
+    assert!(grown.num_params() > source.num_params(), "the encoder adds weights");
+    let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    for (name, x, y) in [("depth", a.depth, b.depth), ("gaussians", a.gaussians, b.gaussians), ("instance", a.instance, b.instance), ("semantic", a.semantic, b.semantic)] {
+        assert_eq!(to_vec(x), to_vec(y), "{name}: the grown network's output differs");
+    }
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("grown.onnx");
+    export_onnx(&grown, &path, &ExportMeta { model_version: "grown".into(), train_steps: 1 }).expect("export");
+    let (back, _) = inssplat_trainer::export::import_onnx(&path, &device).expect("read back");
+    assert_eq!(back.config(), grown.config());
+    let mut session = session_of(&std::fs::read(&path).expect("read"));
+    check_views(2, &back, &mut session, &device);
 }

@@ -200,12 +200,23 @@ fn decoder(
     let x = layer_norm(g, "decoder.norm", &m.norm, &x)?;
     let x = linear(g, "decoder.fuse", &m.fuse, &x)?;
     let x = g.reshape(&x, &[-1, gr, gr, c.decoder_dim as i64]);
+    let mut features: Vec<String> = Vec::with_capacity(m.skips.len());
+    for (l, skip) in m.skips.iter().enumerate() {
+        let input = features.last().map_or(centred, String::as_str);
+        let f = conv(g, &format!("decoder.skips.{l}.encode"), &skip.encode, input)?;
+        features.push(g.gelu(&f));
+    }
     let mut x = g.transpose(&x, &[0, 3, 1, 2]);
     for (i, stage) in m.stages.iter().enumerate() {
         let r = conv(g, &format!("decoder.stages.{i}.refine"), &stage.refine, &x)?;
         let r = g.gelu(&r);
         let y = g.op("Add", &[&x, &r], vec![]);
         x = conv_transpose(g, &format!("decoder.stages.{i}.up"), &stage.up, &y)?;
+        let level = m.stages.len() - 1 - i;
+        if let (Some(skip), Some(f)) = (m.skips.get(level), features.get(level)) {
+            let s = conv(g, &format!("decoder.skips.{level}.inject"), &skip.inject, f)?;
+            x = g.op("Add", &[&x, &s], vec![]);
+        }
     }
     let x = g.op("Concat", &[&x, centred], vec![attr_int("axis", 1)]);
     let x = conv(g, "decoder.mix", &m.mix, &x)?;

@@ -7,9 +7,16 @@
 //! edges and colour sharp), a 1×1 layer mixes it in, and one fused 1×1 output layer feeds the
 //! three dense heads: depth + confidence, Gaussians + semantic feature, instance embedding.
 //! Sharing the trunk keeps the convolution count — the slow part on a CPU — small.
+//!
+//! With [`ModelConfig::image_skips`] a small convolutional image encoder (a 3×3 layer at full
+//! resolution, then one 3×3 stride-2 layer per halving) adds its features to the decoder's
+//! after every upsampling, U-Net style, through a 1×1 layer that starts at zero: the tokens
+//! see 8×8 patches, and without local image features the maps cannot follow the edges inside
+//! them. Starting at zero, a network grown from one without the encoder computes exactly what
+//! it computed before.
 
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
-use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig2d};
+use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::{gelu, sigmoid, softplus};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS};
@@ -74,6 +81,14 @@ pub struct Stage {
     pub(crate) up: ConvTranspose2d,
 }
 
+/// One level of the image encoder: its 3×3 layer (stride 1 at full resolution, 2 below) and
+/// the 1×1 layer, zero at initialisation, that adds its features to the decoder's.
+#[derive(Module, Debug)]
+pub struct Skip {
+    pub(crate) encode: Conv2d,
+    pub(crate) inject: Conv2d,
+}
+
 /// The dense maps of one forward pass (everything but the camera).
 #[derive(Debug, Clone)]
 pub struct DenseOutput {
@@ -92,6 +107,9 @@ pub struct DenseDecoder {
     /// Level fusion: `[levels·dim] → decoder_dim` per token.
     pub(crate) fuse: Linear,
     pub(crate) stages: Vec<Stage>,
+    /// The image encoder, full resolution first; empty without [`ModelConfig::image_skips`].
+    /// Level `l` joins the decoder after stage `stages − 1 − l` has upsampled.
+    pub(crate) skips: Vec<Skip>,
     /// Full resolution: decoder channels + 3 image channels → decoder channels (1×1).
     pub(crate) mix: Conv2d,
     /// Fused 1×1 output layer: depth (2) | Gaussians (14) | semantic (d_s) | instance (8).
@@ -114,6 +132,22 @@ impl DenseDecoder {
                 }
             })
             .collect();
+        let skips = (0..c.stages())
+            .map_while(|level| {
+                let ch = c.skip_channels(level)?;
+                let input = if level == 0 { 3 } else { c.skip_channels(level - 1)? };
+                let stride = if level == 0 { 1 } else { 2 };
+                Some(Skip {
+                    encode: Conv2dConfig::new([input, ch], [3, 3])
+                        .with_stride([stride, stride])
+                        .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                        .init(device),
+                    inject: Conv2dConfig::new([ch, c.decoder_channels(c.stages() - level)], [1, 1])
+                        .with_initializer(Initializer::Zeros)
+                        .init(device),
+                })
+            })
+            .collect();
         let last = c.decoder_channels(c.stages());
         Self {
             norm: LayerNormConfig::new(levels * c.dim)
@@ -121,6 +155,7 @@ impl DenseDecoder {
                 .init(device),
             fuse: LinearConfig::new(levels * c.dim, c.decoder_dim).init(device),
             stages,
+            skips,
             mix: Conv2dConfig::new([last + 3, last], [1, 1]).init(device),
             out: Conv2dConfig::new([last, Self::out_channels(c)], [1, 1]).init(device),
         }
@@ -140,15 +175,24 @@ impl DenseDecoder {
     ) -> DenseOutput {
         let [n, _, h, w] = images.dims();
         let g = c.grid();
+        let centred = images.clone() - 0.5;
+        let mut features = Vec::with_capacity(self.skips.len());
+        for skip in &self.skips {
+            let input = features.last().cloned().unwrap_or_else(|| centred.clone());
+            features.push(gelu(skip.encode.forward(input)));
+        }
         let tokens = self.fuse.forward(self.norm.forward(Tensor::cat(levels, 2)));
         let mut x = tokens
             .reshape([n, g, g, c.decoder_dim])
             .permute([0, 3, 1, 2]);
-        for stage in &self.stages {
+        for (s, stage) in self.stages.iter().enumerate() {
             x = x.clone() + gelu(stage.refine.forward(x));
             x = stage.up.forward(x);
+            let level = self.stages.len() - 1 - s;
+            if let (Some(skip), Some(f)) = (self.skips.get(level), features.get(level)) {
+                x = x + skip.inject.forward(f.clone());
+            }
         }
-        let centred = images.clone() - 0.5;
         let x = gelu(self.mix.forward(Tensor::cat(vec![x, centred], 1)));
         let raw = self.out.forward(x);
         let mut parts = raw

@@ -30,6 +30,14 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
         );
         f += 2 * n * r * r * ch * ch * 9 + 2 * n * r * r * ch * next * 4;
     }
+    let mut input = 3;
+    for level in 0..c.stages() {
+        let Some(ch) = c.skip_channels(level) else { break };
+        let r = (c.image_size >> level) as u64;
+        let out = c.decoder_channels(c.stages() - level) as u64;
+        f += 2 * n * r * r * (input * 9 + out) * ch as u64;
+        input = ch as u64;
+    }
     let hw = (c.image_size * c.image_size) as u64;
     let last = c.decoder_channels(c.stages()) as u64;
     f += 2 * n * hw * (last + 3) * last + 2 * n * hw * last * DenseDecoder::out_channels(c) as u64;

@@ -23,7 +23,7 @@ use inssplat_proto::signature::TEXT_DIM;
 pub use block::{Block, LN_EPS};
 pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
-    OUT_INSTANCE, SH_C0, Stage, gaussian_affine,
+    OUT_INSTANCE, SH_C0, Skip, Stage, gaussian_affine,
 };
 
 /// Shape and output-scaling hyper-parameters of the network.
@@ -66,6 +66,11 @@ pub struct ModelConfig {
     /// fov = 2 · fov_base · sigmoid(raw), radians: fov_base at raw = 0.
     #[config(default = 1.0)]
     pub fov_base: f64,
+    /// Channels of the image encoder at full resolution (doubled at each halving, at most
+    /// `decoder_dim`), whose features reach every decoder stage through a skip; `None`: no
+    /// image encoder, the image enters the decoder only through one 1×1 layer at full
+    /// resolution (the architecture of the 0.5 release and earlier, whose files lack the key).
+    pub image_skips: Option<usize>,
 }
 
 impl ModelConfig {
@@ -82,6 +87,12 @@ impl ModelConfig {
     /// Decoder channels at stage `s` (0 = token resolution, `stages()` = full resolution).
     pub fn decoder_channels(&self, s: usize) -> usize {
         (self.decoder_dim >> s).max(self.decoder_min_dim)
+    }
+
+    /// Channels of the image encoder's features at `level` (0 = full resolution, each level
+    /// half the last), `None` without an image encoder.
+    pub fn skip_channels(&self, level: usize) -> Option<usize> {
+        self.image_skips.map(|k| (k << level).min(self.decoder_dim))
     }
 
     /// Checks the constraints the architecture relies on.
@@ -108,8 +119,8 @@ impl ModelConfig {
                 self.dim, self.heads
             ));
         }
-        if self.sem_dim == 0 || self.decoder_min_dim == 0 || self.mlp_ratio == 0 {
-            return bad("sem_dim, decoder_min_dim and mlp_ratio must be positive".into());
+        if self.sem_dim == 0 || self.decoder_min_dim == 0 || self.mlp_ratio == 0 || self.image_skips == Some(0) {
+            return bad("sem_dim, decoder_min_dim, mlp_ratio and image_skips must be positive".into());
         }
         Ok(())
     }

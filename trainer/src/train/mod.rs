@@ -23,6 +23,7 @@ use burn::grad_clipping::GradientClippingConfig;
 use burn::module::{ModuleVisitor, Param, ParamId};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
+use burn::store::ModuleSnapshot;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use inssplat_text::LabelCache;
 pub use labels::label_cache;
@@ -189,7 +190,8 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 /// Starts a new run in `run` from the weights of the newest checkpoint of `from` (a run or a
 /// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
-/// shape is the source's; `config.model` is replaced by it.
+/// shape is the source's; `config.model` is replaced by it, except that an image encoder asked
+/// for by `config.model.image_skips` is added to a source without one (see [`add_image_skips`]).
 pub fn fine_tune(
     run: &Path,
     mut config: TrainConfig,
@@ -209,6 +211,16 @@ pub fn fine_tune(
         let source = checkpoint::read_state(&dir)?;
         let net = checkpoint::load_model(&dir, &source, &device)?;
         (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
+    };
+    let net = match (config.model.image_skips, net.config().image_skips) {
+        (Some(channels), None) => add_image_skips(&net, channels, config.seed, &device)?,
+        (Some(asked), Some(has)) if asked != has => {
+            return Err(TrainError::Config(format!(
+                "{} has an image encoder of {has} channels; it cannot become {asked}",
+                from.display()
+            )));
+        }
+        _ => net,
     };
     config.model = net.config().clone();
     config.validate()?;
@@ -252,6 +264,23 @@ pub fn validate_checkpoint(
     let loss = validate(&net, &val, &state.config.loss)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
     Ok((dir, state.step, loss))
+}
+
+/// `net` grown by an image encoder of `channels` channels ([`crate::model::ModelConfig::image_skips`]):
+/// every weight of `net` is kept and the encoder is drawn from `seed`; it joins the decoder
+/// through layers that start at zero, so the grown network computes exactly what `net` did.
+pub fn add_image_skips(net: &InsSplatNet, channels: usize, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
+    let config = net.config().clone().with_image_skips(Some(channels));
+    let mut grown = seeded_init(&config, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
+    let result = grown.apply(net.collect(None, None, false), None, None, false);
+    let kept_all = result.missing.iter().all(|(path, _)| path.starts_with("decoder.skips.")) && result.unused.is_empty();
+    if !result.errors.is_empty() || !kept_all {
+        return Err(TrainError::Config(format!(
+            "adding the image encoder: tensors missing {:?}, unused {:?}, errors {:?}",
+            result.missing, result.unused, result.errors
+        )));
+    }
+    Ok(grown)
 }
 
 /// A fresh network whose weights depend only on `seed`. The backend's random generator is
