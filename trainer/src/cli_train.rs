@@ -93,6 +93,16 @@ pub struct TrainArgs {
     /// with no effect on the output.
     #[arg(long)]
     image_skips: Option<usize>,
+    /// w_rgb, the weight of L_rgb in the total (the paper's 1).
+    #[arg(long, default_value_t = 1.0)]
+    rgb_weight: f64,
+    /// w_geom, the weight of L_geom in the total (the paper's 1).
+    #[arg(long, default_value_t = 1.0)]
+    geometry_weight: f64,
+    /// Weight of VGGT's depth-gradient term inside L_depth (|∂(d̂ − d)| to the right and lower
+    /// neighbours; 0: the L1 term alone).
+    #[arg(long, default_value_t = 0.0)]
+    depth_gradient_weight: f64,
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
@@ -114,6 +124,10 @@ pub struct TrainArgs {
     /// (what inference names), added inside L_sem to L_sem on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
     direct_semantic_weight: f64,
+    /// Factor on the gradient the render losses send into the predicted depth through the
+    /// Gaussians' centres: 1 trains end to end (the paper), 0 leaves depth to L_geom alone.
+    #[arg(long, default_value_t = 1.0)]
+    render_depth_gradient: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -166,12 +180,16 @@ impl TrainArgs {
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips);
         let loss = LossConfig::new()
+            .with_rgb_weight(self.rgb_weight)
+            .with_geometry_weight(self.geometry_weight)
+            .with_depth_gradient_weight((self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight))
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
             .with_direct_semantic_weight((self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight))
+            .with_render_depth_gradient((self.render_depth_gradient != 1.0).then_some(self.render_depth_gradient))
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))

@@ -98,12 +98,20 @@ pub struct LossConfig {
     /// Gaussian's own L says. `None` (also what configs saved before this term existed read
     /// as) means 0.
     pub direct_semantic_weight: Option<f64>,
+    /// Factor on the gradient that the render losses send into the predicted depth through
+    /// the Gaussians' centres (their values are unchanged): 1 is the paper's end-to-end
+    /// training, 0 leaves the depth to L_geom alone (the offsets still follow the renders).
+    /// `None` (also what configs saved before this switch existed read as) means 1.
+    pub render_depth_gradient: Option<f64>,
     /// w_bd.
     #[config(default = 0.02)]
     pub boundary_weight: f64,
     /// α of the confidence term −α·log(conf) of the depth loss (VGGT's value).
     #[config(default = 0.2)]
     pub depth_conf_alpha: f64,
+    /// Weight of the depth-gradient term inside L_depth (see [`geometry`]); `None` (also what
+    /// configs saved before this term existed read as) means 0, the L1 term alone.
+    pub depth_gradient_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

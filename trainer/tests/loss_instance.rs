@@ -1,8 +1,9 @@
 //! L_ins on hand-made pixels with values worked out by hand, its ablations, and
-//! finite-difference checks of burn's gradients of L_ins and L_bd-rgb.
+//! finite-difference checks of burn's gradients of L_ins, L_bd-rgb and L_depth with its
+//! gradient term.
 
 use burn::prelude::*;
-use inssplat_trainer::loss::{CrossView, HardNegatives, LossConfig, boundary_rgb_loss, instance_loss};
+use inssplat_trainer::loss::{CrossView, HardNegatives, LossConfig, boundary_rgb_loss, depth_loss, instance_loss};
 
 fn tensor<const D: usize>(values: &[f32], shape: [usize; D], device: &Device) -> Tensor<D> {
     Tensor::from_data(TensorData::new(values.to_vec(), shape), device)
@@ -144,5 +145,19 @@ fn loss_boundary_gradient_matches_finite_differences() {
         let target = tensor(&target, [1, 3, 3, 3], &device);
         let embedding = Tensor::from_data(embedding.to_data(), &device);
         boundary_rgb_loss(x, target, &embedding, &config).unwrap()
+    });
+}
+
+#[test]
+fn loss_depth_gradient_matches_finite_differences() {
+    // 2 views of 3×3, one pixel without ground truth; predictions kept ≥ 0.05 from the ground
+    // truth and from their neighbours' differences' kinks, so ±h stays on one side of |·|.
+    let target = [2.0, 2.1, 0.0, 2.4, 2.5, 2.6, 1.0, 1.2, 3.0, 3.0, 2.9, 2.8, 1.5, 1.6, 2.7, 1.4, 1.5, 2.6];
+    let depth = [2.3, 1.8, 2.0, 2.0, 2.9, 2.2, 1.4, 0.9, 3.5, 2.6, 3.4, 2.5, 1.9, 1.1, 3.1, 1.0, 2.0, 2.3];
+    let conf: Vec<f32> = (0..18).map(|i| 1.0 + 0.1 * i as f32).collect();
+    let config = LossConfig::new().with_depth_gradient_weight(Some(0.7));
+    check_gradient(&depth, [2, 1, 3, 3], |x| {
+        let conf = tensor(&conf, [2, 1, 3, 3], &x.device());
+        depth_loss(x, conf, &target, 2.5, &config).unwrap()
     });
 }

@@ -55,7 +55,7 @@ fn loss_rgb_is_mse() {
 }
 
 #[test]
-fn loss_depth_is_confidence_weighted_relative_error() {
+fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term() {
     // Pixels: gt 2, 0 (no hit), 4, 3 → median of {2, 3, 4} is 3.
     let gt = [2.0, 0.0, 4.0, 3.0];
     assert_eq!(median_depth(&gt), Some(3.0));
@@ -66,7 +66,15 @@ fn loss_depth_is_confidence_weighted_relative_error() {
     let config = LossConfig::new();
     let alpha = 0.2;
     let expected = ((2.0 * 0.3 / 3.0 - alpha * 2f64.ln()) + (e * 0.4 / 3.0 - alpha * 1.0) + 0.0) / 3.0;
-    close(scalar(depth_loss(depth, conf, &gt, 3.0, &config).unwrap()), expected, "L_depth");
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &config).unwrap()), expected, "L_depth");
+
+    // The gradient term: errors e = (0.3, 5, −0.4, 0) row-major on the 2×2 view. Pairs with
+    // both pixels valid: ∂y at pixel 0 (|−0.4 − 0.3| = 0.7) and ∂x at pixel 2 (|0 + 0.4|);
+    // pixel 1 has no ground truth, so its pairs count nothing.
+    let k = 0.5;
+    let with_gradient = config.with_depth_gradient_weight(Some(k));
+    let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln()) + (e * (0.4 + k * 0.4) / 3.0 - alpha)) / 3.0;
+    close(scalar(depth_loss(depth, conf, &gt, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
 }
 
 fn camera(rotation: Quat, translation: Vec3, fov_y: f32) -> Camera {

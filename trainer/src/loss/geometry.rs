@@ -5,7 +5,11 @@
 //! L_depth = (1/|Ω|) Σ_Ω [c_p·|d̂_p − d_p|/s − α·log c_p], with c_p > 1 the predicted confidence
 //! and s the median ground-truth depth of the scene (all views). Dividing by s makes the error
 //! relative, so rooms of any size weigh the same, while keeping a gradient that does not
-//! explode near zero as log-depth would. There is no scale alignment: the ground truth is
+//! explode near zero as log-depth would. With `depth_gradient_weight` w > 0 (VGGT's gradient
+//! term) each pixel also pays w·c_p·(|∂x(d̂ − d)_p| + |∂y(d̂ − d)_p|)/s, the forward
+//! differences to its right and lower neighbours where both pixels are valid: the L1 term
+//! alone is satisfied first by the smooth room and learns the steps at the objects' outlines
+//! last. There is no scale alignment: the ground truth is
 //! metric and the network predicts metric depth and translation, which the voxel size and
 //! every metric at inference rely on.
 //!
@@ -74,11 +78,48 @@ pub fn depth_loss(
     }
     let weights: Vec<f32> = target.iter().map(|&d| if d > 0.0 { 1.0 / valid as f32 } else { 0.0 }).collect();
     let shape = [v, 1, h, w];
+    let error = depth - constant(target.to_vec(), shape, &device);
+    let mut per_pixel = error.clone().abs().div_scalar(scale);
+    if let Some(k) = config.depth_gradient_weight.filter(|&k| k > 0.0) {
+        per_pixel = per_pixel + gradient_error(error, target).div_scalar(scale).mul_scalar(k);
+    }
     let weights = constant(weights, shape, &device);
-    let target = constant(target.to_vec(), shape, &device);
-    let per_pixel =
-        conf.clone() * (depth - target).abs().div_scalar(scale) - conf.log().mul_scalar(config.depth_conf_alpha);
+    let per_pixel = conf.clone() * per_pixel - conf.log().mul_scalar(config.depth_conf_alpha);
     Ok((per_pixel * weights).sum())
+}
+
+/// Per pixel of `error` `[V, 1, H, W]` (prediction − ground truth), |∂x| + |∂y| of its forward
+/// differences to the right and lower neighbours, each counted only where both pixels have
+/// ground truth in `target`; the last column has no ∂x and the last row no ∂y.
+fn gradient_error(error: Tensor<4>, target: &[f32]) -> Tensor<4> {
+    let [v, _, h, w] = error.dims();
+    let device = error.device();
+    // One difference along `axis` (2 = rows, 3 = columns), masked, padded back to [V, 1, H, W].
+    let along = |axis: usize| {
+        let (dy, dx) = if axis == 2 { (1, 0) } else { (0, 1) };
+        let (rows, cols) = (h - dy, w - dx);
+        let mask: Vec<f32> = (0..v * rows * cols)
+            .map(|i| {
+                let (view, y, x) = (i / (rows * cols), i / cols % rows, i % cols);
+                let p = (view * h + y) * w + x;
+                f32::from(target[p] > 0.0 && target[p + dy * w + dx] > 0.0)
+            })
+            .collect();
+        let len = if axis == 2 { h } else { w };
+        let diff = error.clone().narrow(axis, 1, len - 1) - error.clone().narrow(axis, 0, len - 1);
+        let masked = diff.abs() * constant(mask, [v, 1, rows, cols], &device);
+        let mut pad = [v, 1, h, w];
+        pad[axis] = 1;
+        Tensor::cat(vec![masked, Tensor::zeros(pad, &device)], axis)
+    };
+    let mut out = Tensor::zeros([v, 1, h, w], &device);
+    if w > 1 {
+        out = out + along(3);
+    }
+    if h > 1 {
+        out = out + along(2);
+    }
+    out
 }
 
 /// L_cam of the predicted `camera` `[N, 9]` against `targets` (from [`camera_targets`]),

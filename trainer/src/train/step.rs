@@ -93,7 +93,14 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let forward_time = t0.elapsed();
 
     let t1 = Instant::now();
-    let splats = splats_from_outputs(&out, &sample.cameras[..inputs]);
+    let input_cameras = &sample.cameras[..inputs];
+    let splats = match config.render_depth_gradient {
+        Some(k) if k != 1.0 => {
+            let depth = scale_gradient(out.depth.clone(), k);
+            splats_from_outputs(&ModelOutput { depth, ..out.clone() }, input_cameras)
+        }
+        _ => splats_from_outputs(&out, input_cameras),
+    };
     let channels = splats.features.dims()[1];
     let renders = sample
         .cameras
@@ -109,7 +116,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let instance = rendered.clone().narrow(1, 3, 8);
     let semantic = rendered.narrow(1, 11, sem_dim);
     debug_assert_eq!(channels, 11 + sem_dim);
-    let targets = camera_targets(&sample.cameras[..inputs]);
+    let targets = camera_targets(input_cameras);
     let geometry = geometry_loss(
         out.depth.clone(),
         out.depth_conf.clone(),
@@ -150,6 +157,12 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         }
     };
     Ok(Objective { total, terms, forward_time, render_time, loss_time: t2.elapsed() })
+}
+
+/// `x` unchanged, with its gradient multiplied by `k` on the way back.
+fn scale_gradient(x: Tensor<4>, k: f64) -> Tensor<4> {
+    let fixed = x.clone().detach();
+    x.mul_scalar(k) + fixed.mul_scalar(1.0 - k)
 }
 
 /// The per-pixel Gaussians of every input view in the world frame of `cameras` (one per
@@ -220,6 +233,22 @@ fn left_product_matrix(a: Quat) -> [f32; 16] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn scale_gradient_keeps_the_value_and_scales_the_gradient() {
+        let device = Device::flex().autodiff();
+        let values = vec![0.5f32, -1.25, 2.0, 3.5];
+        let x = Tensor::<4>::from_data(TensorData::new(values.clone(), [1, 1, 2, 2]), &device).require_grad();
+        for k in [0.0, 0.25, 1.0] {
+            let y = scale_gradient(x.clone(), k);
+            assert_eq!(y.clone().into_data().to_vec::<f32>().unwrap(), values);
+            let grads = (y.clone() * y).sum().backward();
+            let got = x.grad(&grads).unwrap().into_data().to_vec::<f32>().unwrap();
+            for (g, v) in got.iter().zip(&values) {
+                assert!((g - 2.0 * k as f32 * v).abs() < 1e-6, "k {k}: {got:?}");
+            }
+        }
+    }
 
     #[test]
     fn left_product_matrix_matches_quaternion_product() {
