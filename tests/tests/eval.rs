@@ -41,7 +41,7 @@ fn eval_reports_every_metric_per_view_count() {
         // random) may score slightly below 0.
         let ssim = m["ssim"][0].as_f64().unwrap_or_else(|| panic!("ssim missing: {m}"));
         assert!((-1.0..=1.0).contains(&ssim), "ssim = {ssim}");
-        for positive in ["psnr", "depth_abs_rel", "rotation_deg", "translation"] {
+        for positive in ["psnr", "depth_abs_rel", "depth_abs_rel_objects", "depth_abs_rel_shell", "rotation_deg", "translation"] {
             let v = m[positive][0].as_f64().unwrap_or_else(|| panic!("{positive} missing: {m}"));
             assert!(v.is_finite() && v >= 0.0, "{positive} = {v}");
         }
@@ -56,11 +56,16 @@ fn eval_reports_every_metric_per_view_count() {
     }
     let scene = &report["scenes"][0];
     assert!(scene["gaussians_kept"].as_u64().unwrap() > 0);
+    // Objects and shell split the pixels at one scale: the whole is a mean of the two parts.
+    let depth = |k: &str| scene[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {scene}"));
+    let (all, objects, shell) = (depth("depth_abs_rel"), depth("depth_abs_rel_objects"), depth("depth_abs_rel_shell"));
+    assert!(objects.min(shell) - 1e-9 <= all && all <= objects.max(shell) + 1e-9, "{scene}");
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
     assert!(table.contains("Labels on the target views at 4 views"), "{table}");
+    assert!(table.contains("| views | all pixels | objects | room shell |"), "{table}");
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 

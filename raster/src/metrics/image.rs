@@ -90,9 +90,7 @@ pub struct DepthScores {
 /// Depth AbsRel after median scale alignment; `None` without a pixel valid on both sides.
 pub fn depth_abs_rel(pred: &[f32], gt: &[f32]) -> Result<Option<DepthScores>, MetricError> {
     same_len("depth maps", pred.len(), gt.len())?;
-    let ok = |v: f32| v.is_finite() && v > 0.0;
-    let pairs: Vec<(f64, f64)> =
-        pred.iter().zip(gt).filter(|(p, g)| ok(**p) && ok(**g)).map(|(p, g)| (f64::from(*p), f64::from(*g))).collect();
+    let pairs: Vec<(f64, f64)> = valid_depth_pairs(pred, gt, |_| true).collect();
     if pairs.is_empty() {
         return Ok(None);
     }
@@ -102,8 +100,36 @@ pub fn depth_abs_rel(pred: &[f32], gt: &[f32]) -> Result<Option<DepthScores>, Me
         if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
     };
     let scale = median(pairs.iter().map(|p| p.1).collect()) / median(pairs.iter().map(|p| p.0).collect());
-    let abs_rel = pairs.iter().map(|(p, g)| (scale * p - g).abs() / g).sum::<f64>() / pairs.len() as f64;
-    Ok(Some(DepthScores { abs_rel, scale, pixels: pairs.len() }))
+    let pixels = pairs.len();
+    let abs_rel = mean_abs_rel(pairs.into_iter(), scale).expect("pairs are not empty");
+    Ok(Some(DepthScores { abs_rel, scale, pixels }))
+}
+
+/// AbsRel of `scale`·`pred` over the pixels valid on both sides where `keep` is true (a part of
+/// the image, scored at the scale [`depth_abs_rel`] found for the whole); `None` without one.
+pub fn depth_abs_rel_where(pred: &[f32], gt: &[f32], scale: f64, keep: &[bool]) -> Result<Option<f64>, MetricError> {
+    same_len("depth maps", pred.len(), gt.len())?;
+    same_len("pixel selection", gt.len(), keep.len())?;
+    Ok(mean_abs_rel(valid_depth_pairs(pred, gt, |i| keep[i]), scale))
+}
+
+/// (prediction, truth) of the pixels `keep` selects where both are finite and positive.
+fn valid_depth_pairs<'a>(
+    pred: &'a [f32],
+    gt: &'a [f32],
+    keep: impl Fn(usize) -> bool + 'a,
+) -> impl Iterator<Item = (f64, f64)> + 'a {
+    let ok = |v: f32| v.is_finite() && v > 0.0;
+    pred.iter()
+        .zip(gt)
+        .enumerate()
+        .filter(move |&(i, (p, g))| ok(*p) && ok(*g) && keep(i))
+        .map(|(_, (p, g))| (f64::from(*p), f64::from(*g)))
+}
+
+fn mean_abs_rel(pairs: impl Iterator<Item = (f64, f64)>, scale: f64) -> Option<f64> {
+    let (sum, n) = pairs.fold((0.0, 0usize), |(sum, n), (p, g)| (sum + (scale * p - g).abs() / g, n + 1));
+    (n > 0).then(|| sum / n as f64)
 }
 
 #[cfg(test)]
@@ -169,5 +195,12 @@ mod tests {
         assert_eq!((d.scale, d.pixels), (2.0, 5));
         assert!((d.abs_rel - 3.0 / 5.0).abs() < 1e-12, "{d:?}");
         assert_eq!(depth_abs_rel(&[1.0], &[0.0]).unwrap(), None);
+        // The same scale on a part: the far pixel alone, then the rest.
+        let far = [false, false, false, false, true, true];
+        assert_eq!(depth_abs_rel_where(&pred, &gt, d.scale, &far).unwrap(), Some(3.0));
+        let rest = far.map(|f| !f);
+        assert_eq!(depth_abs_rel_where(&pred, &gt, d.scale, &rest).unwrap(), Some(0.0));
+        assert_eq!(depth_abs_rel_where(&pred, &gt, d.scale, &[false; 6]).unwrap(), None);
+        assert!(depth_abs_rel_where(&pred, &gt, d.scale, &[true; 5]).is_err());
     }
 }

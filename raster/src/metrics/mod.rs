@@ -9,7 +9,7 @@ pub mod image;
 pub mod pose;
 pub mod segmentation;
 
-pub use image::{DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, psnr, ssim};
+pub use image::{DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 pub use pose::{AlignScale, PoseScores, Similarity, camera_errors, pose_alignment};
 pub use segmentation::{
     ConsistencyScores, InstanceMatch, InstanceScores, NO_LABEL, SemanticScores, consistency_scores, instance_scores,

@@ -84,7 +84,7 @@ pub struct Report {
     pub protocol: String,
 }
 
-const METRICS: [&str; 17] = [
+const METRICS: [&str; 19] = [
     "semantic_miou",
     "semantic_macc",
     "instance_miou",
@@ -100,6 +100,8 @@ const METRICS: [&str; 17] = [
     "psnr",
     "ssim",
     "depth_abs_rel",
+    "depth_abs_rel_objects",
+    "depth_abs_rel_shell",
     "rotation_deg",
     "translation",
 ];
@@ -121,6 +123,8 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
         "psnr" => s.psnr,
         "ssim" => s.ssim,
         "depth_abs_rel" => s.depth_abs_rel,
+        "depth_abs_rel_objects" => s.depth_abs_rel_objects,
+        "depth_abs_rel_shell" => s.depth_abs_rel_shell,
         "rotation_deg" => s.rotation_deg,
         "translation" => s.translation,
         _ => None,
@@ -442,6 +446,20 @@ pub fn markdown(r: &Report) -> String {
                 num(m("instances_true"), 1),
                 pct(m("context_instance_miou")),
                 pct(m("context_ceiling_miou"))
+            );
+        }
+    }
+    if r.summaries.iter().any(|s| s.metrics.contains_key("depth_abs_rel_objects")) {
+        out += "\nDepth AbsRel on the context views, at the whole views' median scale, by what the pixels show:\n\n";
+        out += "| views | all pixels | objects | room shell |\n|---|---|---|---|\n";
+        for s in &r.summaries {
+            let m = |k: &str| s.metrics.get(k);
+            out += &format!(
+                "| {} | {} | {} | {} |\n",
+                s.views,
+                num(m("depth_abs_rel"), 3),
+                num(m("depth_abs_rel_objects"), 3),
+                num(m("depth_abs_rel_shell"), 3)
             );
         }
     }

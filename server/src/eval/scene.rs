@@ -14,7 +14,7 @@ use inssplat_proto::dataset::Scene;
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::QueryRule;
 use inssplat_raster::label::masks::render_colour;
-use inssplat_raster::metrics::image::{depth_abs_rel, psnr, ssim};
+use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
 use inssplat_proto::shape::LabelledDescriptor;
@@ -53,6 +53,11 @@ pub struct SceneScores {
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
     pub depth_abs_rel: Option<f64>,
+    /// Depth AbsRel, at the whole views' scale, on the pixels of objects and on those of the
+    /// room shell (walls, floor, ceiling and unlabelled pixels), when every context view with
+    /// depth has instances.
+    pub depth_abs_rel_objects: Option<f64>,
+    pub depth_abs_rel_shell: Option<f64>,
     pub rotation_deg: Option<f64>,
     pub translation: Option<f64>,
     pub gaussians_in: usize,
@@ -242,11 +247,17 @@ fn context_scores(
         ClusterMode::ThreeD => Vec::new(),
         ClusterMode::TwoD => labels.embed(&rec.vocabulary.iter().map(String::as_str).collect::<Vec<_>>()).map_err(|e| err(&e))?,
     };
+    // Per depth pixel: whether it shows an object (`None` once a view with depth has no ids).
+    let mut objects = Some(Vec::new());
     for (v, (view, &f)) in rec.views.iter().zip(context).enumerate() {
         let frame = &scene.frames[f];
         if let Some(d) = &frame.depth {
             pred_depth.extend_from_slice(&view.depth);
             true_depth.extend_from_slice(d);
+            objects = objects.zip(frame.instances.as_ref()).map(|(mut o, ids)| {
+                o.extend(ids.iter().map(|&id| scene.label_of(id).is_some_and(|l| !SHELL.contains(&l))));
+                o
+            });
         }
         if let Some(ids) = &frame.instances {
             let pred = match mode {
@@ -262,6 +273,11 @@ fn context_scores(
     }
     let depth = depth_abs_rel(&pred_depth, &true_depth).map_err(|e| err(&e))?;
     s.depth_abs_rel = depth.as_ref().map(|d| d.abs_rel);
+    if let (Some(d), Some(objects)) = (&depth, &objects) {
+        let shell: Vec<bool> = objects.iter().map(|o| !o).collect();
+        s.depth_abs_rel_objects = depth_abs_rel_where(&pred_depth, &true_depth, d.scale, objects).map_err(|e| err(&e))?;
+        s.depth_abs_rel_shell = depth_abs_rel_where(&pred_depth, &true_depth, d.scale, &shell).map_err(|e| err(&e))?;
+    }
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
     if mode == ClusterMode::ThreeD {
         s.shape_examples = shape_examples(scene, rec, &pairs);
