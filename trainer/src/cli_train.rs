@@ -60,7 +60,7 @@ pub struct TrainArgs {
     /// Held-out views rendered and supervised per step.
     #[arg(long, default_value_t = 1)]
     targets: usize,
-    /// Consecutive steps sharing one scene.
+    /// Consecutive samples sharing one scene (with one sample per step: consecutive steps).
     #[arg(long, default_value_t = 2)]
     scene_reuse: u64,
     /// The scene of the first step (scene i is seed split base + i): a fine-tune can start on
@@ -69,6 +69,10 @@ pub struct TrainArgs {
     first_scene: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Samples per optimizer step, evaluated side by side on threads (one per core is what a
+    /// CPU step leaves idle), their gradients averaged.
+    #[arg(long, default_value_t = 1)]
+    samples_per_step: usize,
     /// Square input resolution.
     #[arg(long, default_value_t = 128)]
     image_size: usize,
@@ -205,6 +209,7 @@ impl TrainArgs {
             .with_scene_reuse(self.scene_reuse)
             .with_first_scene(self.first_scene)
             .with_seed(self.seed)
+            .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {

@@ -12,13 +12,14 @@ use std::process::Command;
 use std::time::Duration;
 
 use burn::module::Module;
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use inssplat_trainer::loss::{LossConfig, SemanticForm, instance_loss, semantic_loss};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
-use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint, label_cache, seeded_init, update};
+use inssplat_trainer::train::{self, Session, batch, TrainConfig, checkpoint, label_cache, seeded_init, update};
 
 fn tiny_model() -> ModelConfig {
     ModelConfig::new().with_image_size(32).with_patch(4).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32).with_sem_dim(8)
@@ -87,7 +88,8 @@ fn a_small_network_overfits_one_scene() {
     for _ in 0..150 {
         let obj = objective(&net, &sample, &loss, &device).unwrap();
         losses.push(obj.values().total);
-        net = update(net, &mut optim, obj.total, config.lr, &config);
+        let grads = GradientsParams::from_grads(obj.total.backward(), &net);
+        net = update(net, &mut optim, grads, config.lr, &config);
     }
     let first = losses[0];
     let last = losses[losses.len() - 5..].iter().sum::<f32>() / 5.0;
@@ -133,7 +135,8 @@ fn the_contrastive_l_sem_learns_to_name_the_objects_of_one_scene() {
     let mut optim = burn::optim::AdamWConfig::new().with_weight_decay(0.0).init();
     for _ in 0..250 {
         let obj = objective(&net, &sample, &loss, &device).unwrap();
-        net = update(net, &mut optim, obj.total, config.lr, &config);
+        let grads = GradientsParams::from_grads(obj.total.backward(), &net);
+        net = update(net, &mut optim, grads, config.lr, &config);
     }
     let after = named_right(&net.valid(), &sample);
     eprintln!("instance-averaged share of pixels named right: {before:.3} -> {after:.3}");
@@ -212,7 +215,23 @@ fn a_config_saved_before_the_direct_terms_and_contrastive_l_sem_reads_as_without
 
 #[test]
 fn an_interrupted_run_resumes_exactly() {
-    let config = || TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_warmup(2).with_max_views(3).with_seed(9);
+    interrupted_run_resumes_exactly(None);
+}
+
+#[test]
+fn an_interrupted_run_of_two_samples_per_step_resumes_exactly() {
+    interrupted_run_resumes_exactly(Some(2));
+}
+
+fn interrupted_run_resumes_exactly(samples_per_step: Option<usize>) {
+    let config = || {
+        TrainConfig::new(tiny_model(), LossConfig::new())
+            .with_steps(4)
+            .with_warmup(2)
+            .with_max_views(3)
+            .with_seed(9)
+            .with_samples_per_step(samples_per_step)
+    };
     let straight = tempfile::tempdir().unwrap();
     let s = train::train(straight.path(), config(), tiny_data(), &quiet_session()).unwrap();
     assert_eq!(s.steps, 4);
@@ -332,4 +351,46 @@ fn bad_data_and_checkpoints_are_named_errors() {
     std::fs::write(&state_path, "{ not json").unwrap();
     let err = failure(bin().arg("export").arg("--checkpoint").arg(&dir).arg("--out").arg(tmp.path().join("m.onnx")));
     assert!(err.contains("state.json") && err.contains("not a checkpoint state"), "{err}");
+}
+
+#[test]
+fn two_samples_on_threads_give_the_mean_gradient_of_one_graph() {
+    let loss = LossConfig::new().with_instance_weight(0.1).with_semantic_weight(0.1);
+    let device = Device::flex().autodiff();
+    let net = seeded_init(&tiny_model(), 5, &device).unwrap();
+    let samples = vec![three_view_sample(1, 5), three_view_sample(2, 9)];
+    let parallel = batch::gradients(&net, &samples, &loss, &device).unwrap();
+    let (a, b) = (objective(&net, &samples[0], &loss, &device).unwrap(), objective(&net, &samples[1], &loss, &device).unwrap());
+    let mean_total = (a.values().total + b.values().total) / 2.0;
+    assert!((parallel.values.total - mean_total).abs() <= 1e-5 * mean_total.abs(), "{} vs {mean_total}", parallel.values.total);
+    let reference = GradientsParams::from_grads((a.total + b.total).div_scalar(2.0).backward(), &net);
+    let mut compare = Compare { a: &parallel.grads, b: &reference, tensors: 0, nonzero: 0, worst: 0.0 };
+    net.visit(&mut compare);
+    assert!(compare.nonzero > 10, "only {} of {} gradients are non-zero", compare.nonzero, compare.tensors);
+    assert!(compare.worst <= 1e-4, "threaded and single-graph gradients differ by {} (relative)", compare.worst);
+}
+
+/// Compares two gradient sets parameter by parameter: worst relative difference per tensor.
+struct Compare<'a> {
+    a: &'a GradientsParams,
+    b: &'a GradientsParams,
+    tensors: usize,
+    nonzero: usize,
+    worst: f32,
+}
+
+impl burn::module::ModuleVisitor for Compare<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+        let read = |g: &GradientsParams| g.get::<D>(param.id).map(|t| t.into_data().try_to_vec::<f32>().unwrap());
+        let (a, b) = (read(self.a), read(self.b));
+        assert_eq!(a.is_some(), b.is_some(), "parameter {} has a gradient on one side only", param.id);
+        let (Some(a), Some(b)) = (a, b) else { return };
+        self.tensors += 1;
+        let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        if scale > 0.0 {
+            self.nonzero += 1;
+            let diff = a.iter().zip(&b).fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+            self.worst = self.worst.max(diff / scale);
+        }
+    }
 }

@@ -1,5 +1,6 @@
 //! The training loop: AdamW with warm-up + cosine learning rate (optionally a smaller one for
-//! the transformer backbone), 2–8 input views per step plus held-out target views, data from
+//! the transformer backbone), one or more samples per step (side by side on threads, see
+//! [`batch`]) of 2–8 input views plus held-out target views each, data from
 //! a folder of scenes or synthesized on the fly (prefetched on a background thread), a
 //! validation loss on fixed val samples, checkpoints every few minutes with exact resume, an
 //! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
@@ -8,6 +9,7 @@
 //! `loss.png`. [`train`] starts a run, [`resume`] continues the newest checkpoint of one with
 //! the configuration and data it was started with.
 
+pub mod batch;
 pub mod checkpoint;
 pub mod labels;
 pub mod log;
@@ -20,7 +22,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use burn::grad_clipping::GradientClippingConfig;
-use burn::module::{ModuleVisitor, Param, ParamId};
+use burn::module::{ModuleVisitor, Param};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::store::ModuleSnapshot;
@@ -68,7 +70,7 @@ pub struct TrainConfig {
     /// Held-out views rendered and supervised each step.
     #[config(default = 1)]
     pub targets: usize,
-    /// Consecutive steps that share one scene.
+    /// Consecutive samples that share one scene.
     #[config(default = 2)]
     pub scene_reuse: u64,
     /// The scene of step 0: a later part of training can start on scenes no earlier part saw.
@@ -76,11 +78,20 @@ pub struct TrainConfig {
     pub first_scene: u64,
     #[config(default = 0)]
     pub seed: u64,
+    /// Samples per optimizer step, evaluated side by side on threads ([`batch`]), their
+    /// gradients averaged; sample i of the run is step i / k's (i mod k)-th. `None` (also what
+    /// configs saved before this existed read as) means 1.
+    pub samples_per_step: Option<usize>,
 }
 
 impl TrainConfig {
     fn plan(&self) -> ViewPlan {
         ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse, first_scene: self.first_scene }
+    }
+
+    /// Samples per optimizer step (k ≥ 1).
+    pub fn batch(&self) -> u64 {
+        self.samples_per_step.unwrap_or(1) as u64
     }
 
     fn schedule(&self) -> Schedule {
@@ -94,6 +105,9 @@ impl TrainConfig {
                 "views {}..{}: need 1 ≤ min ≤ max",
                 self.min_views, self.max_views
             )));
+        }
+        if self.samples_per_step == Some(0) {
+            return Err(TrainError::Config("samples per step must be at least 1".into()));
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             return Err(TrainError::Config(format!("learning rate {} must be positive", self.lr)));
@@ -318,41 +332,29 @@ fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
 }
 
 
-/// One optimizer update of `net` from the gradients of `loss`: the transformer blocks at
-/// `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the output
-/// layer of the dense decoder and Φ_sem move.
+/// One optimizer update of `net` with `grads` (see [`batch::gradients`]): the transformer
+/// blocks at `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the
+/// output layer of the dense decoder and Φ_sem move.
 pub fn update(
     net: InsSplatNet,
     optim: &mut ModuleOptimizer,
-    loss: Tensor<1>,
+    mut grads: GradientsParams,
     lr: f64,
     config: &TrainConfig,
 ) -> InsSplatNet {
-    let mut grads = loss.backward();
     if config.loss.gaussians == GaussianTraining::Frozen {
-        let mut ids = ParamIds(Vec::new());
-        net.decoder.out.visit(&mut ids);
-        net.sem_proj.visit(&mut ids);
-        let heads = GradientsParams::from_params(&mut grads, &net, &ids.0);
+        let mut heads = GradientsParams::new();
+        batch::move_gradients(&net.decoder.out, &mut grads, &mut heads);
+        batch::move_gradients(&net.sem_proj, &mut grads, &mut heads);
         return optim.step(lr, net, heads);
     }
     if (config.backbone_lr_scale - 1.0).abs() < f64::EPSILON {
-        let grads = GradientsParams::from_grads(grads, &net);
         return optim.step(lr, net, grads);
     }
-    let backbone = GradientsParams::from_module(&mut grads, &net.blocks);
-    let rest = GradientsParams::from_grads(grads, &net);
+    let mut backbone = GradientsParams::new();
+    batch::move_gradients(&net.blocks, &mut grads, &mut backbone);
     let net = optim.step(lr * config.backbone_lr_scale, net, backbone);
-    optim.step(lr, net, rest)
-}
-
-/// Collects the ids of the float parameters of a module.
-struct ParamIds(Vec<ParamId>);
-
-impl ModuleVisitor for ParamIds {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        self.0.push(param.id);
-    }
+    optim.step(lr, net, grads)
 }
 
 /// The validation loss: mean over fixed samples, without gradients.
@@ -361,23 +363,9 @@ fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig) -> Result<
     let device = Device::flex();
     let mut sum = LossValues::default();
     for s in samples {
-        let v = objective(&plain, s, loss, &device)?.values();
-        sum.total += v.total;
-        sum.rgb += v.rgb;
-        sum.geometry += v.geometry;
-        sum.instance += v.instance;
-        sum.semantic += v.semantic;
-        sum.boundary += v.boundary;
+        sum = sum + objective(&plain, s, loss, &device)?.values();
     }
-    let n = samples.len().max(1) as f32;
-    Ok(LossValues {
-        total: sum.total / n,
-        rgb: sum.rgb / n,
-        geometry: sum.geometry / n,
-        instance: sum.instance / n,
-        semantic: sum.semantic / n,
-        boundary: sum.boundary / n,
-    })
+    Ok(sum * (1.0 / samples.len().max(1) as f32))
 }
 
 fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>) -> Result<Vec<Sample>, TrainError> {
@@ -431,7 +419,8 @@ fn run_loop(
     let mut val_log = CsvLog::open(&val_csv, VAL_HEADER, first_step).map_err(|e| io_error(&val_csv, e))?;
     let schedule = state.config.schedule();
     let bar = progress_bar(&state, session);
-    let prefetch = Prefetcher::start(sampler, first_step, state.config.steps, 3);
+    let k = state.config.batch();
+    let prefetch = Prefetcher::start(sampler, first_step * k, state.config.steps * k, 3 * k as usize);
     let session_start = Instant::now();
     let base_elapsed = state.elapsed_s;
     let mut last_checkpoint = Instant::now();
@@ -441,20 +430,30 @@ fn run_loop(
     let mut last_val = None;
     loop {
         let wait = Instant::now();
-        let Some((step, sample)) = prefetch.next() else { break };
+        let (mut samples, mut step) = (Vec::with_capacity(k as usize), 0);
+        for _ in 0..k {
+            let Some((index, sample)) = prefetch.next() else { break };
+            step = index / k;
+            samples.push(sample?);
+        }
+        if samples.is_empty() {
+            break;
+        }
         let data_wait = wait.elapsed();
-        let sample = sample?;
         let t0 = Instant::now();
         let lr = schedule.lr(step);
-        let obj = objective(&net, &sample, &state.config.loss, device)
-            .map_err(|source| TrainError::Step { step, scene: sample.scene.clone(), source })?;
-        let values = obj.values();
+        let g = batch::gradients(&net, &samples, &state.config.loss, device).map_err(|failure| TrainError::Step {
+            step,
+            scene: samples[failure.sample].scene.clone(),
+            source: failure.error,
+        })?;
+        let values = g.values;
         if !values.total.is_finite() {
             return Err(TrainError::Diverged { step, values });
         }
-        let t_backward = Instant::now();
-        net = update(net, &mut optim, obj.total, lr, &state.config);
-        let backward = t_backward.elapsed();
+        let t_update = Instant::now();
+        net = update(net, &mut optim, g.grads, lr, &state.config);
+        let backward = g.backward + t_update.elapsed();
         let step_time = t0.elapsed();
         state.step = step + 1;
         state.elapsed_s = base_elapsed + session_start.elapsed().as_secs_f64();
@@ -463,7 +462,7 @@ fn run_loop(
         let mut row = vec![step.to_string(), format!("{lr:.3e}")];
         row.extend(loss_cells(&values));
         row.extend(
-            [step_time, obj.forward_time, obj.render_time, backward, data_wait]
+            [step_time, g.forward, g.render, backward, data_wait]
                 .iter()
                 .map(|d| format!("{:.3}", d.as_secs_f64())),
         );

@@ -2,11 +2,12 @@
 //! in the DATASET.md format or synthesized on the fly, and turned into host arrays the step
 //! feeds to the network and the losses.
 //!
-//! A sample is a pure function of (seed, step): the scene is `first_scene + step / reuse` (a scene
-//! serves `reuse` consecutive steps with different views), the view count and the views come
-//! from a ChaCha RNG seeded with the seed and the step. Resuming at step s therefore sees
-//! exactly the data an uninterrupted run would have seen. [`Prefetcher`] builds the samples of
-//! the coming steps on a background thread, so data never stalls the step.
+//! A sample is a pure function of (seed, index i): the scene is `first_scene + i / reuse` (a
+//! scene serves `reuse` consecutive samples with different views), the view count and the
+//! views come from a ChaCha RNG seeded with the seed and i; a run of k samples per step gives
+//! step s samples s·k .. s·k + k. Resuming at step s therefore sees exactly the data an
+//! uninterrupted run would have seen. [`Prefetcher`] builds the samples of the coming steps on
+//! a background thread, so data never stalls the step.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -108,9 +109,9 @@ pub struct ViewPlan {
     pub max_views: usize,
     /// Extra views rendered from the inputs' Gaussians and supervised, but never input.
     pub targets: usize,
-    /// Consecutive steps that share one scene.
+    /// Consecutive samples that share one scene.
     pub reuse: u64,
-    /// The scene of step 0.
+    /// The scene of sample 0.
     pub first_scene: u64,
 }
 
@@ -221,20 +222,20 @@ pub struct Sampler {
 }
 
 impl Sampler {
-    /// The scene `step` draws from.
-    pub fn scene_index(&self, step: u64) -> u64 {
-        self.plan.first_scene + step / self.plan.reuse.max(1)
+    /// The scene sample `index` draws from (with one sample per step, the step's).
+    pub fn scene_index(&self, index: u64) -> u64 {
+        self.plan.first_scene + index / self.plan.reuse.max(1)
     }
 
-    /// The sample of `step`.
-    pub fn sample(&self, step: u64) -> Result<Sample, SampleError> {
-        let scene = self.source.scene(self.scene_index(step))?;
-        self.sample_of(&scene, step)
+    /// Sample `index` of the run.
+    pub fn sample(&self, index: u64) -> Result<Sample, SampleError> {
+        let scene = self.source.scene(self.scene_index(index))?;
+        self.sample_of(&scene, index)
     }
 
-    /// The sample of `step` drawn from `scene`.
-    pub fn sample_of(&self, scene: &Scene, step: u64) -> Result<Sample, SampleError> {
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ step.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    /// Sample `index` drawn from `scene`.
+    pub fn sample_of(&self, scene: &Scene, index: u64) -> Result<Sample, SampleError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
         if scene.frames.len() < 2 {
             return Err(SampleError::Scene { scene: scene.dir.display().to_string(), problem: "needs ≥ 2 frames".into() });
         }
@@ -243,7 +244,8 @@ impl Sampler {
     }
 }
 
-/// Builds the samples of steps `start..end` in order on a background thread, a few ahead.
+/// Builds samples `start..end` (sample i of a run with k samples per step belongs to step
+/// i / k) in order on a background thread, a few ahead.
 pub struct Prefetcher {
     receiver: Receiver<(u64, Result<Sample, SampleError>)>,
     worker: Option<JoinHandle<()>>,
@@ -276,7 +278,7 @@ impl Prefetcher {
         Self { receiver, worker: Some(worker) }
     }
 
-    /// The next step's sample; `None` once `end` is reached.
+    /// The next sample with its index; `None` once `end` is reached.
     pub fn next(&self) -> Option<(u64, Result<Sample, SampleError>)> {
         self.receiver.recv().ok()
     }

@@ -61,6 +61,36 @@ pub struct LossValues {
     pub boundary: f32,
 }
 
+impl std::ops::Add for LossValues {
+    type Output = Self;
+
+    fn add(self, o: Self) -> Self {
+        LossValues {
+            total: self.total + o.total,
+            rgb: self.rgb + o.rgb,
+            geometry: self.geometry + o.geometry,
+            instance: self.instance + o.instance,
+            semantic: self.semantic + o.semantic,
+            boundary: self.boundary + o.boundary,
+        }
+    }
+}
+
+impl std::ops::Mul<f32> for LossValues {
+    type Output = Self;
+
+    fn mul(self, s: f32) -> Self {
+        LossValues {
+            total: self.total * s,
+            rgb: self.rgb * s,
+            geometry: self.geometry * s,
+            instance: self.instance * s,
+            semantic: self.semantic * s,
+            boundary: self.boundary * s,
+        }
+    }
+}
+
 impl Objective {
     /// Reads the total and the terms back to the host.
     pub fn values(&self) -> LossValues {
@@ -241,9 +271,9 @@ mod tests {
         let x = Tensor::<4>::from_data(TensorData::new(values.clone(), [1, 1, 2, 2]), &device).require_grad();
         for k in [0.0, 0.25, 1.0] {
             let y = scale_gradient(x.clone(), k);
-            assert_eq!(y.clone().into_data().to_vec::<f32>().unwrap(), values);
+            assert_eq!(y.clone().into_data().try_to_vec::<f32>().unwrap(), values);
             let grads = (y.clone() * y).sum().backward();
-            let got = x.grad(&grads).unwrap().into_data().to_vec::<f32>().unwrap();
+            let got = x.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
             for (g, v) in got.iter().zip(&values) {
                 assert!((g - 2.0 * k as f32 * v).abs() < 1e-6, "k {k}: {got:?}");
             }
