@@ -14,8 +14,10 @@ pub fn inssplat_bin() -> PathBuf {
             return PathBuf::from(p);
         }
         let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+        // `--workspace` builds with the features of nextest's own workspace build, so after it
+        // this compiles nothing; `-p inssplat-server` would rebuild ~80 crates for its own set.
         let status = Command::new(env!("CARGO"))
-            .args(["build", "-q", "-p", "inssplat-server", "--bin", "inssplat"])
+            .args(["build", "-q", "--workspace", "--bin", "inssplat"])
             .current_dir(&root)
             .status()
             .expect("run cargo build");
