@@ -4,7 +4,8 @@
 //! checkpoint afterwards reproduces the run's own validation loss, the direct terms add L_ins
 //! and L_sem of the network's own embeddings and features, the contrastive L_sem with its
 //! direct term names one scene's objects out of the whole vocabulary, samples carry the label
-//! vocabulary of the contrastive L_sem (older configs read as without these), and bad data
+//! vocabulary of the contrastive L_sem (older configs read as without these), the prefetcher's
+//! data threads hand out exactly the sampler's samples in order, and bad data
 //! folders and checkpoints are clear errors that name the path.
 
 use std::path::Path;
@@ -17,7 +18,7 @@ use burn::prelude::*;
 use inssplat_trainer::loss::{LossConfig, SemanticForm, instance_loss, semantic_loss};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{Split, Structure};
-use inssplat_trainer::train::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
+use inssplat_trainer::train::sample::{DataSpec, Prefetcher, Sample, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{self, Session, batch, TrainConfig, checkpoint, label_cache, seeded_init, update};
 
@@ -197,6 +198,31 @@ fn a_sample_carries_the_whole_label_vocabulary_for_the_contrastive_l_sem() {
     let contrastive = semantic(&LossConfig::new().with_semantic_temperature(Some(0.1)));
     let cosine = semantic(&LossConfig::new());
     assert!(contrastive.is_finite() && contrastive > 0.0 && contrastive != cosine, "{contrastive} vs cosine {cosine}");
+}
+
+#[test]
+fn the_prefetcher_hands_out_the_samplers_samples_in_order_from_several_threads() {
+    // Scenes serve two samples each, so each of the three data threads makes every third
+    // scene once and keeps it for its second sample.
+    let sampler = Sampler {
+        source: Source::open(&tiny_data()).unwrap(),
+        plan: ViewPlan { min_views: 2, max_views: 4, targets: 1, reuse: 2, first_scene: 7 },
+        seed: 11,
+        labels: label_cache().unwrap(),
+    };
+    let mut prefetch = Prefetcher::start(sampler.clone(), 3, 13, 4, 3);
+    let mut seen = Vec::new();
+    while let Some((index, sample)) = prefetch.next() {
+        let (got, want) = (sample.unwrap(), sampler.sample(index).unwrap());
+        assert_eq!((&got.scene, got.inputs, &got.cameras), (&want.scene, want.inputs, &want.cameras), "sample {index}");
+        assert!(got.images == want.images && got.depth == want.depth && got.ids == want.ids, "sample {index}: other pixels");
+        seen.push(index);
+    }
+    assert_eq!(seen, (3..13).collect::<Vec<_>>());
+    // Dropping it before the end stops its threads (the test would hang otherwise).
+    let mut early = Prefetcher::start(sampler, 0, 1000, 4, 3);
+    assert_eq!(early.next().map(|(i, _)| i), Some(0));
+    drop(early);
 }
 
 #[test]

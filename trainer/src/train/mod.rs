@@ -1,7 +1,7 @@
 //! The training loop: AdamW with warm-up + cosine learning rate (optionally a smaller one for
 //! the transformer backbone), one or more samples per step (side by side on threads, see
 //! [`batch`]) of 2–8 input views plus held-out target views each, data from
-//! a folder of scenes or synthesized on the fly (prefetched on a background thread), a
+//! a folder of scenes or synthesized on the fly (prefetched on background threads, one per sample of a step), a
 //! validation loss on fixed val samples, checkpoints every few minutes with exact resume, an
 //! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
 //!
@@ -420,7 +420,8 @@ fn run_loop(
     let schedule = state.config.schedule();
     let bar = progress_bar(&state, session);
     let k = state.config.batch();
-    let prefetch = Prefetcher::start(sampler, first_step * k, state.config.steps * k, 3 * k as usize);
+    // One data thread per sample of a step: a step of k samples needs up to k scenes made.
+    let mut prefetch = Prefetcher::start(sampler, first_step * k, state.config.steps * k, 3 * k as usize, k as usize);
     let session_start = Instant::now();
     let base_elapsed = state.elapsed_s;
     let mut last_checkpoint = Instant::now();

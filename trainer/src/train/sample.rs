@@ -7,7 +7,7 @@
 //! views come from a ChaCha RNG seeded with the seed and i; a run of k samples per step gives
 //! step s samples s·k .. s·k + k. Resuming at step s therefore sees exactly the data an
 //! uninterrupted run would have seen. [`Prefetcher`] builds the samples of the coming steps on
-//! a background thread, so data never stalls the step.
+//! background threads, so data never stalls the step.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -245,51 +245,71 @@ impl Sampler {
 }
 
 /// Builds samples `start..end` (sample i of a run with k samples per step belongs to step
-/// i / k) in order on a background thread, a few ahead.
+/// i / k) on background threads, a few ahead, and hands them out in order. Each of the
+/// `workers` threads owns the scenes whose index is its own modulo their number, so a scene is
+/// made once however many samples it serves, and a step that needs several scenes gets them
+/// made side by side.
 pub struct Prefetcher {
-    receiver: Receiver<(u64, Result<Sample, SampleError>)>,
-    worker: Option<JoinHandle<()>>,
+    sampler: Arc<Sampler>,
+    receivers: Vec<Receiver<(u64, Result<Sample, SampleError>)>>,
+    workers: Vec<JoinHandle<()>>,
+    next: u64,
+    end: u64,
 }
 
 impl Prefetcher {
-    /// Starts the worker; at most `ahead` samples wait.
-    pub fn start(sampler: Sampler, start: u64, end: u64, ahead: usize) -> Self {
-        let (sender, receiver): (SyncSender<_>, _) = sync_channel(ahead.max(1));
-        let worker = std::thread::Builder::new()
-            .name("inssplat-data".into())
-            .spawn(move || {
-                let mut cached: Option<(u64, Scene)> = None;
-                for step in start..end {
-                    let index = sampler.scene_index(step);
-                    let sample = match &cached {
-                        Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
-                        _ => sampler.source.scene(index).and_then(|scene| {
-                            let s = sampler.sample_of(&scene, step);
-                            cached = Some((index, scene));
-                            s
-                        }),
-                    };
-                    if sender.send((step, sample)).is_err() {
-                        return;
+    /// Starts `workers` threads (at least one); at most `ahead` samples wait (split between them).
+    pub fn start(sampler: Sampler, start: u64, end: u64, ahead: usize, workers: usize) -> Self {
+        let sampler = Arc::new(sampler);
+        let count = workers.max(1) as u64;
+        let (mut receivers, mut handles) = (Vec::new(), Vec::new());
+        for w in 0..count {
+            let (sender, receiver): (SyncSender<_>, _) = sync_channel(ahead.div_ceil(count as usize).max(1));
+            let sampler = sampler.clone();
+            let worker = std::thread::Builder::new()
+                .name(format!("inssplat-data-{w}"))
+                .spawn(move || {
+                    let mut cached: Option<(u64, Scene)> = None;
+                    for step in (start..end).filter(|&i| sampler.scene_index(i) % count == w) {
+                        let index = sampler.scene_index(step);
+                        let sample = match &cached {
+                            Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
+                            _ => sampler.source.scene(index).and_then(|scene| {
+                                let s = sampler.sample_of(&scene, step);
+                                cached = Some((index, scene));
+                                s
+                            }),
+                        };
+                        if sender.send((step, sample)).is_err() {
+                            return;
+                        }
                     }
-                }
-            })
-            .expect("spawn the data thread");
-        Self { receiver, worker: Some(worker) }
+                })
+                .expect("spawn a data thread");
+            receivers.push(receiver);
+            handles.push(worker);
+        }
+        Self { sampler, receivers, workers: handles, next: start, end }
     }
 
     /// The next sample with its index; `None` once `end` is reached.
-    pub fn next(&self) -> Option<(u64, Result<Sample, SampleError>)> {
-        self.receiver.recv().ok()
+    pub fn next(&mut self) -> Option<(u64, Result<Sample, SampleError>)> {
+        if self.next >= self.end {
+            return None;
+        }
+        let owner = (self.sampler.scene_index(self.next) % self.receivers.len() as u64) as usize;
+        let item = self.receivers[owner].recv().ok()?;
+        debug_assert_eq!(item.0, self.next, "a data thread skipped a sample");
+        self.next += 1;
+        Some(item)
     }
 }
 
 impl Drop for Prefetcher {
     fn drop(&mut self) {
-        // Unblock the worker (its send fails once the receiver is gone) and let it finish.
-        let (_, dead) = sync_channel(0);
-        drop(std::mem::replace(&mut self.receiver, dead));
-        if let Some(worker) = self.worker.take() {
+        // Unblock the workers (their sends fail once the receivers are gone) and let them finish.
+        self.receivers.clear();
+        for worker in self.workers.drain(..) {
             let _ = worker.join();
         }
     }
