@@ -5,8 +5,8 @@
 //! and L_sem of the network's own embeddings and features, the contrastive L_sem with its
 //! direct term names one scene's objects out of the whole vocabulary, samples carry the label
 //! vocabulary of the contrastive L_sem (older configs read as without these), the prefetcher's
-//! data threads hand out exactly the sampler's samples in order, and bad data
-//! folders and checkpoints are clear errors that name the path.
+//! data threads hand out exactly the sampler's samples in order, and bad data folders and
+//! checkpoints are clear errors that name the path.
 
 use std::path::Path;
 use std::process::Command;

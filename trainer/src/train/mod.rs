@@ -1,7 +1,7 @@
 //! The training loop: AdamW with warm-up + cosine learning rate (optionally a smaller one for
 //! the transformer backbone), one or more samples per step (side by side on threads, see
-//! [`batch`]) of 2–8 input views plus held-out target views each, data from
-//! a folder of scenes or synthesized on the fly (prefetched on background threads, one per sample of a step), a
+//! [`batch`]) of 2–8 input views plus held-out target views each, data from a folder of scenes
+//! or synthesized on the fly (prefetched on background threads, one per sample of a step), a
 //! validation loss on fixed val samples, checkpoints every few minutes with exact resume, an
 //! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
 //!

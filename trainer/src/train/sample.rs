@@ -254,7 +254,6 @@ pub struct Prefetcher {
     receivers: Vec<Receiver<(u64, Result<Sample, SampleError>)>>,
     workers: Vec<JoinHandle<()>>,
     next: u64,
-    end: u64,
 }
 
 impl Prefetcher {
@@ -270,8 +269,8 @@ impl Prefetcher {
                 .name(format!("inssplat-data-{w}"))
                 .spawn(move || {
                     let mut cached: Option<(u64, Scene)> = None;
-                    for step in (start..end).filter(|&i| sampler.scene_index(i) % count == w) {
-                        let index = sampler.scene_index(step);
+                    let owned = (start..end).map(|step| (step, sampler.scene_index(step))).filter(|(_, index)| index % count == w);
+                    for (step, index) in owned {
                         let sample = match &cached {
                             Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
                             _ => sampler.source.scene(index).and_then(|scene| {
@@ -289,14 +288,12 @@ impl Prefetcher {
             receivers.push(receiver);
             handles.push(worker);
         }
-        Self { sampler, receivers, workers: handles, next: start, end }
+        Self { sampler, receivers, workers: handles, next: start }
     }
 
-    /// The next sample with its index; `None` once `end` is reached.
+    /// The next sample with its index; `None` once `end` is reached (the thread that would own
+    /// sample `end` has finished and closed its channel).
     pub fn next(&mut self) -> Option<(u64, Result<Sample, SampleError>)> {
-        if self.next >= self.end {
-            return None;
-        }
         let owner = (self.sampler.scene_index(self.next) % self.receivers.len() as u64) as usize;
         let item = self.receivers[owner].recv().ok()?;
         debug_assert_eq!(item.0, self.next, "a data thread skipped a sample");
