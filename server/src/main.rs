@@ -149,6 +149,10 @@ enum Command {
         /// predicted ones (scores everything but the camera head).
         #[arg(long)]
         known_poses: bool,
+        /// Place the network's outputs at the scenes' true context depth instead of the depth
+        /// head's (scores everything but the depth head; combine with --known-poses).
+        #[arg(long)]
+        known_depth: bool,
         /// Use the camera head's poses as they are, without the keypoint registration stage
         /// (the ablation of registration).
         #[arg(long)]
@@ -312,6 +316,7 @@ fn main() -> anyhow::Result<()> {
             split_cell,
             shape_examples,
             known_poses,
+            known_depth,
             no_register,
             no_aggregation,
             query_rules,
@@ -343,6 +348,7 @@ fn main() -> anyhow::Result<()> {
                 },
                 cluster,
                 known_poses,
+                known_depth,
                 no_aggregation,
                 query_rules,
                 perturb,

@@ -57,8 +57,9 @@ fn eval_reports_every_metric_per_view_count() {
     let scene = &report["scenes"][0];
     assert!(scene["gaussians_kept"].as_u64().unwrap() > 0);
     // Objects and shell split the pixels at one scale: the whole is a mean of the two parts.
-    let depth = |k: &str| scene[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {scene}"));
-    let (all, objects, shell) = (depth("depth_abs_rel"), depth("depth_abs_rel_objects"), depth("depth_abs_rel_shell"));
+    let depth = |scene: &Value, k: &str| scene[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {scene}"));
+    let (all, objects, shell) =
+        (depth(scene, "depth_abs_rel"), depth(scene, "depth_abs_rel_objects"), depth(scene, "depth_abs_rel_shell"));
     assert!(objects.min(shell) - 1e-9 <= all && all <= objects.max(shell) + 1e-9, "{scene}");
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
@@ -69,14 +70,19 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(out_dir.join("eval.json").is_file());
     assert_eq!(report["cluster"], "3d");
 
-    // With the true context cameras the alignment is exact, and the report says so ...
-    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--no-aggregation", "--json"]);
+    // With the true context cameras the alignment is exact, with the true depth so is the
+    // depth, and the report says so ...
+    let out = inssplat(&[
+        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation", "--json",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
-    assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras"));
+    assert_eq!(report["known_depth"], true);
+    assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras and depth"));
     let scene = &report["scenes"][0];
     assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");
+    assert!(depth(scene, "depth_abs_rel") < 1e-6 && depth(scene, "depth_abs_rel_objects") < 1e-6, "{scene}");
     // ... and the labels come from every pixel's own semantic feature (still a valid score).
     assert_eq!(report["no_aggregation"], true);
     let sem = scene["semantic_macc"].as_f64().unwrap();

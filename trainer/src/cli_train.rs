@@ -107,6 +107,10 @@ pub struct TrainArgs {
     /// neighbours; 0: the L1 term alone).
     #[arg(long, default_value_t = 0.0)]
     depth_gradient_weight: f64,
+    /// Weight of the scale-invariant shape term inside L_depth (|ŝ·d̂ − d| with ŝ each view's
+    /// least-squares scale onto the ground truth; 0: none).
+    #[arg(long, default_value_t = 0.0)]
+    depth_shape_weight: f64,
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
@@ -187,6 +191,7 @@ impl TrainArgs {
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
             .with_depth_gradient_weight((self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight))
+            .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
             .with_semantic_weight(self.semantic_weight)

@@ -112,6 +112,9 @@ pub struct LossConfig {
     /// Weight of the depth-gradient term inside L_depth (see [`geometry`]); `None` (also what
     /// configs saved before this term existed read as) means 0, the L1 term alone.
     pub depth_gradient_weight: Option<f64>,
+    /// Weight of the scale-invariant shape term inside L_depth (see [`geometry`]); `None`
+    /// (also what configs saved before this term existed read as) means 0.
+    pub depth_shape_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

@@ -72,9 +72,27 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     // both pixels valid: ∂y at pixel 0 (|−0.4 − 0.3| = 0.7) and ∂x at pixel 2 (|0 + 0.4|);
     // pixel 1 has no ground truth, so its pairs count nothing.
     let k = 0.5;
-    let with_gradient = config.with_depth_gradient_weight(Some(k));
+    let with_gradient = config.clone().with_depth_gradient_weight(Some(k));
     let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln()) + (e * (0.4 + k * 0.4) / 3.0 - alpha)) / 3.0;
-    close(scalar(depth_loss(depth, conf, &gt, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
+
+    // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
+    // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
+    let (pred, truth) = ([2.3, 3.6, 3.0], [2.0, 4.0, 3.0]);
+    let s_hat = (0..3).map(|i| pred[i] * truth[i]).sum::<f64>() / pred.iter().map(|p| p * p).sum::<f64>();
+    let shape = |i: usize| (s_hat * pred[i] - truth[i]).abs();
+    let k = 0.8;
+    let with_shape = config.clone().with_depth_shape_weight(Some(k));
+    let expected = ((2.0 * (0.3 + k * shape(0)) / 3.0 - alpha * 2f64.ln())
+        + (e * (0.4 + k * shape(1)) / 3.0 - alpha)
+        + k * shape(2) / 3.0)
+        / 3.0;
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &with_shape).unwrap()), expected, "L_depth with shape term");
+    // It ignores the view's scale: a prediction off by a factor only pays the L1 term.
+    let doubled = tensor(&[4.0, 1.0, 8.0, 6.0], [1, 1, 2, 2]);
+    let ones = tensor(&[1.0; 4], [1, 1, 2, 2]);
+    let plain = scalar(depth_loss(doubled.clone(), ones.clone(), &gt, 3.0, &config).unwrap());
+    close(scalar(depth_loss(doubled, ones, &gt, 3.0, &with_shape).unwrap()), plain, "shape term of a scaled truth");
 }
 
 fn camera(rotation: Quat, translation: Vec3, fov_y: f32) -> Camera {

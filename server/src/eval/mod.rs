@@ -69,6 +69,8 @@ pub struct Report {
     pub position_weight: f32,
     /// Whether the true context cameras replaced the predicted ones.
     pub known_poses: bool,
+    /// Whether the context frames' true depth replaced the predicted one.
+    pub known_depth: bool,
     /// Whether pixels were named without instance-grounded aggregation.
     pub no_aggregation: bool,
     pub summaries: Vec<Summary>,
@@ -169,6 +171,8 @@ pub struct EvalRequest {
     pub cluster: ClusterMode,
     /// Use the true context cameras instead of the predicted ones (see [`Settings`]).
     pub known_poses: bool,
+    /// Use the context frames' true depth instead of the predicted one (see [`Settings`]).
+    pub known_depth: bool,
     /// Pixels named from their own semantic features (see [`Settings`]).
     pub no_aggregation: bool,
     /// Score the text queries under every rule of [`query_rules::grid`] too.
@@ -228,6 +232,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             cluster: req.cluster,
             perturbation,
             known_poses: req.known_poses,
+            known_depth: req.known_depth,
             no_aggregation: req.no_aggregation,
             query_rules: &rules,
         };
@@ -281,6 +286,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         cluster: req.cluster,
         position_weight: req.pipeline.cluster.position_weight,
         known_poses: req.known_poses,
+        known_depth: req.known_depth,
         no_aggregation: req.no_aggregation,
         summaries,
         shape_examples: all.iter_mut().flat_map(|s| std::mem::take(&mut s.shape_examples)).collect(),
@@ -292,7 +298,12 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
              the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization of the Gaussians{}",
-            if req.known_poses { " with the TRUE context cameras (--known-poses), not the predicted ones" } else { "" },
+            match (req.known_poses, req.known_depth) {
+                (false, false) => "",
+                (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
+                (false, true) => " with the TRUE context depth (--known-depth), not the predicted one",
+                (true, true) => " with the TRUE context cameras and depth (--known-poses --known-depth), not the predicted ones",
+            },
             match (&req.pipeline.register, req.known_poses) {
                 (_, true) => "",
                 (Some(_), false) => "; cameras registered from keypoint matches and the predicted depth (stage `register`)",
@@ -406,6 +417,9 @@ pub fn markdown(r: &Report) -> String {
     let mut notes = String::new();
     if r.known_poses {
         notes += " Cameras: the true context poses (--known-poses), not the camera head.";
+    }
+    if r.known_depth {
+        notes += " Depth: the true context depth (--known-depth), not the depth head.";
     }
     if r.no_aggregation {
         notes += " Labels per pixel, no instance-grounded aggregation (--no-aggregation).";

@@ -115,6 +115,9 @@ pub struct Settings<'a> {
     /// Reconstruct with the true context cameras instead of the predicted ones: what the rest
     /// of the network achieves when the camera head is taken out of the question.
     pub known_poses: bool,
+    /// Reconstruct with the context frames' true depth instead of the depth head's: what the
+    /// rest of the network achieves when its depth is taken out of the question.
+    pub known_depth: bool,
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
     pub no_aggregation: bool,
@@ -193,9 +196,13 @@ pub fn evaluate_scene_keeping(
     let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
     let images = context_images(scene, &context, settings.perturbation);
     let known;
-    let pipeline = if settings.known_poses {
-        let poses = context.iter().map(|&i| scene.frames[i].camera).collect();
-        known = PipelineConfig { known_poses: Some(poses), ..settings.pipeline.clone() };
+    let pipeline = if settings.known_poses || settings.known_depth {
+        let poses = settings.known_poses.then(|| context.iter().map(|&i| scene.frames[i].camera).collect());
+        let depth = match settings.known_depth {
+            false => None,
+            true => Some(context.iter().map(|&i| scene.frames[i].depth.as_deref().ok_or_else(|| bad(format!("frame {i} has no depth (--known-depth needs it)")))).collect::<Result<Vec<_>, _>>()?.concat()),
+        };
+        known = PipelineConfig { known_poses: poses, known_depth: depth, ..settings.pipeline.clone() };
         &known
     } else {
         settings.pipeline

@@ -39,6 +39,8 @@ pub enum PipelineError {
     EmptyVocabulary,
     #[error("{given} known camera poses for {views} views; give one per view, in order")]
     Poses { given: usize, views: usize },
+    #[error("{given} known depth values for {views} views of {pixels} pixels; give one per pixel of every view at the model resolution")]
+    Depth { given: usize, views: usize, pixels: usize },
     #[error("{stage}: {message}")]
     Stage { stage: &'static str, message: String },
 }
@@ -66,6 +68,11 @@ pub struct PipelineConfig {
     /// the model resolution), used instead of the network's camera head; the network's depth,
     /// Gaussians and features are placed with them. `None`: the predicted cameras.
     pub known_poses: Option<Vec<Camera>>,
+    /// Known depth of the inputs, `[V][H][W]` metres at the model resolution (0: no surface,
+    /// that pixel keeps the depth head's value), used instead of the depth head wherever the
+    /// depth is read (registration, back-projection); the network's per-pixel offsets,
+    /// Gaussians and features are kept. `None`: the predicted depth.
+    pub known_depth: Option<Vec<f32>>,
     /// Weight of the shape classifier's text-space direction added to each instance's
     /// semantic prototype before naming (0, or a model without a classifier, names by the
     /// semantic features alone).
@@ -80,6 +87,7 @@ impl Default for PipelineConfig {
             split: Some(SplitParams::default()),
             register: Some(RegisterParams::default()),
             known_poses: None,
+            known_depth: None,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
         }
     }
@@ -193,8 +201,18 @@ pub fn reconstruct_with(
         images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32)).collect::<Result<Vec<_>, _>>()
     })?;
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
-    let out = clock.time("model", || model.run(&batch, images.len()))?;
+    let mut out = clock.time("model", || model.run(&batch, images.len()))?;
     let pixels = out.height * out.width;
+    if let Some(known) = &config.known_depth {
+        if known.len() != out.depth.len() {
+            return Err(PipelineError::Depth { given: known.len(), views: out.views, pixels });
+        }
+        for (d, &k) in out.depth.iter_mut().zip(known) {
+            if k > 0.0 {
+                *d = k;
+            }
+        }
+    }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
     let cameras = match &config.known_poses {
         None => {

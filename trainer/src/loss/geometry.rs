@@ -9,7 +9,12 @@
 //! term) each pixel also pays w·c_p·(|∂x(d̂ − d)_p| + |∂y(d̂ − d)_p|)/s, the forward
 //! differences to its right and lower neighbours where both pixels are valid: the L1 term
 //! alone is satisfied first by the smooth room and learns the steps at the objects' outlines
-//! last. There is no scale alignment: the ground truth is
+//! last. With `depth_shape_weight` k > 0 each pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
+//! ŝ_v = Σ d̂·d / Σ d̂² over view v's valid pixels is the least-squares scale that best fits
+//! the view's prediction to its ground truth (differentiated through, so the term is blind to
+//! the view's scale): the metric L1 alone hands every pixel of a view whose scale is off the
+//! same sign of gradient, which drowns the shape (objects in front of the wall) in the scale
+//! error of each room. The L1 term itself has no scale alignment: the ground truth is
 //! metric and the network predicts metric depth and translation, which the voxel size and
 //! every metric at inference rely on.
 //!
@@ -78,14 +83,35 @@ pub fn depth_loss(
     }
     let weights: Vec<f32> = target.iter().map(|&d| if d > 0.0 { 1.0 / valid as f32 } else { 0.0 }).collect();
     let shape = [v, 1, h, w];
+    let depth_in = depth.clone();
     let error = depth - constant(target.to_vec(), shape, &device);
     let mut per_pixel = error.clone().abs().div_scalar(scale);
     if let Some(k) = config.depth_gradient_weight.filter(|&k| k > 0.0) {
         per_pixel = per_pixel + gradient_error(error, target).div_scalar(scale).mul_scalar(k);
     }
+    if let Some(k) = config.depth_shape_weight.filter(|&k| k > 0.0) {
+        let aligned = view_scaled(depth_in, target) - constant(target.to_vec(), shape, &device);
+        per_pixel = per_pixel + aligned.abs().div_scalar(scale).mul_scalar(k);
+    }
     let weights = constant(weights, shape, &device);
     let per_pixel = conf.clone() * per_pixel - conf.log().mul_scalar(config.depth_conf_alpha);
     Ok((per_pixel * weights).sum())
+}
+
+/// `depth` `[V, 1, H, W]` with each view multiplied by its least-squares scale onto `target`,
+/// ŝ_v = Σ d̂·d / Σ d̂² over the view's valid pixels (1 for a view without any).
+fn view_scaled(depth: Tensor<4>, target: &[f32]) -> Tensor<4> {
+    let [v, _, h, w] = depth.dims();
+    let device = depth.device();
+    let valid: Vec<f32> = target.iter().map(|&d| f32::from(d > 0.0)).collect();
+    let valid = constant(valid, [v, h * w], &device);
+    let flat = depth.clone().reshape([v, h * w]);
+    let dot = (flat.clone() * constant(target.to_vec(), [v, h * w], &device)).sum_dim(1);
+    let norm = (flat.clone() * flat * valid.clone()).sum_dim(1);
+    let empty = valid.sum_dim(1).equal_elem(0.0).float();
+    // An empty view has dot = norm = 0: ŝ = (0 + 1)/(0 + 1).
+    let scales = (dot + empty.clone()) / (norm + empty);
+    depth * scales.reshape([v, 1, 1, 1]).expand([v, 1, h, w])
 }
 
 /// Per pixel of `error` `[V, 1, H, W]` (prediction − ground truth), |∂x| + |∂y| of its forward
