@@ -2,11 +2,12 @@
 //! up on the same surfaces, so they are binned in a world-space hash grid and every voxel's
 //! Gaussians are merged into one, weighted by their depth confidence. The voxel size is a
 //! fraction of the scene's robust extent (5–95 percentile box of the means), so it follows the
-//! scene's unknown scale. Position, colour, opacity, the instance embedding S and the semantic
+//! scene's unknown scale. Position, colour, the instance embedding S and the semantic
 //! feature L are confidence-weighted means (S is L2-normalized per Gaussian first: only its
 //! direction carries meaning; L is averaged raw because Φ_sem is affine); the covariance is
 //! the weighted second moment Σ wᵢ (Σᵢ + (μᵢ−μ)(μᵢ−μ)ᵀ), turned back into scale and rotation
-//! by eigen-decomposition; confidences add up. Binning is a parallel sort on the integer voxel
+//! by eigen-decomposition; confidences add up. Opacity either is a weighted mean too, or keeps
+//! the members' optical depth (see [`OpacityMerge`]). Binning is a parallel sort on the integer voxel
 //! key (an unbounded grid, no hash table to size), merging runs in parallel over runs of
 //! equal keys, so the output order is deterministic.
 
@@ -25,6 +26,21 @@ use crate::cluster::unit;
 /// of moment-matched voxels show gaps between them.
 pub const DEFAULT_EXTENT_FRACTION: f32 = 1.0 / 60.0;
 
+/// How a voxel's merged opacity follows from its members'.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OpacityMerge {
+    /// The confidence-weighted mean of the members' opacities (the ablation: it makes a
+    /// stack as see-through as each of its members).
+    Mean,
+    /// The members' optical depth, spread over the merged footprint: each member i adds
+    /// −ln(1 − αᵢ)·aᵢ, aᵢ its face-on area (the product of its two largest scales), and the
+    /// merged Gaussian of area a has α = 1 − exp(−Σ/a). k translucent members stacked on one
+    /// spot (the same surface seen from k views) keep their composite 1 − Π(1 − αᵢ), and
+    /// members side by side (neighbouring pixels of one view) keep their own α. The default:
+    /// the network learns its opacities rendering every view's Gaussians unmerged.
+    Coverage,
+}
+
 /// How a voxel's members are weighted by their confidence `c`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Weighting {
@@ -41,11 +57,17 @@ pub struct VoxelParams {
     pub weighting: Weighting,
     /// Gaussians less opaque than this add nothing and are dropped before merging.
     pub min_opacity: f32,
+    pub opacity: OpacityMerge,
 }
 
 impl Default for VoxelParams {
     fn default() -> Self {
-        Self { extent_fraction: DEFAULT_EXTENT_FRACTION, weighting: Weighting::Normalized, min_opacity: 0.005 }
+        Self {
+            extent_fraction: DEFAULT_EXTENT_FRACTION,
+            weighting: Weighting::Normalized,
+            min_opacity: 0.005,
+            opacity: OpacityMerge::Coverage,
+        }
     }
 }
 
@@ -169,7 +191,7 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized
             out.reserve(range.len());
             let mut merger = Merger::new(scene.sem_dim);
             for v in range {
-                merger.merge_into(scene, &members[starts[v]..starts[v + 1]], params.weighting, &mut out);
+                merger.merge_into(scene, &members[starts[v]..starts[v + 1]], params, &mut out);
             }
             out
         })
@@ -214,7 +236,7 @@ impl Merger {
         Self { weights: Vec::new(), semantic: vec![0.0; sem_dim] }
     }
 
-    fn merge_into(&mut self, scene: &GaussianScene, idx: &[u32], weighting: Weighting, out: &mut GaussianScene) {
+    fn merge_into(&mut self, scene: &GaussianScene, idx: &[u32], params: &VoxelParams, out: &mut GaussianScene) {
         if let [i] = idx {
             let i = *i as usize;
             out.push(Gaussian {
@@ -235,7 +257,7 @@ impl Merger {
             if c.is_finite() { c.max(1e-6) } else { 1e-6 }
         };
         self.weights.clear();
-        match weighting {
+        match params.weighting {
             Weighting::Normalized => self.weights.extend(idx.iter().map(|&i| conf(i))),
             Weighting::Softmax { temperature } => {
                 let top = idx.iter().map(|&i| conf(i)).fold(f32::MIN, f32::max);
@@ -273,6 +295,10 @@ impl Merger {
             cov += (covariance(scene.log_scales[i], scene.rotations[i]) + outer(d, d)) * w;
         }
         let (log_scale, rotation) = scale_rotation(cov).unwrap_or((scene.log_scales[best], scene.rotations[best]));
+        if params.opacity == OpacityMerge::Coverage {
+            let depth: f32 = idx.iter().map(|&i| optical_depth(scene.logit_opacity[i as usize], scene.log_scales[i as usize])).sum();
+            opacity = (1.0 - (-depth / face_area(log_scale)).exp()).min(MAX_MERGED_OPACITY);
+        }
         out.push(Gaussian {
             mean: mean.to_array(),
             log_scale,
@@ -285,6 +311,22 @@ impl Merger {
             instance_id: scene.instance_id[best],
         });
     }
+}
+
+/// Opacities of members are capped here before their optical depth is taken, and merged
+/// opacities after: a fully opaque member would have infinite depth.
+const MAX_MERGED_OPACITY: f32 = 0.999;
+
+/// Area a Gaussian of `log_scale` shows face on: the product of its two largest scales.
+fn face_area(log_scale: [f32; 3]) -> f32 {
+    let [a, b, c] = log_scale;
+    (a + b + c - a.min(b).min(c)).exp()
+}
+
+/// −ln(1 − α)·area of one member (see [`OpacityMerge::Coverage`]).
+fn optical_depth(logit_opacity: f32, log_scale: [f32; 3]) -> f32 {
+    let alpha = sigmoid(logit_opacity).min(MAX_MERGED_OPACITY);
+    -(1.0 - alpha).ln() * face_area(log_scale)
 }
 
 fn outer(a: Vec3, b: Vec3) -> Mat3 {
@@ -362,7 +404,7 @@ mod tests {
         // Voxel size 9/9 = 1: both land in voxel (20, 20, 20) with weights 1/4 and 3/4.
         push(&mut s, [20.1, 20.5, 20.5], [-3.0; 3], 1.0, 1.0, 4.0);
         push(&mut s, [20.5, 20.5, 20.5], [-3.0; 3], 3.0, 0.0, 8.0);
-        let params = VoxelParams { extent_fraction: 1.0 / 9.0, ..VoxelParams::default() };
+        let params = VoxelParams { extent_fraction: 1.0 / 9.0, opacity: OpacityMerge::Mean, ..VoxelParams::default() };
         let Voxelized { scene: out, report, voxel_of } = voxelize(&s, &params).unwrap();
         assert_eq!((report.gaussians_in, report.gaussians_out, report.voxel_size), (102, 101, 1.0));
         let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
@@ -383,6 +425,33 @@ mod tests {
         assert!((sorted[0] - base).abs() < 1e-5 && (sorted[1] - base).abs() < 1e-5, "{var:?}");
         let back = covariance(out.log_scales[m], out.rotations[m]);
         assert!((back.x_axis.x - (base + 0.03)).abs() < 1e-5, "the long axis is x: {back}");
+    }
+
+    #[test]
+    fn coverage_opacity_keeps_a_stacks_composite_and_a_rows_own_opacity() {
+        let coverage = VoxelParams { extent_fraction: 1.0 / 9.0, opacity: OpacityMerge::Coverage, ..VoxelParams::default() };
+        let merged = |s: &GaussianScene| {
+            let out = voxelize(s, &coverage).unwrap().scene;
+            let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
+            sigmoid(out.logit_opacity[m])
+        };
+        // Three members of α 0.5 on one spot: the composite 1 − 0.5³.
+        let mut stack = grid();
+        for conf in [1.0, 2.0, 3.0] {
+            push(&mut stack, [20.5, 20.5, 20.5], [-3.0; 3], conf, 1.0, 0.0);
+        }
+        assert!((merged(&stack) - 0.875).abs() < 1e-4, "{}", merged(&stack));
+        // Two flat members (scales e^-1, e^-1, e^-6) side by side along x, 0.6 apart: the
+        // merged footprint is the moment-matched one, its opacity the members' optical depth
+        // spread over it, and the mean rule would have kept 0.5.
+        let mut row = grid();
+        for x in [20.2, 20.8] {
+            push(&mut row, [x, 20.5, 20.5], [-1.0, -1.0, -6.0], 1.0, 1.0, 0.0);
+        }
+        let (s1, var_x) = ((-1.0f32).exp(), (-2.0f32).exp() + 0.09);
+        let expected = 1.0 - (-2.0 * 2f32.ln() * s1 * s1 / (var_x.sqrt() * s1)).exp();
+        assert!((merged(&row) - expected).abs() < 1e-4, "{} vs {expected}", merged(&row));
+        assert!(expected > 0.5 && expected < 0.75);
     }
 
     #[test]

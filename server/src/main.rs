@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::cluster::split::SplitParams;
 use inssplat_raster::register::RegisterParams;
+use inssplat_raster::voxel::{OpacityMerge, VoxelParams};
 use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
@@ -153,6 +154,10 @@ enum Command {
         /// head's (scores everything but the depth head; combine with --known-poses).
         #[arg(long)]
         known_depth: bool,
+        /// How voxelization merges the opacities of a voxel's Gaussians: their optical depth
+        /// over the merged footprint (coverage), or their mean (the ablation).
+        #[arg(long, value_enum, default_value_t = MergeOpacity::Coverage)]
+        merge_opacity: MergeOpacity,
         /// Use the camera head's poses as they are, without the keypoint registration stage
         /// (the ablation of registration).
         #[arg(long)]
@@ -180,6 +185,21 @@ enum Command {
         #[arg(long, env = "INSSPLAT_THREADS")]
         threads: Option<usize>,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum MergeOpacity {
+    Coverage,
+    Mean,
+}
+
+impl From<MergeOpacity> for OpacityMerge {
+    fn from(m: MergeOpacity) -> Self {
+        match m {
+            MergeOpacity::Coverage => OpacityMerge::Coverage,
+            MergeOpacity::Mean => OpacityMerge::Mean,
+        }
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -317,6 +337,7 @@ fn main() -> anyhow::Result<()> {
             shape_examples,
             known_poses,
             known_depth,
+            merge_opacity,
             no_register,
             no_aggregation,
             query_rules,
@@ -344,6 +365,7 @@ fn main() -> anyhow::Result<()> {
                     cluster: ClusterParams { position_weight, ..ClusterParams::default() },
                     split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,
+                    voxel: VoxelParams { opacity: merge_opacity.into(), ..VoxelParams::default() },
                     ..PipelineConfig::default()
                 },
                 cluster,
