@@ -111,6 +111,10 @@ pub struct TrainArgs {
     /// least-squares scale onto the ground truth; 0: none).
     #[arg(long, default_value_t = 0.0)]
     depth_shape_weight: f64,
+    /// β of L_depth's pixel weights, in [0, 1]: 0 weighs every pixel alike, 1 every instance
+    /// alike (a chair as much as the floor), between them a mixture.
+    #[arg(long, default_value_t = 0.0, value_parser = unit_interval)]
+    depth_instance_balance: f64,
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
@@ -172,6 +176,15 @@ fn pick<T>(off: bool, on: T, off_value: T) -> T {
     if off { off_value } else { on }
 }
 
+/// A number in [0, 1], for clap.
+fn unit_interval(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        Ok(x) => Err(format!("{x} is outside [0, 1]")),
+        Err(e) => Err(format!("{s:?} is not a number: {e}")),
+    }
+}
+
 fn minutes(m: f64, flag: &str) -> Result<Duration> {
     Duration::try_from_secs_f64(m * 60.0).with_context(|| format!("{flag}: {m} is not a number of minutes"))
 }
@@ -192,6 +205,7 @@ impl TrainArgs {
             .with_geometry_weight(self.geometry_weight)
             .with_depth_gradient_weight((self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight))
             .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
+            .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
             .with_semantic_weight(self.semantic_weight)

@@ -24,7 +24,7 @@ use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
 pub use boundary::{boundary_rgb_loss, boundary_weights};
-pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, geometry_loss, median_depth};
+pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
 pub use semantic::{SemanticForm, semantic_loss};
 
@@ -115,6 +115,10 @@ pub struct LossConfig {
     /// Weight of the scale-invariant shape term inside L_depth (see [`geometry`]); `None`
     /// (also what configs saved before this term existed read as) means 0.
     pub depth_shape_weight: Option<f64>,
+    /// β of L_depth's pixel weights: 0 (and `None`, also what configs saved before this switch
+    /// existed read as) weighs every valid pixel alike, 1 every instance alike (see
+    /// [`geometry`]).
+    pub depth_instance_balance: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

@@ -156,9 +156,14 @@ fn loss_depth_gradient_matches_finite_differences() {
     let target = [2.0, 2.1, 0.0, 2.4, 2.5, 2.6, 1.0, 1.2, 3.0, 3.0, 2.9, 2.8, 1.5, 1.6, 2.7, 1.4, 1.5, 2.6];
     let depth = [2.3, 1.8, 2.0, 2.0, 2.9, 2.2, 1.4, 0.9, 3.5, 2.6, 3.4, 2.5, 1.9, 1.1, 3.1, 1.0, 2.0, 2.3];
     let conf: Vec<f32> = (0..18).map(|i| 1.0 + 0.1 * i as f32).collect();
-    let config = LossConfig::new().with_depth_gradient_weight(Some(0.7)).with_depth_shape_weight(Some(0.6));
+    // Three instances of unequal size, weighed half uniformly, half per instance.
+    let ids: Vec<u32> = (0..18).map(|i| [1, 1, 2, 3, 1, 1][i % 6]).collect();
+    let config = LossConfig::new()
+        .with_depth_gradient_weight(Some(0.7))
+        .with_depth_shape_weight(Some(0.6))
+        .with_depth_instance_balance(Some(0.5));
     check_gradient(&depth, [2, 1, 3, 3], |x| {
         let conf = tensor(&conf, [2, 1, 3, 3], &x.device());
-        depth_loss(x, conf, &target, 2.5, &config).unwrap()
+        depth_loss(x, conf, &target, &ids, 2.5, &config).unwrap()
     });
 }

@@ -6,7 +6,7 @@ use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_trainer::loss::{
     BoundaryTerm, LossConfig, LossError, LossTerms, boundary_rgb_loss, boundary_weights, camera_loss, camera_targets,
-    SemanticForm, depth_loss, geometry_loss, median_depth, rgb_loss, semantic_loss,
+    SemanticForm, depth_loss, depth_weights, geometry_loss, median_depth, rgb_loss, semantic_loss,
 };
 
 fn tensor<const D: usize>(values: &[f32], shape: [usize; D]) -> Tensor<D> {
@@ -58,6 +58,7 @@ fn loss_rgb_is_mse() {
 fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term() {
     // Pixels: gt 2, 0 (no hit), 4, 3 → median of {2, 3, 4} is 3.
     let gt = [2.0, 0.0, 4.0, 3.0];
+    let ids = [1, 1, 2, 1];
     assert_eq!(median_depth(&gt), Some(3.0));
     assert_eq!(median_depth(&[0.0, 0.0]), None);
     let e = std::f64::consts::E;
@@ -66,7 +67,7 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     let config = LossConfig::new();
     let alpha = 0.2;
     let expected = ((2.0 * 0.3 / 3.0 - alpha * 2f64.ln()) + (e * 0.4 / 3.0 - alpha * 1.0) + 0.0) / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &config).unwrap()), expected, "L_depth");
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &config).unwrap()), expected, "L_depth");
 
     // The gradient term: errors e = (0.3, 5, −0.4, 0) row-major on the 2×2 view. Pairs with
     // both pixels valid: ∂y at pixel 0 (|−0.4 − 0.3| = 0.7) and ∂x at pixel 2 (|0 + 0.4|);
@@ -74,7 +75,7 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     let k = 0.5;
     let with_gradient = config.clone().with_depth_gradient_weight(Some(k));
     let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln()) + (e * (0.4 + k * 0.4) / 3.0 - alpha)) / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
 
     // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
     // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
@@ -87,12 +88,27 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
         + (e * (0.4 + k * shape(1)) / 3.0 - alpha)
         + k * shape(2) / 3.0)
         / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, 3.0, &with_shape).unwrap()), expected, "L_depth with shape term");
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_shape).unwrap()), expected, "L_depth with shape term");
     // It ignores the view's scale: a prediction off by a factor only pays the L1 term.
     let doubled = tensor(&[4.0, 1.0, 8.0, 6.0], [1, 1, 2, 2]);
     let ones = tensor(&[1.0; 4], [1, 1, 2, 2]);
-    let plain = scalar(depth_loss(doubled.clone(), ones.clone(), &gt, 3.0, &config).unwrap());
-    close(scalar(depth_loss(doubled, ones, &gt, 3.0, &with_shape).unwrap()), plain, "shape term of a scaled truth");
+    let plain = scalar(depth_loss(doubled.clone(), ones.clone(), &gt, &ids, 3.0, &config).unwrap());
+    close(scalar(depth_loss(doubled, ones, &gt, &ids, 3.0, &with_shape).unwrap()), plain, "shape term of a scaled truth");
+
+    // Instance balance β: instance 1 has the valid pixels 0 and 3, instance 2 pixel 2, so at
+    // β = 1 pixel 2 weighs ½ and pixels 0 and 3 ¼ each; at β = ½ the mean of that and ⅓ each.
+    assert_eq!(depth_weights(&gt, &ids, 1.0), vec![0.25, 0.0, 0.5, 0.25]);
+    let half = depth_weights(&gt, &ids, 0.5);
+    for (got, want) in half.iter().zip([(0.25 + 1.0 / 3.0) / 2.0, 0.0, (0.5 + 1.0 / 3.0) / 2.0, (0.25 + 1.0 / 3.0) / 2.0]) {
+        close(f64::from(*got), want, "β = ½ weight");
+    }
+    let per_pixel = [2.0 * 0.3 / 3.0 - alpha * 2f64.ln(), 0.0, e * 0.4 / 3.0 - alpha, 0.0];
+    let balanced = config.clone().with_depth_instance_balance(Some(1.0));
+    let expected = 0.25 * per_pixel[0] + 0.5 * per_pixel[2] + 0.25 * per_pixel[3];
+    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &balanced).unwrap()), expected, "balanced L_depth");
+    // Ids of pixels without ground truth count nowhere, and one instance is uniform weighting.
+    let one = depth_weights(&gt, &[7, 9, 7, 7], 1.0);
+    assert_eq!(one, depth_weights(&gt, &ids, 0.0));
 }
 
 fn camera(rotation: Quat, translation: Vec3, fov_y: f32) -> Camera {
@@ -142,7 +158,7 @@ fn loss_camera_hand_values() {
     let gt = [2.0, 4.0];
     let depth = tensor(&[3.0, 4.0], [1, 1, 1, 2]);
     let conf = tensor(&[1.0, 1.0], [1, 1, 1, 2]);
-    let geom = geometry_loss(depth, conf, &gt, pred, &targets, &LossConfig::new()).unwrap();
+    let geom = geometry_loss(depth, conf, &gt, &[3, 4], pred, &targets, &LossConfig::new()).unwrap();
     close(scalar(geom), (1.0 / 4.0) / 2.0 + ((1.0 - c) + s) / 4.0, "L_geom");
 }
 

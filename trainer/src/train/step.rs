@@ -151,6 +151,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         out.depth.clone(),
         out.depth_conf.clone(),
         &sample.depth[..inputs * pixels],
+        &sample.ids[..inputs * pixels],
         out.camera.clone(),
         &targets,
         config,
