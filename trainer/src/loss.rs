@@ -20,6 +20,8 @@ pub mod geometry;
 pub mod instance;
 pub mod semantic;
 
+use std::collections::HashMap;
+
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -234,6 +236,17 @@ pub(crate) fn unit_pixel_vectors(planar: &[f32], channels: usize) -> Vec<f32> {
         }
     }
     unit
+}
+
+/// How many of `ids` (the instance id of each pixel that counts) each instance has: the
+/// |Ω_i| of the losses balanced per instance (L_sem, L_depth), whose pixels weigh
+/// 1/(|Ω_i|·instances) so that a chair counts as much as the floor.
+pub(crate) fn pixels_per_instance(ids: impl IntoIterator<Item = u32>) -> HashMap<u32, usize> {
+    let mut counts = HashMap::new();
+    for id in ids {
+        *counts.entry(id).or_default() += 1;
+    }
+    counts
 }
 
 /// A constant float tensor of `shape` from host values.

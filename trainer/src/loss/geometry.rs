@@ -34,7 +34,7 @@ use burn::prelude::*;
 use inssplat_proto::Camera;
 use inssplat_proto::signature::CAMERA_CHANNELS;
 
-use super::{LossConfig, LossError, check_dims, check_len, constant, normalize_rows, zero};
+use super::{LossConfig, LossError, check_dims, check_len, constant, normalize_rows, pixels_per_instance, zero};
 
 /// A ground-truth camera in the layout of the network's `camera` output: translation xyz,
 /// rotation w,x,y,z (unit), fov_y, fov_x (radians); world = view 0's camera.
@@ -74,12 +74,7 @@ pub fn median_depth(depth: &[f32]) -> Option<f32> {
 /// weights sum to 1 over a sample with a valid pixel.
 pub fn depth_weights(target: &[f32], ids: &[u32], balance: f64) -> Vec<f32> {
     let valid = target.iter().filter(|d| **d > 0.0).count();
-    let mut counts = std::collections::HashMap::<u32, usize>::new();
-    for (&d, &id) in target.iter().zip(ids) {
-        if d > 0.0 {
-            *counts.entry(id).or_default() += 1;
-        }
-    }
+    let counts = pixels_per_instance(target.iter().zip(ids).filter(|(d, _)| **d > 0.0).map(|(_, &id)| id));
     let groups = counts.len() as f64;
     target
         .iter()

@@ -26,7 +26,10 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
 
-use super::{LossError, NORM_EPS, check_dims, check_len, constant, host, indices, normalize_rows, pixels_last, zero};
+use super::{
+    LossError, NORM_EPS, check_dims, check_len, constant, host, indices, normalize_rows, pixels_last, pixels_per_instance,
+    zero,
+};
 
 /// L_sem of the rendered semantic features `semantic` `[V, d_s, H, W]` with ground-truth `ids`
 /// (`[V][H][W]`, 0 = background); `teacher` `[rows, 384]` holds the label embedding of instance
@@ -123,10 +126,7 @@ impl Classes {
     /// `teacher` is the `[rows][text]` table, `vocabulary` `[K][text]` more labels, `labels`
     /// the instance id of each labelled pixel.
     fn of(teacher: &[f32], vocabulary: &[f32], text: usize, labels: &[u32]) -> Self {
-        let mut pixels_of: HashMap<u32, usize> = HashMap::new();
-        for &id in labels {
-            *pixels_of.entry(id).or_default() += 1;
-        }
+        let pixels_of = pixels_per_instance(labels.iter().copied());
         let mut table = Vec::new();
         let mut class_of_row: HashMap<Vec<u32>, i64> = HashMap::new();
         let mut class_of = |row: &[f32]| {
