@@ -73,8 +73,8 @@ pub fn median_depth(depth: &[f32]) -> Option<f32> {
 /// as one more group), |Ω_i| that instance's valid pixels and n the instances with any. The
 /// weights sum to 1 over a sample with a valid pixel.
 pub fn depth_weights(target: &[f32], ids: &[u32], balance: f64) -> Vec<f32> {
-    let valid = target.iter().filter(|d| **d > 0.0).count();
     let counts = pixels_per_instance(target.iter().zip(ids).filter(|(d, _)| **d > 0.0).map(|(_, &id)| id));
+    let valid: usize = counts.values().sum();
     let groups = counts.len() as f64;
     target
         .iter()
