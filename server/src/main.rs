@@ -133,6 +133,15 @@ enum Command {
         /// in 3D; 0 clusters the embeddings alone (the paper).
         #[arg(long, default_value_t = ClusterParams::default().position_weight)]
         position_weight: f32,
+        /// HDBSCAN's smallest cluster in 3D mode, as a share of the points it sees.
+        #[arg(long, default_value_t = ClusterParams::default().min_cluster_share)]
+        min_cluster_share: f32,
+        /// HDBSCAN's neighbours per core distance.
+        #[arg(long, default_value_t = ClusterParams::default().min_samples)]
+        min_samples: usize,
+        /// A Gaussian joins its nearest instance prototype only at this cosine or more.
+        #[arg(long, default_value_t = ClusterParams::default().min_cosine)]
+        min_cosine: f32,
         /// Weight of the shape classifier (size, height above the floor, colour) beside the
         /// semantic features when naming instances; 0 names by the features alone (the paper).
         #[arg(long, default_value_t = DEFAULT_SHAPE_WEIGHT)]
@@ -332,6 +341,9 @@ fn main() -> anyhow::Result<()> {
             vocab,
             cluster,
             position_weight,
+            min_cluster_share,
+            min_samples,
+            min_cosine,
             shape_weight,
             split_cell,
             shape_examples,
@@ -349,6 +361,8 @@ fn main() -> anyhow::Result<()> {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
+            let cluster_params = ClusterParams { position_weight, min_cluster_share, min_samples, min_cosine, ..ClusterParams::default() };
+            cluster_params.validate()?;
             let mut dirs = eval::scene_dirs(&data)?;
             dirs.truncate(max_scenes.unwrap_or(usize::MAX));
             let extra = match vocab.as_deref() {
@@ -362,7 +376,7 @@ fn main() -> anyhow::Result<()> {
                 extra_vocab: extra,
                 pipeline: PipelineConfig {
                     register: (!no_register).then(RegisterParams::default),
-                    cluster: ClusterParams { position_weight, ..ClusterParams::default() },
+                    cluster: cluster_params,
                     split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,
                     voxel: VoxelParams { opacity: merge_opacity.into(), ..VoxelParams::default() },

@@ -11,7 +11,6 @@ use std::time::Instant;
 
 use image::RgbImage;
 use inssplat_proto::dataset::Scene;
-use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::label::QueryRule;
 use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
@@ -212,7 +211,6 @@ pub fn evaluate_scene_keeping(
         .map_err(|source| SceneEvalError::Pipeline { scene: name.clone(), source })?;
     let seconds = start.elapsed().as_secs_f64();
     let targets = scene.eval.as_ref().map(|e| e.target.clone()).unwrap_or_default();
-    let mode = settings.cluster;
     let mut s = SceneScores {
         scene: name.clone(),
         views,
@@ -224,7 +222,7 @@ pub fn evaluate_scene_keeping(
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
         ..SceneScores::default()
     };
-    let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, mode).map_err(&bad)?;
+    let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;
     let scale = match depth_scale {
         Some(d) if !settings.known_poses => AlignScale::Fixed(d),
         _ => AlignScale::Centres,
@@ -245,8 +243,9 @@ fn context_scores(
     context: &[usize],
     rec: &Reconstruction,
     labels: &LabelCache,
-    mode: ClusterMode,
+    settings: &Settings<'_>,
 ) -> Result<Option<f64>, String> {
+    let mode = settings.cluster;
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let (mut pred_depth, mut true_depth) = (Vec::new(), Vec::new());
     let mut pairs: Vec<(Vec<u32>, Vec<u32>)> = Vec::new();
@@ -270,7 +269,7 @@ fn context_scores(
             let pred = match mode {
                 ClusterMode::ThreeD => view.instance_ids.clone(),
                 ClusterMode::TwoD => {
-                    let seg = segment(rec, &view.camera, mode, &texts, &ClusterParams::default())?;
+                    let seg = segment(rec, &view.camera, mode, &texts, &settings.pipeline.cluster)?;
                     let offset = (v as u32 + 1) << 16;
                     seg.ids.iter().map(|&i| if i == 0 { 0 } else { i + offset }).collect()
                 }
@@ -382,7 +381,7 @@ fn target_scores(
     let vocabulary = &rec.vocabulary;
     let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
     let texts = labels.embed(&words).map_err(|e| err(&e))?;
-    let params = ClusterParams::default();
+    let params = &settings.pipeline.cluster;
     let (mut pred_labels, mut gt_labels, mut ious, mut segs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
     for &t in targets {
@@ -394,7 +393,7 @@ fn target_scores(
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
         let Some(gt) = &frame.instances else { continue };
-        let mut seg = segment(rec, &camera, mode, &texts, &params)?;
+        let mut seg = segment(rec, &camera, mode, &texts, params)?;
         if settings.no_aggregation {
             seg.labels = pixel_labels(rec, &camera, &texts)?;
         }
