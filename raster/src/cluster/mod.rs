@@ -203,7 +203,6 @@ pub fn cluster_points_at(
     Ok(Clustering { ids, prototypes, sampled: sample.len(), sample_noise: labels.iter().filter(|&&l| l < 0).count() })
 }
 
-
 /// The nearest cluster centre in embedding and weighted position (squared distance: 2 − 2·cosine
 /// plus the positions' squared distance; with no positions, the most similar embedding), id
 /// k+1, or 0 when its embedding's cosine similarity is below `min_cosine`, or for a zero
