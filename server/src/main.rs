@@ -133,7 +133,7 @@ enum Command {
         /// in 3D; 0 clusters the embeddings alone (the paper).
         #[arg(long, default_value_t = ClusterParams::default().position_weight)]
         position_weight: f32,
-        /// HDBSCAN's smallest cluster in 3D mode, as a share of the points it sees.
+        /// HDBSCAN's smallest cluster, as a share of the points it sees.
         #[arg(long, default_value_t = ClusterParams::default().min_cluster_share)]
         min_cluster_share: f32,
         /// HDBSCAN's neighbours per core distance.

@@ -88,11 +88,14 @@ fn eval_reports_every_metric_per_view_count() {
     let sem = scene["semantic_macc"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&sem), "{scene}");
 
-    // The paper's mode: per-view 2D clustering, same metrics.
-    let out = inssplat(&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--json"]);
+    // The paper's mode: per-view 2D clustering, same metrics, with the clustering asked for.
+    let out = inssplat(&[
+        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--min-samples", "3", "--json",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["cluster"], "2d");
+    assert_eq!(report["min_samples"], 3);
     let m = &report["summaries"][0]["metrics"];
     for unit in ["instance_miou", "t_miou", "semantic_miou"] {
         let v = m[unit][0].as_f64().unwrap_or_else(|| panic!("{unit} missing: {m}"));

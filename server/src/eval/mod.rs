@@ -67,6 +67,11 @@ pub struct Report {
     pub cluster: ClusterMode,
     /// Weight of the Gaussians' positions beside their embeddings in 3D clustering.
     pub position_weight: f32,
+    /// HDBSCAN's smallest cluster (share of the points it sees) and core neighbours, and the
+    /// cosine a point needs to join a prototype (both modes).
+    pub min_cluster_share: f32,
+    pub min_samples: usize,
+    pub min_cosine: f32,
     /// Whether the true context cameras replaced the predicted ones.
     pub known_poses: bool,
     /// Whether the context frames' true depth replaced the predicted one.
@@ -285,6 +290,9 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         vocabulary,
         cluster: req.cluster,
         position_weight: req.pipeline.cluster.position_weight,
+        min_cluster_share: req.pipeline.cluster.min_cluster_share,
+        min_samples: req.pipeline.cluster.min_samples,
+        min_cosine: req.pipeline.cluster.min_cosine,
         known_poses: req.known_poses,
         known_depth: req.known_depth,
         no_aggregation: req.no_aggregation,
@@ -410,9 +418,15 @@ fn num(v: Option<&(f64, usize)>, digits: usize) -> String {
 
 /// The markdown table of a report.
 pub fn markdown(r: &Report) -> String {
+    let hdbscan = format!(
+        "HDBSCAN smallest cluster share {}, min_samples {}, joined at cosine ≥ {}",
+        r.min_cluster_share,
+        r.min_samples,
+        r.min_cosine
+    );
     let mode = match r.cluster {
-        ClusterMode::ThreeD => format!("instances clustered once in 3D (position weight {})", r.position_weight),
-        ClusterMode::TwoD => "instances clustered per view in 2D (the paper's mode)".to_string(),
+        ClusterMode::ThreeD => format!("instances clustered once in 3D (position weight {}; {hdbscan})", r.position_weight),
+        ClusterMode::TwoD => format!("instances clustered per view in 2D (the paper's mode; {hdbscan})"),
     };
     let mut notes = String::new();
     if r.known_poses {
