@@ -107,6 +107,11 @@ pub struct TrainArgs {
     /// neighbours; 0: the L1 term alone).
     #[arg(long, default_value_t = 0.0)]
     depth_gradient_weight: f64,
+    /// Pixel strides of the depth-gradient term, comma-separated: 1 is VGGT's neighbour
+    /// difference; strides of an object's size (8, 16, 32 at 128²) also pair each object
+    /// pixel with the background beside it.
+    #[arg(long, value_delimiter = ',', default_value = "1", value_parser = clap::value_parser!(u16).range(1..))]
+    depth_gradient_strides: Vec<u16>,
     /// Weight of the scale-invariant shape term inside L_depth (|ŝ·d̂ − d| with ŝ each view's
     /// least-squares scale onto the ground truth; 0: none).
     #[arg(long, default_value_t = 0.0)]
@@ -204,6 +209,9 @@ impl TrainArgs {
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
             .with_depth_gradient_weight((self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight))
+            .with_depth_gradient_strides(
+                (self.depth_gradient_strides != [1]).then(|| self.depth_gradient_strides.iter().map(|&k| usize::from(k)).collect()),
+            )
             .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
             .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)

@@ -114,6 +114,9 @@ pub struct LossConfig {
     /// Weight of the depth-gradient term inside L_depth (see [`geometry`]); `None` (also what
     /// configs saved before this term existed read as) means 0, the L1 term alone.
     pub depth_gradient_weight: Option<f64>,
+    /// Pixel strides of the depth-gradient term's differences (see [`geometry`]); `None` (also
+    /// what configs saved before this option existed read as) means VGGT's 1 alone.
+    pub depth_gradient_strides: Option<Vec<usize>>,
     /// Weight of the scale-invariant shape term inside L_depth (see [`geometry`]); `None`
     /// (also what configs saved before this term existed read as) means 0.
     pub depth_shape_weight: Option<f64>,

@@ -77,6 +77,19 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln()) + (e * (0.4 + k * 0.4) / 3.0 - alpha)) / 3.0;
     close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
 
+    // Strides: on a 1×3 row, gt (1, 2, 3) (median 2), errors (0.1, −0.2, 0.4), unit
+    // confidence. Stride 2 pairs pixels 0 and 2 (|0.4 − 0.1| at pixel 0); strides 1 and 2 add
+    // the neighbours' |−0.2 − 0.1| at pixel 0 and |0.4 + 0.2| at pixel 1. A stride as long as
+    // the row pairs nothing.
+    let row = tensor(&[1.1, 1.8, 3.4], [1, 1, 1, 3]);
+    let unit = tensor(&[1.0; 3], [1, 1, 1, 3]);
+    let l1 = 0.1 + 0.2 + 0.4;
+    for (strides, pairs) in [(vec![2], 0.3), (vec![1, 2], 0.3 + 0.3 + 0.6), (vec![3], 0.0)] {
+        let strided = config.clone().with_depth_gradient_weight(Some(k)).with_depth_gradient_strides(Some(strides.clone()));
+        let got = scalar(depth_loss(row.clone(), unit.clone(), &[1.0, 2.0, 3.0], &[1, 1, 1], 2.0, &strided).unwrap());
+        close(got, (l1 + k * pairs) / 2.0 / 3.0, &format!("L_depth with strides {strides:?}"));
+    }
+
     // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
     // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
     let (pred, truth) = ([2.3, 3.6, 3.0], [2.0, 4.0, 3.0]);

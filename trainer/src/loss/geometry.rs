@@ -6,10 +6,13 @@
 //! and s the median ground-truth depth of the scene (all views). Dividing by s makes the error
 //! relative, so rooms of any size weigh the same, while keeping a gradient that does not
 //! explode near zero as log-depth would. With `depth_gradient_weight` w > 0 (VGGT's gradient
-//! term) each pixel also pays w·c_p·(|∂x(d̂ − d)_p| + |∂y(d̂ − d)_p|)/s, the forward
-//! differences to its right and lower neighbours where both pixels are valid: the L1 term
-//! alone is satisfied first by the smooth room and learns the steps at the objects' outlines
-//! last. With `depth_shape_weight` k > 0 each pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
+//! term) each pixel also pays w·c_p·Σ_k (|Δx_k(d̂ − d)_p| + |Δy_k(d̂ − d)_p|)/s, the differences
+//! to the pixels k to its right and k below where both are valid, over the strides k of
+//! `depth_gradient_strides` (VGGT's term is k = 1 alone, the default): the L1 term alone is
+//! satisfied first by the smooth room and learns the steps at the objects' outlines last, and
+//! a stride of the size of an object (8–32 pixels at 128²) pairs the object's pixels with the
+//! wall beside it, so the term asks for how far the object stands in front of that wall, not
+//! only for the step at the one pixel of its outline. With `depth_shape_weight` k > 0 each pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
 //! ŝ_v = Σ d̂·d / Σ d̂² over view v's valid pixels is the least-squares scale that best fits
 //! the view's prediction to its ground truth (differentiated through, so the term is blind to
 //! the view's scale): the metric L1 alone hands every pixel of a view whose scale is off the
@@ -116,7 +119,8 @@ pub fn depth_loss(
     let error = depth - constant(target.to_vec(), shape, &device);
     let mut per_pixel = error.clone().abs().div_scalar(scale);
     if let Some(k) = config.depth_gradient_weight.filter(|&k| k > 0.0) {
-        per_pixel = per_pixel + gradient_error(error, target).div_scalar(scale).mul_scalar(k);
+        let strides = config.depth_gradient_strides.as_deref().unwrap_or(&[1]);
+        per_pixel = per_pixel + gradient_error(error, target, strides).div_scalar(scale).mul_scalar(k);
     }
     if let Some(k) = config.depth_shape_weight.filter(|&k| k > 0.0) {
         let aligned = view_scaled(depth_in, target) - constant(target.to_vec(), shape, &device);
@@ -143,15 +147,17 @@ fn view_scaled(depth: Tensor<4>, target: &[f32]) -> Tensor<4> {
     depth * scales.reshape([v, 1, 1, 1]).expand([v, 1, h, w])
 }
 
-/// Per pixel of `error` `[V, 1, H, W]` (prediction − ground truth), |∂x| + |∂y| of its forward
-/// differences to the right and lower neighbours, each counted only where both pixels have
-/// ground truth in `target`; the last column has no ∂x and the last row no ∂y.
-fn gradient_error(error: Tensor<4>, target: &[f32]) -> Tensor<4> {
+/// Per pixel of `error` `[V, 1, H, W]` (prediction − ground truth), Σ_k |Δx_k| + |Δy_k| over
+/// `strides`: the differences to the pixels k to the right and k below, each counted only
+/// where both pixels have ground truth in `target`; the last k columns have no Δx_k and the
+/// last k rows no Δy_k.
+fn gradient_error(error: Tensor<4>, target: &[f32], strides: &[usize]) -> Tensor<4> {
     let [v, _, h, w] = error.dims();
     let device = error.device();
-    // One difference along `axis` (2 = rows, 3 = columns), masked, padded back to [V, 1, H, W].
-    let along = |axis: usize| {
-        let (dy, dx) = if axis == 2 { (1, 0) } else { (0, 1) };
+    // One difference along `axis` (2 = rows, 3 = columns) at stride k, masked, padded back to
+    // [V, 1, H, W].
+    let along = |axis: usize, k: usize| {
+        let (dy, dx) = if axis == 2 { (k, 0) } else { (0, k) };
         let (rows, cols) = (h - dy, w - dx);
         let mask: Vec<f32> = (0..v * rows * cols)
             .map(|i| {
@@ -161,18 +167,20 @@ fn gradient_error(error: Tensor<4>, target: &[f32]) -> Tensor<4> {
             })
             .collect();
         let len = if axis == 2 { h } else { w };
-        let diff = error.clone().narrow(axis, 1, len - 1) - error.clone().narrow(axis, 0, len - 1);
+        let diff = error.clone().narrow(axis, k, len - k) - error.clone().narrow(axis, 0, len - k);
         let masked = diff.abs() * constant(mask, [v, 1, rows, cols], &device);
         let mut pad = [v, 1, h, w];
-        pad[axis] = 1;
+        pad[axis] = k;
         Tensor::cat(vec![masked, Tensor::zeros(pad, &device)], axis)
     };
     let mut out = Tensor::zeros([v, 1, h, w], &device);
-    if w > 1 {
-        out = out + along(3);
-    }
-    if h > 1 {
-        out = out + along(2);
+    for &k in strides.iter().filter(|&&k| k > 0) {
+        if w > k {
+            out = out + along(3, k);
+        }
+        if h > k {
+            out = out + along(2, k);
+        }
     }
     out
 }
