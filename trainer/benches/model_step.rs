@@ -12,7 +12,7 @@ use burn::module::Module;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use inssplat_trainer::export::{ExportMeta, to_onnx_bytes};
-use burn::optim::AdamWConfig;
+use burn::optim::{AdamWConfig, GradientsParams};
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
 use inssplat_trainer::synth::{Furniture, Split, Structure};
@@ -119,7 +119,8 @@ fn bench_objective_step(config: &ModelConfig, views: usize, steps: usize) {
         let obj = objective(&net, &sample, &train.loss, &device).expect("objective");
         let _ = obj.values();
         let tb = Instant::now();
-        net = update(net, &mut optim, obj.total, 1e-4, &train);
+        let grads = GradientsParams::from_grads(obj.total.backward(), &net);
+        net = update(net, &mut optim, grads, 1e-4, &train);
         let backward = tb.elapsed();
         if i > 0 {
             rows.push([t.elapsed(), obj.forward_time, obj.render_time, obj.loss_time, backward]);
