@@ -112,6 +112,10 @@ pub struct TrainArgs {
     /// pixel with the background beside it.
     #[arg(long, value_delimiter = ',', default_value = "1", value_parser = clap::value_parser!(u16).range(1..))]
     depth_gradient_strides: Vec<u16>,
+    /// L_depth divides each pixel's error by its own true depth (the AbsRel of evaluation)
+    /// instead of by the scene's median depth.
+    #[arg(long)]
+    depth_relative: bool,
     /// Weight of the scale-invariant shape term inside L_depth (|ŝ·d̂ − d| with ŝ each view's
     /// least-squares scale onto the ground truth; 0: none).
     #[arg(long, default_value_t = 0.0)]
@@ -212,6 +216,7 @@ impl TrainArgs {
             .with_depth_gradient_strides(
                 (self.depth_gradient_strides != [1]).then(|| self.depth_gradient_strides.iter().map(|&k| usize::from(k)).collect()),
             )
+            .with_depth_relative(self.depth_relative.then_some(true))
             .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
             .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)

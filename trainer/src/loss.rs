@@ -117,6 +117,10 @@ pub struct LossConfig {
     /// Pixel strides of the depth-gradient term's differences (see [`geometry`]); `None` (also
     /// what configs saved before this option existed read as) means VGGT's 1 alone.
     pub depth_gradient_strides: Option<Vec<usize>>,
+    /// Whether L_depth divides each pixel's error by its own ground truth (see [`geometry`]);
+    /// `None` (also what configs saved before this switch existed read as) divides by the
+    /// scene's median depth.
+    pub depth_relative: Option<bool>,
     /// Weight of the scale-invariant shape term inside L_depth (see [`geometry`]); `None`
     /// (also what configs saved before this term existed read as) means 0.
     pub depth_shape_weight: Option<f64>,

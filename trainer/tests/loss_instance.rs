@@ -149,9 +149,10 @@ fn loss_boundary_gradient_matches_finite_differences() {
 }
 
 #[test]
-fn loss_depth_strided_gradient_matches_finite_differences() {
+fn loss_depth_strided_and_relative_gradients_match_finite_differences() {
     // 2 views of 4×4, one pixel without ground truth; the errors rise by 0.07 a pixel in
-    // row-major order, so every difference at every stride stays ≥ 0.07 from its kink.
+    // row-major order, so every difference at every stride stays ≥ 0.07 from its kink. Once
+    // with the error over the scene's scale, once over each pixel's own depth.
     let target: Vec<f32> = (0..32).map(|i| if i == 9 { 0.0 } else { 1.0 + 0.05 * (i % 7) as f32 }).collect();
     let depth: Vec<f32> = (0..32).map(|i| target[i] + 0.3 + 0.07 * (i % 16) as f32).collect();
     let conf: Vec<f32> = (0..32).map(|i| 1.0 + 0.05 * i as f32).collect();
@@ -160,10 +161,12 @@ fn loss_depth_strided_gradient_matches_finite_differences() {
         .with_depth_gradient_weight(Some(0.7))
         .with_depth_gradient_strides(Some(vec![1, 2, 3]))
         .with_depth_instance_balance(Some(0.5));
-    check_gradient(&depth, [2, 1, 4, 4], |x| {
-        let conf = tensor(&conf, [2, 1, 4, 4], &x.device());
-        depth_loss(x, conf, &target, &ids, 1.5, &config).unwrap()
-    });
+    for config in [config.clone(), config.clone().with_depth_relative(Some(true))] {
+        check_gradient(&depth, [2, 1, 4, 4], |x| {
+            let conf = tensor(&conf, [2, 1, 4, 4], &x.device());
+            depth_loss(x, conf, &target, &ids, 1.5, &config).unwrap()
+        });
+    }
 }
 
 #[test]

@@ -90,6 +90,13 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
         close(got, (l1 + k * pairs) / 2.0 / 3.0, &format!("L_depth with strides {strides:?}"));
     }
 
+    // Relative: each error over its own ground truth, 0.1/1 + 0.2/2 + 0.4/3 over the three
+    // valid pixels; a fourth pixel without ground truth counts nothing (and is no NaN).
+    let relative = config.clone().with_depth_relative(Some(true));
+    let row4 = tensor(&[1.1, 1.8, 3.4, 5.0], [1, 1, 1, 4]);
+    let got = scalar(depth_loss(row4, tensor(&[1.0; 4], [1, 1, 1, 4]), &[1.0, 2.0, 3.0, 0.0], &[1, 1, 1, 1], 2.0, &relative).unwrap());
+    close(got, (0.1 + 0.1 + 0.4 / 3.0) / 3.0, "relative L_depth");
+
     // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
     // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
     let (pred, truth) = ([2.3, 3.6, 3.0], [2.0, 4.0, 3.0]);
