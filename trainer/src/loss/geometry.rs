@@ -8,15 +8,15 @@
 //! explode near zero as log-depth would. With `depth_relative` each pixel's error is divided
 //! by its own ground truth instead, |d̂_p − d_p|/d_p (the AbsRel that evaluation reports; its
 //! gradient ±1/d_p is bounded by the nearest surface), which weighs each pixel s/d_p times as
-//! much as the default does: the near ones more. With `depth_gradient_weight` w > 0 (VGGT's gradient term) each
-//! pixel also pays w·c_p·Σ_k (|Δx_k(d̂ − d)_p| + |Δy_k(d̂ − d)_p|)/s, the differences to the
-//! pixels k to its right and k below where both are valid, over the strides k of
-//! `depth_gradient_strides` (VGGT's term is k = 1 alone, the default): the L1 term alone is
-//! satisfied first by the smooth room and learns the steps at the objects' outlines last, and
-//! a stride of the size of an object (8–32 pixels at 128²) pairs the object's pixels with the
-//! wall beside it, so the term asks for how far the object stands in front of that wall, not
-//! only for the step at the one pixel of its outline. With `depth_shape_weight` k > 0 each
-//! pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
+//! much as the default does: the near ones more. With `depth_gradient_weight` w > 0 (VGGT's
+//! gradient term) each pixel also pays w·c_p·Σ_k (|Δx_k(d̂ − d)_p| + |Δy_k(d̂ − d)_p|)/s, the
+//! differences to the pixels k to its right and k below where both are valid, over the
+//! strides k of `depth_gradient_strides` (VGGT's term is k = 1 alone, the default): the L1
+//! term alone is satisfied first by the smooth room and learns the steps at the objects'
+//! outlines last, and a stride of the size of an object (8–32 pixels at 128²) pairs the
+//! object's pixels with the wall beside it, so the term asks for how far the object stands in
+//! front of that wall, not only for the step at the one pixel of its outline. With
+//! `depth_shape_weight` k > 0 each pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
 //! ŝ_v = Σ d̂·d / Σ d̂² over view v's valid pixels is the least-squares scale that best fits
 //! the view's prediction to its ground truth (differentiated through, so the term is blind to
 //! the view's scale): the metric L1 alone hands every pixel of a view whose scale is off the
