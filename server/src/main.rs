@@ -171,6 +171,10 @@ enum Command {
         /// (the ablation of registration).
         #[arg(long)]
         no_register: bool,
+        /// Keep the camera head's field of view in registration instead of measuring one
+        /// focal length for all views from the matches (the ablation of that estimate).
+        #[arg(long)]
+        keep_focal: bool,
         /// Name every pixel from its own rendered semantic feature instead of its instance's
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
@@ -351,6 +355,7 @@ fn main() -> anyhow::Result<()> {
             known_depth,
             merge_opacity,
             no_register,
+            keep_focal,
             no_aggregation,
             query_rules,
             perturb,
@@ -375,7 +380,7 @@ fn main() -> anyhow::Result<()> {
                 views,
                 extra_vocab: extra,
                 pipeline: PipelineConfig {
-                    register: (!no_register).then(RegisterParams::default),
+                    register: (!no_register).then(|| RegisterParams { estimate_focal: !keep_focal, ..RegisterParams::default() }),
                     cluster: cluster_params,
                     split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,

@@ -25,7 +25,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use joint::Edge;
+use joint::{Edge, Focal};
 use relative::{Correspondence, Model, RelativePose, relative_pose};
 
 /// Gate of the joint refinement, in inlier thresholds.
@@ -54,6 +54,9 @@ pub struct RegisterParams {
     pub min_inliers: usize,
     /// RANSAC seed (each pair draws from its own stream).
     pub seed: u64,
+    /// Estimate one focal-length multiplier for all views from the matches (the camera
+    /// head's field of view is a guess); `false` keeps the intrinsics as given.
+    pub estimate_focal: bool,
 }
 
 impl Default for RegisterParams {
@@ -69,6 +72,7 @@ impl Default for RegisterParams {
             inlier_px: 2.5,
             min_inliers: 10,
             seed: 0x5eed,
+            estimate_focal: true,
         }
     }
 }
@@ -105,6 +109,9 @@ pub struct Registration {
     /// reference view; any other root is placed by continuing the motion before it, or by the
     /// camera head for view 1).
     pub component: Vec<usize>,
+    /// The multiplier applied to every view's focal lengths (1 with
+    /// [`RegisterParams::estimate_focal`] off, or when no pair of views was matched).
+    pub focal_scale: f64,
 }
 
 /// Registers `views`, in the order they were taken (see the module documentation). View 0
@@ -120,7 +127,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         .collect();
     let n = views.len();
     let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
-    let pairs: Vec<PairPose> = jobs
+    let mut pairs: Vec<PairPose> = jobs
         .par_iter()
         .map(|&(i, j)| {
             let corr = correspondences(&views[i], &views[j], &feats[i], &feats[j], params);
@@ -130,6 +137,13 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
             PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
         })
         .collect();
+    let focal = if params.estimate_focal { shared_focal(views, &pairs, params) } else { 1.0 };
+    if focal != 1.0 {
+        pairs.par_iter_mut().for_each(|p| {
+            let (ki, kj) = (&views[p.i].camera.intrinsics, &views[p.j].camera.intrinsics);
+            p.pose = p.pose.map(|pose| relative::refit(&pose, &p.inliers, ki, kj, focal, params));
+        });
+    }
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
     // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
     // view left (every view before it is placed) continues the motion before it and anchors
@@ -166,8 +180,35 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         root = component.iter().position(Option::is_none).unwrap_or(n);
     }
     let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
-    refine_jointly(&mut cameras, &component, &pairs, params);
-    Registration { cameras, component }
+    let focal = Focal { scale: focal, free: params.estimate_focal };
+    let focal_scale = refine_jointly(&mut cameras, &component, &pairs, focal, params);
+    for cam in &mut cameras {
+        cam.intrinsics.fx *= focal_scale as f32;
+        cam.intrinsics.fy *= focal_scale as f32;
+    }
+    Registration { cameras, component, focal_scale }
+}
+
+/// The focal multiplier the matched pairs agree on: the median of their own estimates (each
+/// pair's pose refined with a free focal length), weighted by their precision, so that pairs
+/// whose motion cannot see the focal length (little rotation) count for little; 1 when no pair
+/// was matched.
+fn shared_focal(views: &[RegisterView<'_>], pairs: &[PairPose], params: &RegisterParams) -> f64 {
+    let mut estimates: Vec<(f64, f64)> = pairs
+        .par_iter()
+        .filter_map(|p| {
+            let (ki, kj) = (&views[p.i].camera.intrinsics, &views[p.j].camera.intrinsics);
+            let (scale, variance) = relative::pair_focal(p.pose.as_ref()?, &p.inliers, ki, kj, params)?;
+            (variance > 0.0 && scale.is_finite()).then(|| (scale.ln(), 1.0 / variance))
+        })
+        .collect();
+    estimates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let half = 0.5 * estimates.iter().map(|e| e.1).sum::<f64>();
+    let mut seen = 0.0;
+    estimates.iter().find(|e| {
+        seen += e.1;
+        seen >= half
+    }).map_or(1.0, |e| e.0.exp())
 }
 
 /// The pose after `last` if the camera moves once more as it did from `prev` to `last`
@@ -181,7 +222,8 @@ fn continued_motion(prev: &Camera, last: &Camera) -> (Quat, Vec3) {
 /// Refines all chained poses at once on every pair within a component (each component's root
 /// stays), gating matches at [`JOINT_GATE`] × the inlier threshold: a chain's drift may have
 /// moved a pair's inliers beyond it.
-fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose], params: &RegisterParams) {
+/// Returns the focal multiplier, refined with the poses when `focal` is free.
+fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose], mut focal: Focal, params: &RegisterParams) -> f64 {
     let edges: Vec<Edge<'_>> = pairs
         .iter()
         .filter(|p| p.pose.is_some() && component[p.i] == component[p.j])
@@ -193,11 +235,12 @@ fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose
         .collect();
     let free: Vec<bool> = component.iter().enumerate().map(|(v, c)| *c != v).collect();
     let tau = params.inlier_px as f64;
-    joint::refine(&mut poses, &free, &edges, JOINT_GATE * tau, 0.5 * tau, params.refine_iterations);
+    joint::refine(&mut poses, &free, &mut focal, &edges, JOINT_GATE * tau, 0.5 * tau, params.refine_iterations);
     for (cam, pose) in cameras.iter_mut().zip(&poses) {
         cam.rotation = DQuat::from_mat3(&pose.r).normalize().as_quat();
         cam.translation = pose.t.as_vec3();
     }
+    focal.scale
 }
 
 /// The matches of views a and b whose keypoints both have depth, lifted into each camera.

@@ -14,7 +14,7 @@ use rand::Rng;
 use rand::seq::index::sample;
 
 use super::RegisterParams;
-use super::joint::{self, Edge};
+use super::joint::{self, Edge, Focal};
 use crate::rotation::nearest_rotation;
 
 /// One match: the keypoint in each view and its point lifted by that view's depth (camera
@@ -36,6 +36,14 @@ pub struct RelativePose {
 }
 
 impl RelativePose {
+    fn of_model(m: &Model, inliers: usize) -> Self {
+        Self { rotation: DQuat::from_mat3(&m.r).normalize().as_quat(), translation: m.t.as_vec3(), inliers }
+    }
+
+    fn model(&self) -> Model {
+        Model { r: DMat3::from_quat(self.rotation.as_dquat()), t: self.translation.as_dvec3() }
+    }
+
     /// The pose of the opposite direction (camera j → camera i).
     pub fn inverse(&self) -> Self {
         let rotation = self.rotation.conjugate();
@@ -59,10 +67,13 @@ impl Model {
 }
 
 /// The four reprojection residuals of `c` under `m` (i's point in j, j's point in i), or
-/// `None` when a point falls behind the other camera.
-pub(super) fn reprojection(ki: &Intrinsics, kj: &Intrinsics, m: &Model, c: &Correspondence) -> Option<[f64; 4]> {
-    let pj = project(kj, m.r * c.point_i.as_dvec3() + m.t)?;
-    let pi = project(ki, m.r.transpose() * (c.point_j.as_dvec3() - m.t))?;
+/// `None` when a point falls behind the other camera. `focal` multiplies both views' focal
+/// lengths: the points, lifted with the intrinsics as given, are lifted again with the scaled
+/// ones (their x and y divided by it) and projected with them.
+pub(super) fn reprojection(ki: &Intrinsics, kj: &Intrinsics, m: &Model, c: &Correspondence, focal: f64) -> Option<[f64; 4]> {
+    let lift = |p: Vec3| DVec3::new(p.x as f64 / focal, p.y as f64 / focal, p.z as f64);
+    let pj = project(kj, focal, m.r * lift(c.point_i) + m.t)?;
+    let pi = project(ki, focal, m.r.transpose() * (lift(c.point_j) - m.t))?;
     let (uj, ui) = (c.pixel_j.as_dvec2(), c.pixel_i.as_dvec2());
     Some([pj[0] - uj.x, pj[1] - uj.y, pi[0] - ui.x, pi[1] - ui.y])
 }
@@ -78,13 +89,13 @@ struct Pair<'a> {
     kj: &'a Intrinsics,
 }
 
-fn project(k: &Intrinsics, p: DVec3) -> Option<[f64; 2]> {
-    (p.z > 1e-6).then(|| [k.fx as f64 * p.x / p.z + k.cx as f64, k.fy as f64 * p.y / p.z + k.cy as f64])
+fn project(k: &Intrinsics, focal: f64, p: DVec3) -> Option<[f64; 2]> {
+    (p.z > 1e-6).then(|| [focal * k.fx as f64 * p.x / p.z + k.cx as f64, focal * k.fy as f64 * p.y / p.z + k.cy as f64])
 }
 
 impl Pair<'_> {
     fn residuals(&self, m: &Model, c: &Correspondence) -> Option<[f64; 4]> {
-        reprojection(self.ki, self.kj, m, c)
+        reprojection(self.ki, self.kj, m, c, 1.0)
     }
 
     /// Symmetric squared error of `c` in pixels²: the larger of its two squared reprojection
@@ -166,19 +177,54 @@ pub fn relative_pose(
         }
     }
     let (_, model) = best?;
+    let (model, _) = refine_pair(model, corr, ki, kj, &mut Focal::GIVEN.clone(), params);
+    let inliers: Vec<Correspondence> = corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
+    (inliers.len() >= params.min_inliers).then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
+}
+
+/// Gauss–Newton on one pair's matches from `model`, with `focal` (refined when free); returns
+/// the pose and, with a free focal, the variance of its log.
+fn refine_pair(
+    model: Model,
+    corr: &[Correspondence],
+    ki: &Intrinsics,
+    kj: &Intrinsics,
+    focal: &mut Focal,
+    params: &RegisterParams,
+) -> (Model, Option<f64>) {
+    let tau = params.inlier_px as f64;
     let mut poses = [Model { r: DMat3::IDENTITY, t: DVec3::ZERO }, model];
     let edge = Edge { i: 0, j: 1, ki, kj, corr };
-    joint::refine(&mut poses, &[false, true], &[edge], tau, 0.5 * tau, params.refine_iterations);
-    let model = poses[1];
-    let inliers: Vec<Correspondence> = corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
-    (inliers.len() >= params.min_inliers).then(|| {
-        let pose = RelativePose {
-            rotation: DQuat::from_mat3(&model.r).normalize().as_quat(),
-            translation: model.t.as_vec3(),
-            inliers: inliers.len(),
-        };
-        (pose, inliers)
-    })
+    let variance = joint::refine(&mut poses, &[false, true], focal, &[edge], tau, 0.5 * tau, params.refine_iterations);
+    (poses[1], variance)
+}
+
+/// The focal multiplier that `pose`'s `inliers` prefer (refined with the pose from 1, the
+/// intrinsics as given) and the variance of its log, or `None` when the solve fails.
+pub(super) fn pair_focal(
+    pose: &RelativePose,
+    inliers: &[Correspondence],
+    ki: &Intrinsics,
+    kj: &Intrinsics,
+    params: &RegisterParams,
+) -> Option<(f64, f64)> {
+    let mut focal = Focal { scale: 1.0, free: true };
+    let (_, variance) = refine_pair(pose.model(), inliers, ki, kj, &mut focal, params);
+    variance.map(|v| (focal.scale, v))
+}
+
+/// `pose` refined again on its `inliers` with every focal length multiplied by `scale`.
+pub(super) fn refit(
+    pose: &RelativePose,
+    inliers: &[Correspondence],
+    ki: &Intrinsics,
+    kj: &Intrinsics,
+    scale: f64,
+    params: &RegisterParams,
+) -> RelativePose {
+    let mut focal = Focal { scale, free: false };
+    let (model, _) = refine_pair(pose.model(), inliers, ki, kj, &mut focal, params);
+    RelativePose::of_model(&model, pose.inliers)
 }
 
 #[cfg(test)]
@@ -188,7 +234,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    use super::{Correspondence, relative_pose};
+    use super::{Correspondence, pair_focal, refit, relative_pose};
     use crate::register::RegisterParams;
 
     fn k() -> Intrinsics {
@@ -241,6 +287,28 @@ mod tests {
         let (pose, _) = relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
         assert!(angle_deg(pose.rotation, r) < 0.1, "rotation off by {}°", angle_deg(pose.rotation, r));
         assert!(pose.translation.length() < 0.05, "{:?}", pose.translation);
+    }
+
+    #[test]
+    fn a_pair_measures_the_focal_length_the_intrinsics_missed() {
+        // The intrinsics given say a focal length 0.9 of the true one, so the points lifted with
+        // them spread 1/0.9 wider than the room; the pair's matches must say so.
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let (r, t) = (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
+        let widen = |p: Vec3| Vec3::new(p.x / 0.9, p.y / 0.9, p.z);
+        let corr: Vec<Correspondence> = matches(r, t, 120, 0.2, 1.0, &mut rng)
+            .into_iter()
+            .map(|c| Correspondence { point_i: widen(c.point_i), point_j: widen(c.point_j), ..c })
+            .collect();
+        let given = Intrinsics { fx: 0.9 * k().fx, fy: 0.9 * k().fy, ..k() };
+        let params = RegisterParams::default();
+        let (pose, inliers) = relative_pose(&corr, &given, &given, &params, &mut rng).expect("a pose");
+        let (scale, variance) = pair_focal(&pose, &inliers, &given, &given, &params).expect("a focal length");
+        assert!((scale - 1.0 / 0.9).abs() < 0.005, "focal multiplier {scale}, true {}", 1.0 / 0.9);
+        assert!(variance.sqrt() < 0.01, "log focal known to ±{}", variance.sqrt());
+        let fitted = refit(&pose, &inliers, &given, &given, scale, &params);
+        assert!(angle_deg(fitted.rotation, r) < 0.05, "rotation off by {}°", angle_deg(fitted.rotation, r));
+        assert!(angle_deg(pose.rotation, r) > 5.0 * angle_deg(fitted.rotation, r), "the given focal length bent the rotation by only {}°", angle_deg(pose.rotation, r));
     }
 
     #[test]
