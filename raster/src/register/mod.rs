@@ -8,8 +8,9 @@
 //! shot at 50–80°), so one focal-length multiplier for all views is measured first: each
 //! matched pair's pose is refined with a free focal length, the pairs' estimates are pooled by
 //! their precision-weighted median (a pair with little rotation cannot see the focal length and
-//! counts for little), every pair is refitted at that focal length, and the joint refinement
-//! refines it once more with all poses.
+//! counts for little), every pair is solved again at that focal length (RANSAC included:
+//! inliers chosen through a wrong focal length favour the matches it fits), and the joint
+//! refinement refines it once more with all poses.
 //! Views that no chain reaches from view 0 (no overlap, or too little for a match) form
 //! components of their own, and then the photos' order is the best evidence left: the first
 //! view of each such component continues the motion of the two views before it (the step
@@ -132,24 +133,22 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         .collect();
     let n = views.len();
     let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
-    let mut pairs: Vec<PairPose> = jobs
-        .par_iter()
-        .map(|&(i, j)| {
-            let corr = correspondences(&views[i], &views[j], &feats[i], &feats[j], params);
-            let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            let (ki, kj) = (&views[i].camera.intrinsics, &views[j].camera.intrinsics);
-            let (pose, inliers) = relative_pose(&corr, ki, kj, params, &mut rng).unzip();
-            PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
-        })
-        .collect();
-    let focal = if params.estimate_focal { shared_focal(views, &pairs, params) } else { 1.0 };
-    if focal != 1.0 {
-        pairs.par_iter_mut().for_each(|p| {
-            let (ki, kj) = (&views[p.i].camera.intrinsics, &views[p.j].camera.intrinsics);
-            p.pose = p.pose.map(|pose| relative::refit(&pose, &p.inliers, ki, kj, focal, params));
-        });
-    }
+    let matches: Vec<Vec<Correspondence>> =
+        jobs.par_iter().map(|&(i, j)| correspondences(&views[i], &views[j], &feats[i], &feats[j], params)).collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
+    let mut pairs = pair_poses(&jobs, &matches, &cameras, params);
+    let mut focal_scale = 1.0;
+    if params.estimate_focal {
+        // The inliers chosen through a wrong focal length favour the matches it fits, so the
+        // pairs are solved again, RANSAC included, at the focal length they measured.
+        focal_scale = shared_focal(&cameras, &pairs, params);
+        for cam in &mut cameras {
+            scale_focal(cam, focal_scale);
+        }
+        let matches: Vec<Vec<Correspondence>> =
+            matches.iter().map(|m| m.iter().map(|c| c.with_focal(focal_scale)).collect()).collect();
+        pairs = pair_poses(&jobs, &matches, &cameras, params);
+    }
     // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
     // view left (every view before it is placed) continues the motion before it and anchors
     // its own component.
@@ -185,24 +184,42 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         root = component.iter().position(Option::is_none).unwrap_or(n);
     }
     let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
-    let focal = Focal { scale: focal, free: params.estimate_focal };
-    let focal_scale = refine_jointly(&mut cameras, &component, &pairs, focal, params);
+    let focal = Focal { scale: 1.0, free: params.estimate_focal };
+    let polish = refine_jointly(&mut cameras, &component, &pairs, focal, params);
     for cam in &mut cameras {
-        cam.intrinsics.fx *= focal_scale as f32;
-        cam.intrinsics.fy *= focal_scale as f32;
+        scale_focal(cam, polish);
     }
-    Registration { cameras, component, focal_scale }
+    Registration { cameras, component, focal_scale: focal_scale * polish }
+}
+
+/// Every pair's relative pose from its `matches` (in the order of `jobs`), at the intrinsics of
+/// `cameras`.
+fn pair_poses(jobs: &[(usize, usize)], matches: &[Vec<Correspondence>], cameras: &[Camera], params: &RegisterParams) -> Vec<PairPose> {
+    let n = cameras.len();
+    jobs.par_iter()
+        .zip(matches)
+        .map(|(&(i, j), corr)| {
+            let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let (pose, inliers) = relative_pose(corr, &cameras[i].intrinsics, &cameras[j].intrinsics, params, &mut rng).unzip();
+            PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
+        })
+        .collect()
+}
+
+fn scale_focal(camera: &mut Camera, scale: f64) {
+    camera.intrinsics.fx *= scale as f32;
+    camera.intrinsics.fy *= scale as f32;
 }
 
 /// The focal multiplier the matched pairs agree on: the median of their own estimates (each
 /// pair's pose refined with a free focal length), weighted by their precision, so that pairs
 /// whose motion cannot see the focal length (little rotation) count for little; 1 when no pair
 /// was matched.
-fn shared_focal(views: &[RegisterView<'_>], pairs: &[PairPose], params: &RegisterParams) -> f64 {
+fn shared_focal(cameras: &[Camera], pairs: &[PairPose], params: &RegisterParams) -> f64 {
     let mut estimates: Vec<(f64, f64)> = pairs
         .par_iter()
         .filter_map(|p| {
-            let (ki, kj) = (&views[p.i].camera.intrinsics, &views[p.j].camera.intrinsics);
+            let (ki, kj) = (&cameras[p.i].intrinsics, &cameras[p.j].intrinsics);
             let (scale, variance) = relative::pair_focal(p.pose.as_ref()?, &p.inliers, ki, kj, params)?;
             (variance > 0.0 && scale.is_finite()).then(|| (scale.ln(), 1.0 / variance))
         })
