@@ -26,6 +26,28 @@ pub struct CameraOut {
     pub cy: f32,
     pub w: u32,
     pub h: u32,
+    /// How the pose was found (absent in scenes saved before it was reported).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<Placement>,
+}
+
+/// How a camera's pose was found: how far to trust it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub enum Placement {
+    /// The first photo: its camera is the scene's frame.
+    Reference,
+    /// Linked to the first photo through keypoint matches.
+    Registered,
+    /// Linked to the first photo by no match (too little overlap): placed by continuing the
+    /// camera's motion over the photos before it, or chained to a photo so placed.
+    Continued,
+    /// The camera head's pose as the network predicted it (registration off, or the second
+    /// photo when no match links it, and the photos chained to it).
+    CameraHead,
+    /// Given by the caller (known poses).
+    Given,
 }
 
 /// An instance of the reconstructed scene.

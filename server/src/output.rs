@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use image::{Rgb, RgbImage};
-use inssplat_proto::api::{CameraOut, InstanceOut, ReconstructResponse};
+use inssplat_proto::api::{CameraOut, InstanceOut, Placement, ReconstructResponse};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 use serde::{Deserialize, Serialize};
@@ -111,6 +111,7 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
                 cy: k.cy,
                 w: k.width,
                 h: k.height,
+                placement: Some(v.placement),
             }
         })
         .collect()
@@ -220,11 +221,42 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
     for i in &s.instances {
         text.push_str(&format!("  #{:<3} {:<20} score {:.2}  {} Gaussians\n", i.id, i.label, i.score, i.gaussians));
     }
+    text.push_str(&describe_cameras(&s.cameras));
     let total: f64 = s.timings.iter().map(|t| t.ms).sum();
     let stages: Vec<String> = s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
     text.push_str(&format!("outputs in {} (scene.ply, transforms.json, instances/, labels/, instances.json, preview.png)", out.display()));
     text
+}
+
+/// One line on the cameras: which views registration linked to the first, which it placed
+/// otherwise, and the field of view.
+fn describe_cameras(cameras: &[CameraOut]) -> String {
+    let views = |p: Placement| -> String {
+        let list: Vec<String> = cameras.iter().filter(|c| c.placement == Some(p)).map(|c| c.view.to_string()).collect();
+        match list.len() {
+            0 => String::new(),
+            1 => format!("view {}", list[0]),
+            _ => format!("views {}", list.join(", ")),
+        }
+    };
+    let linked = cameras.iter().filter(|c| matches!(c.placement, Some(Placement::Reference | Placement::Registered))).count();
+    let mut parts = vec![format!("{linked} of {} views registered to view 0", cameras.len())];
+    let continued = views(Placement::Continued);
+    if !continued.is_empty() {
+        parts.push(format!("{continued} placed by continuing the camera's motion (no keypoint match links them)"));
+    }
+    let head = views(Placement::CameraHead);
+    if !head.is_empty() {
+        parts.push(format!("{head} at the camera head's pose"));
+    }
+    if cameras.iter().all(|c| c.placement == Some(Placement::Given)) {
+        parts = vec![format!("{} views at the given poses", cameras.len())];
+    }
+    if let Some(c) = cameras.first() {
+        parts.push(format!("field of view {:.1}°", (2.0 * (0.5 * c.h as f32 / c.fl_y).atan()).to_degrees()));
+    }
+    format!("cameras: {}\n", parts.join("; "))
 }
 
 /// Rows of equally sized tiles, 2-pixel gaps, white background.

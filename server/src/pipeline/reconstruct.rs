@@ -9,7 +9,7 @@
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
-use inssplat_proto::api::{InstanceOut, StageTiming};
+use inssplat_proto::api::{InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::DESCRIPTOR;
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
@@ -102,6 +102,8 @@ pub struct InputImage {
 /// What one view looks like after reconstruction, at the model resolution.
 pub struct ViewResult {
     pub camera: Camera,
+    /// How [`ViewResult::camera`]'s pose was found.
+    pub placement: Placement,
     pub letterbox: Letterbox,
     /// `[H][W]` instance id, 0 = none.
     pub instance_ids: Vec<u32>,
@@ -169,6 +171,17 @@ pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
         .collect()
 }
 
+/// How registration placed view `v`, given the root of its component
+/// ([`inssplat_raster::register::Registration::component`]).
+fn placement(v: usize, root: usize) -> Placement {
+    match (v, root) {
+        (0, _) => Placement::Reference,
+        (_, 0) => Placement::Registered,
+        (_, 1) => Placement::CameraHead,
+        _ => Placement::Continued,
+    }
+}
+
 /// Runs the whole pipeline on `images` with the label `vocabulary`.
 pub fn reconstruct(
     model: &mut Model,
@@ -214,11 +227,12 @@ pub fn reconstruct_with(
         }
     }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
-    let cameras = match &config.known_poses {
+    let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
+    let (cameras, placements): (Vec<Camera>, Vec<Placement>) = match &config.known_poses {
         None => {
             let predicted = predicted_cameras(&out);
             match &config.register {
-                None => predicted,
+                None => (predicted, head(out.views)),
                 Some(params) => clock.time("register", || {
                     let views: Vec<RegisterView<'_>> = (0..out.views)
                         .map(|v| RegisterView {
@@ -228,11 +242,13 @@ pub fn reconstruct_with(
                             camera: &predicted[v],
                         })
                         .collect();
-                    register(&views, params).cameras
+                    let registration = register(&views, params);
+                    let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
+                    (registration.cameras, placements)
                 }),
             }
         }
-        Some(poses) if poses.len() == images.len() => poses.clone(),
+        Some(poses) if poses.len() == images.len() => (poses.clone(), vec![Placement::Given; poses.len()]),
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };
 
@@ -306,6 +322,7 @@ pub fn reconstruct_with(
         .enumerate()
         .map(|(v, ((d, ids), gaussians))| ViewResult {
             camera: cameras[v],
+            placement: placements[v],
             letterbox: d.letterbox,
             labels: label_map(&ids, &label_of_id),
             instance_ids: ids,
