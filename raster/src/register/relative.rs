@@ -187,7 +187,8 @@ pub fn relative_pose(
         }
     }
     let (_, model) = best?;
-    let (model, _) = refine_pair(model, corr, ki, kj, &mut Focal::GIVEN.clone(), tau, params);
+    let mut given = Focal::GIVEN;
+    let (model, _) = refine_pair(model, corr, ki, kj, &mut given, tau, params);
     let inliers: Vec<Correspondence> = corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
     (inliers.len() >= params.min_inliers).then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
 }
