@@ -117,6 +117,13 @@ fn centres(c: &[Camera]) -> Vec<DVec3> {
     c.iter().map(|c| c.center().as_dvec3()).collect()
 }
 
+/// Angle of a rotation in degrees, 2·atan2(|v|, |w|) of its quaternion: well conditioned near
+/// zero, unlike acos of the trace.
+pub fn angle_deg(rotation: DMat3) -> f64 {
+    let q = DQuat::from_mat3(&rotation);
+    (2.0 * q.xyz().length().atan2(q.w.abs())).to_degrees()
+}
+
 /// Camera errors of `pred` against `gt` (same order, view 0 first) after
 /// [`pose_alignment`] with `scale`; `None` for no camera.
 pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<PoseScores>, MetricError> {
@@ -126,12 +133,7 @@ pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Resul
     let rot: Vec<f64> = pred
         .iter()
         .zip(gt)
-        .map(|(p, g)| {
-            // Angle of the relative rotation, 2·atan2(|v|, |w|) of its quaternion: well
-            // conditioned near zero, unlike acos of the trace.
-            let rel = DQuat::from_mat3(&(c2w(g).transpose() * alignment.rotation * c2w(p)));
-            (2.0 * rel.xyz().length().atan2(rel.w.abs())).to_degrees()
-        })
+        .map(|(p, g)| angle_deg(c2w(g).transpose() * alignment.rotation * c2w(p)))
         .collect();
     let trans: Vec<f64> = cp.iter().zip(&cg).map(|(p, g)| (alignment.apply(*p) - *g).length()).collect();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
