@@ -11,7 +11,7 @@ use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNega
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, describe};
-use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
+use inssplat_trainer::train::{self, Compute, Session, TrainConfig, checkpoint};
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
@@ -178,6 +178,10 @@ pub struct TrainArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Where the network trains: the CPU cores, or the GPU (a build with `--features gpu`; the
+    /// rasterizer stays on the CPU cores). A run may change it between sessions.
+    #[arg(long, value_enum, default_value_t = Compute::Cpu)]
+    device: Compute,
 }
 
 /// `on`, or `off_value` when the ablation flag `off` is set.
@@ -260,6 +264,7 @@ impl TrainArgs {
             val_data: self.val_data.clone().map(DataSpec::Folder),
             time_limit: self.time_limit.map(|m| minutes(m, "--time-limit")).transpose()?,
             progress: !self.quiet,
+            compute: self.device,
         })
     }
 }

@@ -202,14 +202,36 @@ pub fn render(
     let saved = Saved { splats: host, camera: *camera, state };
     let output = match device.gradient_checkpointing_strategy() {
         None => Tensor::from_data(out, &device),
-        Some(GradientCheckpointingStrategy::Disabled) => tracked::<Flex, NoCheckpointing>(packed, out, saved)?,
-        Some(GradientCheckpointingStrategy::Balanced) => tracked::<Flex, BalancedCheckpointing>(packed, out, saved)?,
+        Some(strategy) => tracked_on_backend(packed, out, saved, strategy)?,
     };
     Ok(Rendered {
         features: output.clone().slice(s![0..c, .., ..]),
         depth: output.clone().slice(s![c..c + 1, .., ..]).reshape([h, w]),
         alpha: output.slice(s![c + 1..c + 2, .., ..]).reshape([h, w]),
     })
+}
+
+/// [`tracked`] on the backend `input` lives on (wgpu's in builds with the `gpu` feature, else
+/// Flex) with the device's checkpointing strategy.
+fn tracked_on_backend(
+    input: Tensor<2>,
+    output: TensorData,
+    saved: Saved,
+    strategy: GradientCheckpointingStrategy,
+) -> Result<Tensor<3>, RenderOpError> {
+    use GradientCheckpointingStrategy::{Balanced, Disabled};
+    #[cfg(feature = "gpu")]
+    if matches!(input.device().inner().as_dispatch(), burn::backend::DispatchDevice::Cube(_)) {
+        use burn::backend::Cube;
+        return match strategy {
+            Disabled => tracked::<Cube, NoCheckpointing>(input, output, saved),
+            Balanced => tracked::<Cube, BalancedCheckpointing>(input, output, saved),
+        };
+    }
+    match strategy {
+        Disabled => tracked::<Flex, NoCheckpointing>(input, output, saved),
+        Balanced => tracked::<Flex, BalancedCheckpointing>(input, output, saved),
+    }
 }
 
 /// Registers the render in the autodiff graph of `Autodiff<B, C>`, with `input` (the packed

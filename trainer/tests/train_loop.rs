@@ -364,6 +364,13 @@ fn bad_data_and_checkpoints_are_named_errors() {
     assert!(err.contains("--resume") && err.contains("no checkpoint"), "{err}");
     let err = failure(bin().arg("validate").arg(&empty));
     assert!(err.contains("validating") && err.contains(&*empty.to_string_lossy()), "{err}");
+    // A build without the `gpu` feature refuses the GPU by name, before it makes the run folder.
+    if !cfg!(feature = "gpu") {
+        let gpu_run = tmp.path().join("gpu");
+        let err = failure(bin().args(["train", "--quiet", "--steps", "1", "--primitives-only", "--device", "gpu", "--out"]).arg(&gpu_run));
+        assert!(err.contains("--device gpu") && err.contains("--features gpu"), "{err}");
+        assert!(!gpu_run.exists());
+    }
 
     // A checkpoint whose state.json describes another network than its weights.
     let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();

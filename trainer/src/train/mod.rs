@@ -132,6 +132,35 @@ pub struct Session {
     pub time_limit: Option<Duration>,
     /// Show a progress bar on stderr.
     pub progress: bool,
+    /// Where the network trains.
+    pub compute: Compute,
+}
+
+/// Where a session trains the network. The rasterizer runs on the CPU cores either way.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Compute {
+    /// burn's Flex backend on the CPU cores.
+    #[default]
+    Cpu,
+    /// burn's wgpu backend on the GPU wgpu finds (Vulkan); builds with the `gpu` feature only.
+    Gpu,
+}
+
+impl Compute {
+    /// The autodiff device the session trains on.
+    pub fn device(self) -> Result<Device, TrainError> {
+        match self {
+            Compute::Cpu => Ok(Device::flex().autodiff()),
+            #[cfg(feature = "gpu")]
+            Compute::Gpu => Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice).autodiff()),
+            #[cfg(not(feature = "gpu"))]
+            Compute::Gpu => Err(TrainError::Config(
+                "--device gpu: this inssplat-train was built without the `gpu` feature \
+                 (cargo build --release -p inssplat-trainer --features gpu)"
+                    .into(),
+            )),
+        }
+    }
 }
 
 impl Default for Session {
@@ -144,6 +173,7 @@ impl Default for Session {
             val_data: None,
             time_limit: None,
             progress: true,
+            compute: Compute::Cpu,
         }
     }
 }
@@ -194,7 +224,7 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
     if checkpoint::latest(run)?.is_some() {
         return Err(TrainError::Exists(run.to_path_buf()));
     }
-    let device = Device::flex().autodiff();
+    let device = session.compute.device()?;
     let net = seeded_init(&config.model, config.seed, &device).map_err(|e| TrainError::Config(e.to_string()))?;
     let optim = optimizer(&config);
     let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: None };
@@ -216,7 +246,7 @@ pub fn fine_tune(
     if checkpoint::latest(run)?.is_some() {
         return Err(TrainError::Exists(run.to_path_buf()));
     }
-    let device = Device::flex().autodiff();
+    let device = session.compute.device()?;
     let (net, init_from) = if from.is_file() {
         let (net, meta) = crate::export::import_onnx(from, &device)?;
         (net, checkpoint::InitFrom { checkpoint: from.to_path_buf(), step: meta.train_steps })
@@ -247,7 +277,7 @@ pub fn fine_tune(
 pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summary, TrainError> {
     let dir = checkpoint::latest(run)?.ok_or_else(|| TrainError::NoCheckpoint(run.to_path_buf()))?;
     let mut state = checkpoint::read_state(&dir)?;
-    let device = Device::flex().autodiff();
+    let device = session.compute.device()?;
     let net = checkpoint::load_model(&dir, &state, &device)?;
     let optim = checkpoint::load_optimizer(&dir, optimizer(&state.config))?;
     if let Some(steps) = steps {
@@ -269,13 +299,14 @@ pub fn validate_checkpoint(
 ) -> Result<(PathBuf, u64, LossValues), TrainError> {
     let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
     let state = checkpoint::read_state(&dir)?;
-    let net = checkpoint::load_model(&dir, &state, &Device::flex().autodiff())?;
+    let device = Device::flex().autodiff();
+    let net = checkpoint::load_model(&dir, &state, &device)?;
     let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
     let val = val_samples(&state, &session, &label_cache()?)?;
     if val.is_empty() {
         return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
     }
-    let loss = validate(&net, &val, &state.config.loss)
+    let loss = validate(&net, &val, &state.config.loss, &device)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
     Ok((dir, state.step, loss))
 }
@@ -357,10 +388,11 @@ pub fn update(
     optim.step(lr, net, grads)
 }
 
-/// The validation loss: mean over fixed samples, without gradients.
-fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig) -> Result<LossValues, StepError> {
+/// The validation loss: mean over fixed samples, without gradients (`device`: the training
+/// device, whose inner device runs it).
+fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
     let plain = net.valid();
-    let device = Device::flex();
+    let device = device.clone().inner();
     let mut sum = LossValues::default();
     for s in samples {
         sum = sum + objective(&plain, s, loss, &device)?.values();
@@ -482,7 +514,7 @@ fn run_loop(
         ));
         let validate_now = session.val_every > 0 && state.step.is_multiple_of(session.val_every) && !val.is_empty();
         if validate_now {
-            let v = validate(&net, &val, &state.config.loss)
+            let v = validate(&net, &val, &state.config.loss, device)
                 .map_err(|source| TrainError::Step { step, scene: "validation".into(), source })?;
             let mut row = vec![state.step.to_string()];
             row.extend(loss_cells(&v));
