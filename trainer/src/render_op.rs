@@ -18,6 +18,8 @@
 //! code, so another backend would only add transfers.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, CheckpointStrategy, NoCheckpointing};
@@ -130,6 +132,16 @@ struct Saved {
 #[derive(Debug)]
 struct RenderBackward;
 
+/// Nanoseconds spent in [`RenderBackward`] since [`take_backward_time`] last read them.
+static BACKWARD_NS: AtomicU64 = AtomicU64::new(0);
+
+/// Time spent in the CPU rasterizer's backward (`render_backward` alone: no read-back of the
+/// output gradient, no upload) since the last call, summed over threads; the training log's
+/// `render_backward_s`.
+pub fn take_backward_time() -> Duration {
+    Duration::from_nanos(BACKWARD_NS.swap(0, Ordering::Relaxed))
+}
+
 impl<B: Backend> Backward<B, 1> for RenderBackward
 where
     DispatchTensor: DispatchKindConversion<B>,
@@ -148,7 +160,9 @@ where
             let pixels = h * w;
             let (d_features, rest) = grad.split_at(grad.len() - 2 * pixels);
             let (d_depth, d_alpha) = rest.split_at(pixels);
+            let start = Instant::now();
             let g = render_backward(&saved.splats.splats(), &saved.camera, &saved.state, d_features, d_depth, d_alpha);
+            BACKWARD_NS.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
             let c = saved.splats.channels;
             let n = g.means.len();
             let mut packed = Vec::with_capacity(n * (GEOMETRY_COLUMNS + c));

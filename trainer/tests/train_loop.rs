@@ -286,6 +286,16 @@ fn interrupted_run_resumes_exactly(samples_per_step: Option<usize>) {
     };
     assert_eq!(losses(straight.path()).len(), 5, "header + 4 steps");
     assert_eq!(losses(straight.path()), losses(pieces.path()));
+    // Every step logs the CPU rasterizer's share of its backward (summed over the sample threads).
+    let log = std::fs::read_to_string(straight.path().join("train_log.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|c| *c == name).unwrap();
+    let (backward, raster) = (col("backward_s"), col("render_backward_s"));
+    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|c| c.parse().unwrap()).collect()).collect();
+    for r in &rows {
+        assert!(r[raster] >= 0.0 && (samples_per_step.is_some_and(|k| k > 1) || r[raster] <= r[backward]), "{r:?}");
+    }
+    assert!(rows.iter().map(|r| r[raster]).sum::<f64>() > 0.0, "{log}");
     assert!(pieces.path().join("loss.png").is_file());
     // Only the newest `keep` checkpoints stay.
     let kept = std::fs::read_dir(checkpoint::checkpoints_dir(pieces.path())).unwrap().filter(|e| {

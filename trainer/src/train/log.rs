@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use super::step::LossValues;
 
-pub const TRAIN_HEADER: &str = "step,lr,total,rgb,geometry,instance,semantic,boundary,step_s,forward_s,render_s,backward_s,data_wait_s,elapsed_s";
+pub const TRAIN_HEADER: &str = "step,lr,total,rgb,geometry,instance,semantic,boundary,step_s,forward_s,render_s,backward_s,data_wait_s,elapsed_s,render_backward_s";
 pub const VAL_HEADER: &str = "step,total,rgb,geometry,instance,semantic,boundary";
 
 /// Appends rows to a CSV file that starts with `header`.
