@@ -75,6 +75,21 @@ fn a_wrong_focal_length_is_measured_and_corrected() {
     chained_views_land_on_their_true_poses(0.85);
 }
 
+#[test]
+fn two_photos_from_one_spot_keep_the_camera_heads_focal_length() {
+    // A pair without motion cannot tell the focal length (every focal length lifts and
+    // projects its matches back onto themselves): the head's guess must stay as it is, while
+    // the same photo in an 8-view set is measured (the tests above).
+    let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
+    let scene = synth::generate_split(0, &cfg).unwrap().scene;
+    let frame = &scene.frames[0];
+    let (cameras, component, focal) = registered(&[frame, frame], 0.85);
+    assert_eq!(focal, 1.0);
+    assert_eq!(component, [0, 0], "the pair itself still registers");
+    assert_eq!(cameras[1].intrinsics, cameras[0].intrinsics);
+    assert!((cameras[1].intrinsics.fx / frame.camera.intrinsics.fx - 0.85).abs() < 1e-6);
+}
+
 fn chained_views_land_on_their_true_poses(focal_given: f32) {
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     assert_eq!((cfg.width, cfg.height), (SIZE, SIZE));

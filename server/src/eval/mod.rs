@@ -314,7 +314,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             },
             match (&req.pipeline.register, req.known_poses) {
                 (_, true) => "",
-                (Some(p), false) if p.estimate_focal => "; cameras registered from keypoint matches and the predicted depth, with one focal length measured from the matches (stage `register`)",
+                (Some(p), false) if p.estimate_focal => "; cameras registered from keypoint matches and the predicted depth, with one focal length measured from the matches where they pin it down, else the camera head's (stage `register`)",
                 (Some(_), false) => "; cameras registered from keypoint matches and the predicted depth, at the camera head's field of view (stage `register`, --keep-focal)",
                 (None, false) => "; the camera head's poses as they are (--no-register)",
             }
