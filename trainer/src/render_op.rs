@@ -14,8 +14,10 @@
 //! backward reads the output gradient to the host and runs
 //! `inssplat_raster::render::render_backward` with the saved forward state. On a device
 //! without autodiff the op just renders. Autodiff devices are supported on the Flex backend
-//! (the training backend), with or without gradient checkpointing; the rasterizer is CPU
-//! code, so another backend would only add transfers.
+//! (the CPU training backend) and, in builds with the `gpu` feature, on the wgpu backend
+//! (`inssplat-train train --device gpu`), with or without gradient checkpointing. The
+//! rasterizer is CPU code either way: on a GPU the op reads the parameters back and uploads
+//! the image, so the network runs on the GPU and the render on the CPU cores.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -7,7 +7,7 @@
 //!
 //! A run lives in one folder `RUN`: `checkpoints/`, `train_log.csv`, `val_log.csv`,
 //! `loss.png`. [`train`] starts a run, [`resume`] continues the newest checkpoint of one with
-//! the configuration and data it was started with.
+//! the configuration and data it was started with, on the CPU or the GPU of [`Compute`].
 
 pub mod batch;
 pub mod checkpoint;
