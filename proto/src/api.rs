@@ -29,6 +29,24 @@ pub struct CameraOut {
     /// How the pose was found (absent in scenes saved before it was reported).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub placement: Option<Placement>,
+    /// Where the focal length came from, the same for every camera of a scene (absent in
+    /// scenes saved before it was reported).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal: Option<FocalSource>,
+}
+
+/// Where a scene's focal length (its field of view) came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub enum FocalSource {
+    /// Measured from the keypoint matches between the photos.
+    Measured,
+    /// The camera head's guess: registration off, or the matched photos do not pin the focal
+    /// length down (few pairs, or photos that barely turn).
+    CameraHead,
+    /// Given by the caller with the poses.
+    Given,
 }
 
 /// How a camera's pose was found: how far to trust it.

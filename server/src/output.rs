@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use image::{Rgb, RgbImage};
-use inssplat_proto::api::{CameraOut, InstanceOut, Placement, ReconstructResponse};
+use inssplat_proto::api::{CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 use serde::{Deserialize, Serialize};
@@ -112,6 +112,7 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
                 w: k.width,
                 h: k.height,
                 placement: Some(v.placement),
+                focal: Some(rec.focal),
             }
         })
         .collect()
@@ -254,7 +255,13 @@ fn describe_cameras(cameras: &[CameraOut]) -> String {
         parts = vec![format!("{} views at the given poses", cameras.len())];
     }
     if let Some(c) = cameras.first() {
-        parts.push(format!("field of view {:.1}°", (2.0 * (0.5 * c.h as f32 / c.fl_y).atan()).to_degrees()));
+        let source = match c.focal {
+            Some(FocalSource::Measured) => " (measured from the matches)",
+            Some(FocalSource::CameraHead) => " (the camera head's guess: the matches do not pin it down)",
+            Some(FocalSource::Given) => " (given)",
+            None => "",
+        };
+        parts.push(format!("field of view {:.1}°{source}", (2.0 * (0.5 * c.h as f32 / c.fl_y).atan()).to_degrees()));
     }
     format!("cameras: {}\n", parts.join("; "))
 }

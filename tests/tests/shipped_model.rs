@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 use inssplat_e2e::inssplat;
 use glam::DMat3;
-use inssplat_proto::api::{Placement, QueryResponse, ReconstructResponse};
+use inssplat_proto::api::{FocalSource, Placement, QueryResponse, ReconstructResponse};
 use inssplat_proto::dataset::Scene;
 use inssplat_raster::metrics::angle_deg;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
@@ -114,7 +114,7 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
     let dir = tempfile::tempdir().unwrap();
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     let model = shipped_model();
-    let (mut registered, mut continued) = (Vec::new(), Vec::new());
+    let (mut registered, mut continued, mut measured) = (Vec::new(), Vec::new(), 0);
     for index in 0..8 {
         let scene_dir = dir.path().join(format!("scene{index}"));
         synth::generate_split(index, &cfg).unwrap().write(&scene_dir).unwrap();
@@ -129,6 +129,11 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let r: ReconstructResponse = serde_json::from_slice(&run.stdout).unwrap();
         assert_eq!(r.cameras[0].placement, Some(Placement::Reference), "scene {index}");
+        // Where the focal length came from, the same for every view of a scene.
+        let focal = r.cameras[0].focal;
+        assert!(matches!(focal, Some(FocalSource::Measured | FocalSource::CameraHead)), "scene {index}: {focal:?}");
+        assert!(r.cameras.iter().all(|c| c.focal == focal), "scene {index}");
+        measured += usize::from(focal == Some(FocalSource::Measured));
         let truth: Vec<DMat3> = context.iter().map(|&f| rotation(&scene.frames[f].camera.to_nerfstudio())).collect();
         let predicted: Vec<DMat3> = r.cameras.iter().map(|c| rotation(&c.transform_matrix)).collect();
         for (v, camera) in r.cameras.iter().enumerate().skip(1) {
@@ -149,10 +154,31 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
         }
     }
     let (linked, others) = (registered.len(), continued.len());
+    assert!(measured >= 6, "the focal length was measured in only {measured} of 8 scenes");
     assert!(linked >= 40, "only {linked} of 56 views registered");
     assert!(others > 0, "every view was registered: the test no longer sees the other placements");
     let (reg, cont) = (median(registered), median(continued));
     eprintln!("{linked} registered views: median rotation error {reg:.1}°; {others} others: {cont:.1}°");
     assert!(reg < 4.0, "registered views err {reg}° (median)");
     assert!(cont > 3.0 * reg, "views placed otherwise err {cont}°, registered ones {reg}°");
+}
+
+#[test]
+fn two_copies_of_one_photo_keep_and_say_the_camera_heads_field_of_view() {
+    // Matches between a photo and itself cannot tell the focal length: the response says the
+    // field of view is the camera head's, and so does the summary for people.
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
+    let scene_dir = dir.path().join("scene");
+    synth::generate_split(0, &cfg).unwrap().write(&scene_dir).unwrap();
+    let photo = scene_dir.join("images/000.png");
+    let (model, out) = (shipped_model(), dir.path().join("out"));
+    let args = ["reconstruct", s(&photo), s(&photo), "-o", s(&out), "--model", s(&model)];
+    let run = inssplat(&[&args[..], &["--json"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let r: ReconstructResponse = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(r.cameras.iter().all(|c| c.focal == Some(FocalSource::CameraHead)), "{:?}", r.cameras);
+    let text = inssplat(&args);
+    let said = format!("{}{}", String::from_utf8_lossy(&text.stdout), String::from_utf8_lossy(&text.stderr));
+    assert!(said.contains("the camera head's guess"), "{said}");
 }

@@ -120,6 +120,8 @@ pub struct Registration {
     /// [`RegisterParams::estimate_focal`] off, or when the matched pairs do not pin the focal
     /// length down: [`MIN_FOCAL_PRECISION`]).
     pub focal_scale: f64,
+    /// Whether the focal length was measured (else the given intrinsics' stands).
+    pub focal_measured: bool,
 }
 
 /// Registers `views`, in the order they were taken (see the module documentation). View 0
@@ -191,7 +193,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
     for cam in &mut cameras {
         scale_focal(cam, polish);
     }
-    Registration { cameras, component, focal_scale: focal_scale * polish }
+    Registration { cameras, component, focal_scale: focal_scale * polish, focal_measured: measured.is_some() }
 }
 
 /// Every pair's relative pose from its `matches` (in the order of `jobs`), at the intrinsics of

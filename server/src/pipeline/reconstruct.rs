@@ -9,7 +9,7 @@
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
-use inssplat_proto::api::{InstanceOut, Placement, StageTiming};
+use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::DESCRIPTOR;
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
@@ -132,6 +132,8 @@ pub struct Reconstruction {
     pub sem_proj_bias: Vec<f32>,
     pub voxel: VoxelReport,
     pub timings: Vec<StageTiming>,
+    /// Where every view's focal length came from.
+    pub focal: FocalSource,
 }
 
 /// Collects stage timings and tells an observer when each stage starts.
@@ -228,11 +230,11 @@ pub fn reconstruct_with(
     }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
     let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
-    let (cameras, placements): (Vec<Camera>, Vec<Placement>) = match &config.known_poses {
+    let (cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
         None => {
             let predicted = predicted_cameras(&out);
             match &config.register {
-                None => (predicted, head(out.views)),
+                None => (predicted, head(out.views), FocalSource::CameraHead),
                 Some(params) => clock.time("register", || {
                     let views: Vec<RegisterView<'_>> = (0..out.views)
                         .map(|v| RegisterView {
@@ -244,11 +246,12 @@ pub fn reconstruct_with(
                         .collect();
                     let registration = register(&views, params);
                     let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
-                    (registration.cameras, placements)
+                    let focal = if registration.focal_measured { FocalSource::Measured } else { FocalSource::CameraHead };
+                    (registration.cameras, placements, focal)
                 }),
             }
         }
-        Some(poses) if poses.len() == images.len() => (poses.clone(), vec![Placement::Given; poses.len()]),
+        Some(poses) if poses.len() == images.len() => (poses.clone(), vec![Placement::Given; poses.len()], FocalSource::Given),
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };
 
@@ -343,6 +346,7 @@ pub fn reconstruct_with(
         sem_proj_bias: out.sem_proj_bias.clone(),
         voxel: voxelized.report,
         timings: clock.timings,
+        focal,
     })
 }
 
