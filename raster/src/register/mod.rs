@@ -116,12 +116,10 @@ pub struct Registration {
     /// reference view; any other root is placed by continuing the motion before it, or by the
     /// camera head for view 1).
     pub component: Vec<usize>,
-    /// The multiplier applied to every view's focal lengths (1 with
-    /// [`RegisterParams::estimate_focal`] off, or when the matched pairs do not pin the focal
-    /// length down: [`MIN_FOCAL_PRECISION`]).
-    pub focal_scale: f64,
-    /// Whether the focal length was measured (else the given intrinsics' stands).
-    pub focal_measured: bool,
+    /// The multiplier applied to every view's focal lengths; `None` when the given
+    /// intrinsics stand ([`RegisterParams::estimate_focal`] off, or the matched pairs do not
+    /// pin the focal length down: [`MIN_FOCAL_PRECISION`]).
+    pub focal_scale: Option<f64>,
 }
 
 /// Registers `views`, in the order they were taken (see the module documentation). View 0
@@ -142,15 +140,14 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
     let mut pairs = pair_poses(&jobs, &matches, &cameras, params);
     let measured = if params.estimate_focal { shared_focal(&cameras, &pairs, params) } else { None };
-    let focal_scale = measured.unwrap_or(1.0);
-    if measured.is_some() {
+    if let Some(scale) = measured {
         // The inliers chosen through a wrong focal length favour the matches it fits, so the
         // pairs are solved again, RANSAC included, at the focal length they measured.
         for cam in &mut cameras {
-            scale_focal(cam, focal_scale);
+            scale_focal(cam, scale);
         }
         let matches: Vec<Vec<Correspondence>> =
-            matches.iter().map(|m| m.iter().map(|c| c.with_focal(focal_scale)).collect()).collect();
+            matches.iter().map(|m| m.iter().map(|c| c.with_focal(scale)).collect()).collect();
         pairs = pair_poses(&jobs, &matches, &cameras, params);
     }
     // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
@@ -193,7 +190,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
     for cam in &mut cameras {
         scale_focal(cam, polish);
     }
-    Registration { cameras, component, focal_scale: focal_scale * polish, focal_measured: measured.is_some() }
+    Registration { cameras, component, focal_scale: measured.map(|scale| scale * polish) }
 }
 
 /// Every pair's relative pose from its `matches` (in the order of `jobs`), at the intrinsics of

@@ -246,7 +246,7 @@ pub fn reconstruct_with(
                         .collect();
                     let registration = register(&views, params);
                     let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
-                    let focal = if registration.focal_measured { FocalSource::Measured } else { FocalSource::CameraHead };
+                    let focal = if registration.focal_scale.is_some() { FocalSource::Measured } else { FocalSource::CameraHead };
                     (registration.cameras, placements, focal)
                 }),
             }
