@@ -26,7 +26,8 @@ pub struct TrainArgs {
     data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
     /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
-    /// schedule; the network shape flags are then ignored, but for --image-skips.
+    /// schedule; the network shape flags are then ignored, but for --image-skips and
+    /// --point-map-weight.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
@@ -130,6 +131,14 @@ pub struct TrainArgs {
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
+    /// Weight of the point-map term inside L_geom (each input pixel's point in view 0's camera
+    /// frame, DUSt3R-style; 0: none). Gives the network a point-map head of --point-head
+    /// channels; with --init-from, grows one on a network that has none.
+    #[arg(long, default_value_t = 0.0)]
+    point_map_weight: f64,
+    /// Hidden channels of the point-map head that --point-map-weight adds.
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
+    point_head: u16,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -212,7 +221,8 @@ impl TrainArgs {
             .with_heads(self.heads)
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim)
-            .with_image_skips(self.image_skips);
+            .with_image_skips(self.image_skips)
+            .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)));
         let loss = LossConfig::new()
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
@@ -225,6 +235,7 @@ impl TrainArgs {
             .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
+            .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))

@@ -9,7 +9,8 @@
 //! constant; everything else stays differentiable.
 //!
 //! - [`rgb_loss`]: L_rgb = mean over views, channels and pixels of (Î − I)².
-//! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view.
+//! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view (+ the
+//!   [`point_map`] term of a network with a point-map head).
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
 //! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
 //!   or a contrastive form over the label vocabulary.
@@ -18,6 +19,7 @@
 pub mod boundary;
 pub mod geometry;
 pub mod instance;
+pub mod point_map;
 pub mod semantic;
 
 use std::collections::HashMap;
@@ -28,6 +30,7 @@ use serde::{Deserialize, Serialize};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
+pub use point_map::{pixel_rays, point_map_loss, point_map_targets};
 pub use semantic::{SemanticForm, semantic_loss};
 
 /// Added under square roots of squared norms, so that zero vectors normalize to zero with a
@@ -128,6 +131,10 @@ pub struct LossConfig {
     /// existed read as) weighs every valid pixel alike, 1 every instance alike (see
     /// [`geometry`]).
     pub depth_instance_balance: Option<f64>,
+    /// Weight of the point-map term L_pm inside L_geom (see [`point_map`]), for a network with
+    /// a point-map head; `None` (also what configs saved before this term existed read as)
+    /// means 0.
+    pub point_map_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

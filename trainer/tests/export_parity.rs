@@ -114,11 +114,13 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         gaussians,
         instance,
         semantic,
+        point_map,
     } = net.forward(images).expect("forward");
     let (w, b) = net.sem_proj();
     let outputs = session
         .run(ort::inputs![sig::INPUT_IMAGES.name => input])
         .expect("ORT run");
+    let point_map = point_map.map(|p| (sig::OUTPUT_POINT_MAP.name, p.dims().to_vec(), to_vec(p)));
     let ours = [
         (
             sig::OUTPUT_CAMERA.name,
@@ -153,7 +155,7 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         ),
         (sig::OUTPUT_SEM_PROJ_BIAS.name, b.dims().to_vec(), to_vec(b)),
     ];
-    for (name, dims, values) in ours {
+    for (name, dims, values) in ours.into_iter().chain(point_map) {
         let (shape, theirs) = outputs[name]
             .try_extract_tensor::<f32>()
             .expect("f32 output");
@@ -344,19 +346,24 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     assert_eq!(state.config.model, *source.config(), "the file's shape, not the default one");
 }
 
-/// `--init-from M --image-skips K` on a network without an image encoder: the grown network
-/// computes exactly what the source did (the skips join through zero layers), has the encoder's
-/// weights besides, and exports and reads back with parity.
+/// `--init-from M --image-skips K --point-map-weight W` on a network without an image encoder
+/// or a point-map head: the grown network computes exactly what the source did (the skips join
+/// through zero layers, the point map is an output of its own), has the new parts' weights
+/// besides, and exports (the point map as the optional `point_map` output) and reads back with
+/// parity.
 #[test]
-fn growing_an_image_encoder_keeps_the_output_and_exports_with_parity() {
+fn growing_an_image_encoder_and_a_point_head_keeps_the_output_and_exports_with_parity() {
     let device = Device::flex();
     device.seed(11);
     let source = small_config().init(&device).expect("valid config").map(&mut Perturb { std: 0.15 });
-    let grown = inssplat_trainer::train::add_image_skips(&source, 4, 5, &device).expect("grow");
-    assert_eq!(grown.config().image_skips, Some(4));
-    assert!(grown.num_params() > source.num_params(), "the encoder adds weights");
+    let shape = source.config().clone().with_image_skips(Some(4)).with_point_head(Some(8));
+    let grown = inssplat_trainer::train::grow(&source, shape, 5, &device).expect("grow");
+    assert_eq!((grown.config().image_skips, grown.config().point_head), (Some(4), Some(8)));
+    assert!(grown.num_params() > source.num_params(), "the new parts add weights");
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
     let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    assert!(a.point_map.is_none());
+    assert_eq!(b.point_map.as_ref().map(|p| p.dims()), Some([3, 3, 32, 32]));
     for (name, x, y) in [("depth", a.depth, b.depth), ("gaussians", a.gaussians, b.gaussians), ("instance", a.instance, b.instance), ("semantic", a.semantic, b.semantic)] {
         assert_eq!(to_vec(x), to_vec(y), "{name}: the grown network's output differs");
     }

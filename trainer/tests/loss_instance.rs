@@ -90,7 +90,7 @@ fn loss_instance_pull_push_cross_two_views() {
 }
 
 /// Central differences of `loss` at `x` against the autodiff gradient of the same loss.
-fn check_gradient(values: &[f32], shape: [usize; 4], loss: impl Fn(Tensor<4>) -> Tensor<1>) {
+pub(crate) fn check_gradient(values: &[f32], shape: [usize; 4], loss: impl Fn(Tensor<4>) -> Tensor<1>) {
     let ad = Device::flex().autodiff();
     let x = tensor(values, shape, &ad).require_grad();
     let grads = loss(x.clone()).backward();

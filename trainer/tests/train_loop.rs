@@ -382,6 +382,11 @@ fn bad_data_and_checkpoints_are_named_errors() {
         assert!(!gpu_run.exists());
     }
 
+    // A point-map weight for a network without a point-map head (the CLI adds the head).
+    let headless = TrainConfig::new(tiny_model(), LossConfig::new().with_point_map_weight(Some(1.0))).with_steps(1);
+    let err = train::train(&tmp.path().join("headless"), headless, tiny_data(), &quiet_session()).unwrap_err().to_string();
+    assert!(err.contains("point-map weight") && err.contains("point-map head"), "{err}");
+
     // A checkpoint whose state.json describes another network than its weights.
     let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();
     let dir = t.checkpoint.unwrap();

@@ -221,6 +221,13 @@ fn decoder(
     let x = g.op("Concat", &[&x, centred], vec![attr_int("axis", 1)]);
     let x = conv(g, "decoder.mix", &m.mix, &x)?;
     let x = g.gelu(&x);
+    if let Some(head) = &m.point {
+        let h = conv(g, "decoder.point.hidden", &head.hidden, &x)?;
+        let h = g.gelu(&h);
+        let p = conv(g, "decoder.point.out", &head.out, &h)?;
+        let scale = g.scalar(c.depth_scale as f32);
+        g.op_into("Mul", &[&p, &scale], &[sig::OUTPUT_POINT_MAP.name], vec![]);
+    }
     let raw = conv(g, "decoder.out", &m.out, &x)?;
     let split = g.i64s(&[
         1,

@@ -89,6 +89,23 @@ pub struct Skip {
     pub(crate) inject: Conv2d,
 }
 
+/// The point-map head ([`ModelConfig::point_head`]): from the decoder's full-resolution
+/// features, a 1×1 layer of its own width with GELU, then 3 channels scaled by
+/// [`ModelConfig::depth_scale`]: each pixel's point in view 0's camera frame, in metres. For
+/// view 0 that is its own depth along its rays; for every other view it needs that view's
+/// pose, which the decoder's features only hold if the global attention matched the views.
+#[derive(Module, Debug)]
+pub struct PointHead {
+    pub(crate) hidden: Conv2d,
+    pub(crate) out: Conv2d,
+}
+
+impl PointHead {
+    fn forward(&self, x: Tensor<4>, c: &ModelConfig) -> Tensor<4> {
+        self.out.forward(gelu(self.hidden.forward(x))) * c.depth_scale
+    }
+}
+
 /// The dense maps of one forward pass (everything but the camera).
 #[derive(Debug, Clone)]
 pub struct DenseOutput {
@@ -97,6 +114,7 @@ pub struct DenseOutput {
     pub gaussians: Tensor<4>,
     pub instance: Tensor<4>,
     pub semantic: Tensor<4>,
+    pub point_map: Option<Tensor<4>>,
 }
 
 /// DPT-style dense decoder shared by the depth, Gaussian/semantic and instance heads.
@@ -114,6 +132,8 @@ pub struct DenseDecoder {
     pub(crate) mix: Conv2d,
     /// Fused 1×1 output layer: depth (2) | Gaussians (14) | semantic (d_s) | instance (8).
     pub(crate) out: Conv2d,
+    /// Only with [`ModelConfig::point_head`].
+    pub(crate) point: Option<PointHead>,
 }
 
 impl DenseDecoder {
@@ -158,6 +178,10 @@ impl DenseDecoder {
             skips,
             mix: Conv2dConfig::new([last + 3, last], [1, 1]).init(device),
             out: Conv2dConfig::new([last, Self::out_channels(c)], [1, 1]).init(device),
+            point: c.point_head.map(|hidden| PointHead {
+                hidden: Conv2dConfig::new([last, hidden], [1, 1]).init(device),
+                out: Conv2dConfig::new([hidden, 3], [1, 1]).init(device),
+            }),
         }
     }
 
@@ -194,6 +218,7 @@ impl DenseDecoder {
             }
         }
         let x = gelu(self.mix.forward(Tensor::cat(vec![x, centred], 1)));
+        let point_map = self.point.as_ref().map(|head| head.forward(x.clone(), c));
         let raw = self.out.forward(x);
         let mut parts = raw
             .split_with_sizes(
@@ -226,6 +251,7 @@ impl DenseDecoder {
             gaussians: Tensor::cat(vec![affine * mul + add, colour], 1),
             instance,
             semantic,
+            point_map,
         }
     }
 }

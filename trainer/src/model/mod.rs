@@ -23,7 +23,7 @@ use inssplat_proto::signature::TEXT_DIM;
 pub use block::{Block, LN_EPS};
 pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
-    OUT_INSTANCE, SH_C0, Skip, Stage, gaussian_affine,
+    OUT_INSTANCE, PointHead, SH_C0, Skip, Stage, gaussian_affine,
 };
 
 /// Shape and output-scaling hyper-parameters of the network.
@@ -71,6 +71,10 @@ pub struct ModelConfig {
     /// image encoder, the image enters the decoder only through one 1×1 layer at full
     /// resolution (the architecture of the 0.5 release and earlier, whose files lack the key).
     pub image_skips: Option<usize>,
+    /// Hidden channels of a point-map head: every input pixel's 3D point in view 0's camera
+    /// frame, DUSt3R-style (see [`PointHead`]), a dense target that only matching the
+    /// views can meet; `None` (also what files saved before it existed read as): no such head.
+    pub point_head: Option<usize>,
 }
 
 impl ModelConfig {
@@ -119,8 +123,13 @@ impl ModelConfig {
                 self.dim, self.heads
             ));
         }
-        if self.sem_dim == 0 || self.decoder_min_dim == 0 || self.mlp_ratio == 0 || self.image_skips == Some(0) {
-            return bad("sem_dim, decoder_min_dim, mlp_ratio and image_skips must be positive".into());
+        if self.sem_dim == 0
+            || self.decoder_min_dim == 0
+            || self.mlp_ratio == 0
+            || self.image_skips == Some(0)
+            || self.point_head == Some(0)
+        {
+            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips and point_head must be positive".into());
         }
         Ok(())
     }
@@ -194,6 +203,9 @@ pub struct ModelOutput {
     pub instance: Tensor<4>,
     /// `[N, d_s, H, W]`: compact semantic feature L.
     pub semantic: Tensor<4>,
+    /// `[N, 3, H, W]`: each pixel's point in view 0's camera frame, metres; only with
+    /// [`ModelConfig::point_head`].
+    pub point_map: Option<Tensor<4>>,
 }
 
 impl InsSplatNet {
@@ -277,6 +289,7 @@ impl InsSplatNet {
             gaussians: dense.gaussians,
             instance: dense.instance,
             semantic: dense.semantic,
+            point_map: dense.point_map,
         })
     }
 

@@ -106,6 +106,9 @@ impl TrainConfig {
                 self.min_views, self.max_views
             )));
         }
+        if self.loss.point_map_weight.is_some_and(|w| w > 0.0) && self.model.point_head.is_none() {
+            return Err(TrainError::Config("a point-map weight needs a network with a point-map head".into()));
+        }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
         }
@@ -234,8 +237,8 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 /// Starts a new run in `run` from the weights of the newest checkpoint of `from` (a run or a
 /// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
-/// shape is the source's; `config.model` is replaced by it, except that an image encoder asked
-/// for by `config.model.image_skips` is added to a source without one (see [`add_image_skips`]).
+/// shape is the source's; `config.model` is replaced by it, except that an image encoder or a
+/// point-map head asked for by `config.model` is added to a source without one (see [`grow`]).
 pub fn fine_tune(
     run: &Path,
     mut config: TrainConfig,
@@ -256,16 +259,23 @@ pub fn fine_tune(
         let net = checkpoint::load_model(&dir, &source, &device)?;
         (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
     };
-    let net = match (config.model.image_skips, net.config().image_skips) {
-        (Some(channels), None) => add_image_skips(&net, channels, config.seed, &device)?,
-        (Some(asked), Some(has)) if asked != has => {
-            return Err(TrainError::Config(format!(
-                "{} has an image encoder of {has} channels; it cannot become {asked}",
-                from.display()
-            )));
+    let mut shape = net.config().clone();
+    for (part, asked, has) in [
+        ("an image encoder", config.model.image_skips, &mut shape.image_skips),
+        ("a point-map head", config.model.point_head, &mut shape.point_head),
+    ] {
+        match (asked, *has) {
+            (Some(asked), None) => *has = Some(asked),
+            (Some(asked), Some(had)) if asked != had => {
+                return Err(TrainError::Config(format!(
+                    "{} has {part} of {had} channels; it cannot become {asked}",
+                    from.display()
+                )));
+            }
+            _ => {}
         }
-        _ => net,
-    };
+    }
+    let net = if shape == *net.config() { net } else { grow(&net, shape, config.seed, &device)? };
     config.model = net.config().clone();
     config.validate()?;
     let optim = optimizer(&config);
@@ -311,17 +321,28 @@ pub fn validate_checkpoint(
     Ok((dir, state.step, loss))
 }
 
-/// `net` grown by an image encoder of `channels` channels ([`crate::model::ModelConfig::image_skips`]):
-/// every weight of `net` is kept and the encoder is drawn from `seed`; it joins the decoder
-/// through layers that start at zero, so the grown network computes exactly what `net` did.
-pub fn add_image_skips(net: &InsSplatNet, channels: usize, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
-    let config = net.config().clone().with_image_skips(Some(channels));
-    let mut grown = seeded_init(&config, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
+/// `net` grown to `shape`, which may add an image encoder
+/// ([`crate::model::ModelConfig::image_skips`]) or a point-map head
+/// ([`crate::model::ModelConfig::point_head`]) that `net` lacks: every weight of `net` is kept
+/// and the new parts are drawn from `seed`. The image encoder joins the decoder through layers
+/// that start at zero and the point-map head has an output of its own, so the grown network
+/// computes exactly what `net` did.
+pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
+    let old = net.config();
+    let mut new_parts = Vec::new();
+    if old.image_skips.is_none() && shape.image_skips.is_some() {
+        new_parts.push("decoder.skips.");
+    }
+    if old.point_head.is_none() && shape.point_head.is_some() {
+        new_parts.push("decoder.point.");
+    }
+    let mut grown = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
     let result = grown.apply(net.collect(None, None, false), None, None, false);
-    let kept_all = result.missing.iter().all(|(path, _)| path.starts_with("decoder.skips.")) && result.unused.is_empty();
+    let kept_all = result.missing.iter().all(|(path, _)| new_parts.iter().any(|part| path.starts_with(part)))
+        && result.unused.is_empty();
     if !result.errors.is_empty() || !kept_all {
         return Err(TrainError::Config(format!(
-            "adding the image encoder: tensors missing {:?}, unused {:?}, errors {:?}",
+            "growing {old:?} to {shape:?}: tensors missing {:?}, unused {:?}, errors {:?}",
             result.missing, result.unused, result.errors
         )));
     }

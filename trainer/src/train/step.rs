@@ -22,7 +22,7 @@ use inssplat_raster::render::RenderOptions;
 use super::sample::Sample;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    SemanticForm, rgb_loss, semantic_loss,
+    median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{RenderOpError, SplatTensors, render};
@@ -147,15 +147,21 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let semantic = rendered.narrow(1, 11, sem_dim);
     debug_assert_eq!(channels, 11 + sem_dim);
     let targets = camera_targets(input_cameras);
-    let geometry = geometry_loss(
+    let input_depth = &sample.depth[..inputs * pixels];
+    let mut geometry = geometry_loss(
         out.depth.clone(),
         out.depth_conf.clone(),
-        &sample.depth[..inputs * pixels],
+        input_depth,
         &sample.ids[..inputs * pixels],
         out.camera.clone(),
         &targets,
         config,
     )?;
+    if let (Some(points), Some(weight)) = (out.point_map.clone(), config.point_map_weight.filter(|&w| w > 0.0)) {
+        let target = point_map_targets(input_cameras, input_depth, size, size)?;
+        let scale = median_depth(input_depth).unwrap_or(1.0);
+        geometry = geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
+    }
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();
     let semantic_form = match config.semantic_temperature {
@@ -235,18 +241,6 @@ pub fn splats_from_outputs(out: &ModelOutput, cameras: &[Camera]) -> SplatTensor
         logit_opacity: pixels_last(g.narrow(1, 10, 1)).reshape([v * hw]),
         features: pixels_last(features).reshape([v * hw, c]),
     }
-}
-
-/// `[V, 3, H, W]`: per pixel centre the camera-frame ray with z = 1, ((u − cx)/fx, (v − cy)/fy, 1).
-fn pixel_rays(cameras: &[Camera], h: usize, w: usize) -> Vec<f32> {
-    let mut rays = Vec::with_capacity(cameras.len() * 3 * h * w);
-    for cam in cameras {
-        let k = cam.intrinsics.scaled_to(w as u32, h as u32);
-        rays.extend((0..h * w).map(|p| ((p % w) as f32 + 0.5 - k.cx) / k.fx));
-        rays.extend((0..h * w).map(|p| ((p / w) as f32 + 0.5 - k.cy) / k.fy));
-        rays.extend(std::iter::repeat_n(1.0, h * w));
-    }
-    rays
 }
 
 /// The 4×4 matrix M with (a ⊗ b) = b·M for quaternions as rows (w, x, y, z), row-major.
