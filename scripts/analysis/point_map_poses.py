@@ -10,7 +10,10 @@ against that of the view's own points left where they are (the identity again).
 
 A measurement for the model card, not part of the product or of CI:
     pip install onnxruntime numpy pillow
-    python3 scripts/analysis/point_map_poses.py runs/pm/pm1.onnx data/val40 [views]
+    python3 scripts/analysis/point_map_poses.py runs/pm/pm1.onnx data/val40 [views] [--offsets]
+
+--offsets: the model was trained with `--point-map-offsets`, so its point map is each point's
+displacement from its own camera frame, added here to the view's own points.
 """
 import json
 import os
@@ -52,7 +55,7 @@ def rays(meta):
     return np.stack([(u - meta["cx"]) / meta["fl_x"], (v - meta["cy"]) / meta["fl_y"], np.ones((h, w))], -1)
 
 
-def main(model, data, views="8"):
+def main(model, data, views="8", offsets=False):
     options = ort.SessionOptions()
     options.intra_op_num_threads = 2
     session = ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
@@ -73,7 +76,7 @@ def main(model, data, views="8"):
             rel = to_first @ c2w[v]  # view v's camera → view 0's camera
             valid = truth[v] > 0
             own = (ray * depth[v, 0][..., None])[valid]
-            mapped = points[v].transpose(1, 2, 0)[valid]
+            mapped = points[v].transpose(1, 2, 0)[valid] + (own if offsets else 0)
             true_points = (ray * truth[v][..., None])[valid] @ rel[:3, :3].T + rel[:3, 3]
             r, _ = kabsch(own, mapped)
             head = quat_matrix(camera[v, 3:7]).T  # world→camera rotation, transposed: camera→world
@@ -97,4 +100,5 @@ def main(model, data, views="8"):
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    args = [a for a in sys.argv[1:] if a != "--offsets"]
+    main(*args, offsets="--offsets" in sys.argv[1:])

@@ -136,6 +136,10 @@ pub struct TrainArgs {
     /// channels; with --init-from, grows one on a network that has none.
     #[arg(long, default_value_t = 0.0)]
     point_map_weight: f64,
+    /// The point-map head predicts each pixel's displacement from its own camera frame into
+    /// view 0's, which starts at the identity pose, instead of the point itself.
+    #[arg(long)]
+    point_map_offsets: bool,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
@@ -236,6 +240,7 @@ impl TrainArgs {
             .with_instance_weight(self.instance_weight)
             .with_camera_weight(self.camera_weight)
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
+            .with_point_map_offsets(self.point_map_offsets.then_some(true))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))

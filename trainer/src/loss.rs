@@ -135,6 +135,11 @@ pub struct LossConfig {
     /// a point-map head; `None` (also what configs saved before this term existed read as)
     /// means 0.
     pub point_map_weight: Option<f64>,
+    /// The point-map head predicts each pixel's displacement from its own camera frame into
+    /// view 0's (its point in view 0's frame minus its point in its own), so that a head that
+    /// knows no pose starts at the identity (see [`point_map`]); `None` (also what configs
+    /// saved before this switch existed read as) or `false`: the point itself.
+    pub point_map_offsets: Option<bool>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

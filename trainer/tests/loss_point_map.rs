@@ -54,7 +54,8 @@ fn point_map_targets_put_every_view_in_view_zeros_frame() {
     let (w, h) = (48usize, 40usize);
     let cameras: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
     let depth: Vec<f32> = scene.frames.iter().flat_map(|f| f.depth.clone().unwrap()).collect();
-    let points = point_map_targets(&cameras, &depth, h, w).unwrap();
+    let points = point_map_targets(&cameras, &depth, h, w, false).unwrap();
+    let offsets = point_map_targets(&cameras, &depth, h, w, true).unwrap();
     let hw = h * w;
     let at = |v: usize, c: usize, p: usize| points[(v * 3 + c) * hw + p];
     // View 0's points are its depth along its own rays.
@@ -90,6 +91,15 @@ fn point_map_targets_put_every_view_in_view_zeros_frame() {
         errors.sort_by(f32::total_cmp);
         errors[errors.len() / 2]
     };
+    // The offsets are the points less the pixels' own points: zero for view 0.
+    for v in 0..cameras.len() {
+        for p in (0..hw).step_by(29) {
+            let own = scene.frames[v].camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, depth[v * hw + p]);
+            let point = glam::Vec3::new(at(v, 0, p), at(v, 1, p), at(v, 2, p));
+            let offset = glam::Vec3::from_array([0, 1, 2].map(|c| offsets[(v * 3 + c) * hw + p]));
+            assert!((offset - (point - own)).length() < 1e-4 * point.length().max(1.0), "view {v} pixel {p}: offset {offset}");
+        }
+    }
     let moved = median_disagreement(&|v, p| glam::Vec3::new(at(v, 0, p), at(v, 1, p), at(v, 2, p)));
     let unmoved = median_disagreement(&|v, p| {
         scene.frames[v].camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, depth[v * hw + p])

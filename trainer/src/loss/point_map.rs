@@ -7,7 +7,11 @@
 //! into view 0's frame, which a network meets only by matching the view against view 0. The
 //! camera term asks the same of one token per view and has not taught the global attention
 //! to match (a view's depth changes by 3% when 7 other views come with it); this term asks
-//! it of every pixel. Added to L_geom with weight `point_map_weight`.
+//! it of every pixel. Added to L_geom with weight `point_map_weight`. With
+//! `point_map_offsets` the target is each point's displacement instead, P_p − X_p with X_p the
+//! pixel's true point in its own camera frame: zero for view 0, and for the others what the
+//! pose does to the point, so a head that has learned no pose predicts the identity (the
+//! view's points left where they are) rather than nothing at all.
 
 use burn::prelude::*;
 use inssplat_proto::Camera;
@@ -28,8 +32,9 @@ pub fn pixel_rays(cameras: &[Camera], h: usize, w: usize) -> Vec<f32> {
 }
 
 /// `[V][3][H][W]`: the true point of every pixel of the `cameras`' views in the camera frame
-/// of `cameras[0]`, from the true `depth` (`[V][H][W]` metres, 0 = no hit, whose points are 0).
-pub fn point_map_targets(cameras: &[Camera], depth: &[f32], h: usize, w: usize) -> Result<Vec<f32>, LossError> {
+/// of `cameras[0]`, from the true `depth` (`[V][H][W]` metres, 0 = no hit, whose points are 0);
+/// with `offsets`, that point minus the pixel's point in its own camera frame.
+pub fn point_map_targets(cameras: &[Camera], depth: &[f32], h: usize, w: usize, offsets: bool) -> Result<Vec<f32>, LossError> {
     let hw = h * w;
     check_len("ground-truth depth of the point map", cameras.len() * hw, depth.len())?;
     let Some(reference) = cameras.first() else { return Ok(Vec::new()) };
@@ -43,7 +48,10 @@ pub fn point_map_targets(cameras: &[Camera], depth: &[f32], h: usize, w: usize) 
             }
             let ray = |c: usize| rays[(v * 3 + c) * hw + p];
             let own = glam::Vec3::new(ray(0), ray(1), 1.0) * z;
-            let point = reference.world_to_camera(cam.camera_to_world(own));
+            let mut point = reference.world_to_camera(cam.camera_to_world(own));
+            if offsets {
+                point -= own;
+            }
             for (c, x) in point.to_array().into_iter().enumerate() {
                 points[(v * 3 + c) * hw + p] = x;
             }

@@ -158,7 +158,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         config,
     )?;
     if let (Some(points), Some(weight)) = (out.point_map.clone(), config.point_map_weight.filter(|&w| w > 0.0)) {
-        let target = point_map_targets(input_cameras, input_depth, size, size)?;
+        let target = point_map_targets(input_cameras, input_depth, size, size, config.point_map_offsets == Some(true))?;
         let scale = median_depth(input_depth).unwrap_or(1.0);
         geometry = geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
     }
