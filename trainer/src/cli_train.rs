@@ -68,6 +68,10 @@ pub struct TrainArgs {
     /// scenes the earlier runs never saw.
     #[arg(long, default_value_t = 0)]
     first_scene: u64,
+    /// Draw each step's views from a random window of this many consecutive frames of the
+    /// trajectory, so that they overlap (default: from the whole trajectory).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(2..))]
+    view_window: Option<u16>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Samples per optimizer step, evaluated side by side on threads (one per core is what a
@@ -260,6 +264,7 @@ impl TrainArgs {
             .with_targets(self.targets)
             .with_scene_reuse(self.scene_reuse)
             .with_first_scene(self.first_scene)
+            .with_view_window(self.view_window.map(usize::from))
             .with_seed(self.seed)
             .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
     }

@@ -38,7 +38,7 @@ fn quiet_session() -> Session {
 fn three_view_sample(seed: u64, index: u64) -> Sample {
     let sampler = Sampler {
         source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1, first_scene: 0 },
+        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1, first_scene: 0, window: None },
         seed,
         labels: label_cache().unwrap(),
     };
@@ -206,7 +206,7 @@ fn the_prefetcher_hands_out_the_samplers_samples_in_order_from_several_threads()
     // scene once and keeps it for its second sample.
     let sampler = Sampler {
         source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 2, max_views: 4, targets: 1, reuse: 2, first_scene: 7 },
+        plan: ViewPlan { min_views: 2, max_views: 4, targets: 1, reuse: 2, first_scene: 7, window: None },
         seed: 11,
         labels: label_cache().unwrap(),
     };

@@ -76,6 +76,9 @@ pub struct TrainConfig {
     /// The scene of step 0: a later part of training can start on scenes no earlier part saw.
     #[config(default = 0)]
     pub first_scene: u64,
+    /// Draw each step's views from this many consecutive frames ([`ViewPlan::window`]); `None`
+    /// (also what configs saved before this existed read as): from the whole trajectory.
+    pub view_window: Option<usize>,
     #[config(default = 0)]
     pub seed: u64,
     /// Samples per optimizer step, evaluated side by side on threads ([`batch`]), their
@@ -86,7 +89,7 @@ pub struct TrainConfig {
 
 impl TrainConfig {
     fn plan(&self) -> ViewPlan {
-        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse, first_scene: self.first_scene }
+        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse, first_scene: self.first_scene, window: self.view_window }
     }
 
     /// Samples per optimizer step (k ≥ 1).
@@ -435,7 +438,7 @@ fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCac
         },
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
-    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0 };
+    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window: None };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
 }

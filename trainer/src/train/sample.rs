@@ -113,6 +113,11 @@ pub struct ViewPlan {
     pub reuse: u64,
     /// The scene of sample 0.
     pub first_scene: u64,
+    /// Draw a step's views from this many consecutive frames of the trajectory (at a random
+    /// start; at least as many as the step's views), so that they overlap; `None` (also what
+    /// plans saved before this existed read as): from the whole trajectory.
+    #[serde(default)]
+    pub window: Option<usize>,
 }
 
 /// One step's data on the host. Views `0..inputs` are the network's input; the rest are
@@ -204,12 +209,16 @@ pub fn in_reference_frame(cameras: &[Camera]) -> Vec<Camera> {
         .collect()
 }
 
-/// Draws the views of one step: `inputs + targets` distinct frames of `frames`, in random
-/// order (the first is the reference view). Fewer frames than asked shrink the targets first.
+/// Draws the views of one step: `inputs + targets` distinct frames of `frames` (of a random
+/// window of [`ViewPlan::window`] consecutive ones, if set), in random order (the first is the
+/// reference view). Fewer frames than asked shrink the targets first.
 pub fn draw_views(frames: usize, plan: &ViewPlan, rng: &mut ChaCha8Rng) -> (Vec<usize>, usize) {
     let inputs = rng.random_range(plan.min_views..=plan.max_views).min(frames);
     let total = (inputs + plan.targets).min(frames);
-    (sample_indices(rng, frames, total).into_vec(), inputs)
+    let Some(window) = plan.window else { return (sample_indices(rng, frames, total).into_vec(), inputs) };
+    let span = window.max(total).min(frames);
+    let start = rng.random_range(0..=frames - span);
+    (sample_indices(rng, span, total).into_iter().map(|i| start + i).collect(), inputs)
 }
 
 /// Makes the samples of steps: scene choice and view draws as described in the module docs.
@@ -320,5 +329,36 @@ pub fn describe(spec: &DataSpec) -> String {
             "{split} scenes synthesized on the fly at {size}², room shell as {structure:?} ({})",
             furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!("furniture {}", d.display()))
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::SeedableRng;
+
+    use super::*;
+
+    #[test]
+    fn a_view_window_keeps_each_steps_views_among_consecutive_frames() {
+        let plan = ViewPlan { min_views: 2, max_views: 8, targets: 1, reuse: 1, first_scene: 0, window: None };
+        let windowed = ViewPlan { window: Some(6), ..plan };
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let (mut spread, mut starts) = (0, std::collections::BTreeSet::new());
+        for _ in 0..200 {
+            let (views, inputs) = draw_views(24, &windowed, &mut rng);
+            let (lo, hi) = (*views.iter().min().unwrap(), *views.iter().max().unwrap());
+            assert_eq!(views.len(), (inputs + 1).min(24));
+            assert_eq!(views.iter().collect::<std::collections::BTreeSet<_>>().len(), views.len(), "distinct: {views:?}");
+            // Never wider than the window, or than the step's views when they outnumber it.
+            assert!(hi - lo < views.len().max(6), "{views:?}");
+            starts.insert(lo);
+            let (all, _) = draw_views(24, &plan, &mut rng);
+            spread = spread.max(all.iter().max().unwrap() - all.iter().min().unwrap());
+        }
+        assert!(starts.len() > 10, "windows start all along the trajectory: {starts:?}");
+        assert!(spread > 15, "without a window the views span the trajectory ({spread})");
+        // A window of more frames than the scene has is the whole scene.
+        let (views, _) = draw_views(4, &ViewPlan { window: Some(40), min_views: 3, max_views: 3, ..plan }, &mut rng);
+        assert!(views.iter().all(|&v| v < 4) && views.len() == 4);
     }
 }
