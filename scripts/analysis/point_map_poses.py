@@ -14,6 +14,8 @@ A measurement for the model card, not part of the product or of CI:
 
 --offsets: the model was trained with `--point-map-offsets`, so its point map is each point's
 displacement from its own camera frame, added here to the view's own points.
+views: a view count of the scenes' evaluation context sets (8), or `runN`: the first N
+consecutive frames of each scene (the overlapping views of `--view-window`).
 """
 import json
 import os
@@ -63,7 +65,8 @@ def main(model, data, views="8", offsets=False):
     for name in sorted(n for n in os.listdir(data) if n.startswith("scene_")):
         root = os.path.join(data, name)
         meta = json.load(open(os.path.join(root, "transforms.json")))
-        frames = [meta["frames"][i] for i in meta["eval"]["context"][views]]
+        chosen = range(int(views[3:])) if views.startswith("run") else meta["eval"]["context"][views]
+        frames = [meta["frames"][i] for i in chosen]
         rgb = lambda f: np.asarray(Image.open(os.path.join(root, f["file_path"])).convert("RGB"), np.float32) / 255
         images = np.stack([rgb(f).transpose(2, 0, 1) for f in frames])
         camera, depth, points = session.run(["camera", "depth", "point_map"], {"images": images})
@@ -88,15 +91,17 @@ def main(model, data, views="8", offsets=False):
                 float(np.linalg.norm((ray * truth[v][..., None])[valid] - true_points, axis=1).mean() / scale),
             ))
     r = np.asarray(rows)
-    print(f"{len(r)} views (after the first) of {views}-view context sets")
+    print(f"{len(r)} views (after the first) of {views} context sets")
     print("rotation error, degrees (mean / median): "
           f"point map {r[:, 0].mean():.2f} / {np.median(r[:, 0]):.2f}, "
           f"camera head {r[:, 1].mean():.2f} / {np.median(r[:, 1]):.2f}, "
           f"identity {r[:, 2].mean():.2f} / {np.median(r[:, 2]):.2f}")
     print(f"point map error / median depth: {r[:, 3].mean():.3f} (the view's own true points unmoved: {r[:, 4].mean():.3f})")
     near = r[:, 2] < 30
-    print(f"views within 30° of view 0 ({near.sum()}): point map {r[near, 0].mean():.2f}°, identity {r[near, 2].mean():.2f}°; "
-          f"beyond ({(~near).sum()}): point map {r[~near, 0].mean():.2f}°, identity {r[~near, 2].mean():.2f}°")
+    for name, part in [("within 30° of view 0", near), ("beyond", ~near)]:
+        if part.any():
+            print(f"views {name} ({part.sum()}): point map {r[part, 0].mean():.2f}°, camera head {r[part, 1].mean():.2f}°, "
+                  f"identity {r[part, 2].mean():.2f}°")
 
 
 if __name__ == "__main__":
