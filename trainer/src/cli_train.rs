@@ -144,6 +144,10 @@ pub struct TrainArgs {
     /// view 0's, which starts at the identity pose, instead of the point itself.
     #[arg(long)]
     point_map_offsets: bool,
+    /// Weight of a loss on the attention itself inside L_geom: the cross-entropy of the last
+    /// global layer's first head against the view-0 token that sees the same point (0: none).
+    #[arg(long, default_value_t = 0.0)]
+    attention_match_weight: f64,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
@@ -245,6 +249,7 @@ impl TrainArgs {
             .with_camera_weight(self.camera_weight)
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_point_map_offsets(self.point_map_offsets.then_some(true))
+            .with_attention_match_weight((self.attention_match_weight > 0.0).then_some(self.attention_match_weight))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))

@@ -10,12 +10,14 @@
 //!
 //! - [`rgb_loss`]: L_rgb = mean over views, channels and pixels of (Î − I)².
 //! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view (+ the
-//!   [`point_map`] term of a network with a point-map head).
+//!   [`point_map`] term of a network with a point-map head, and the [`attention_match`] term
+//!   on the global attention).
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
 //! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
 //!   or a contrastive form over the label vocabulary.
 //! - [`boundary`]: L_bd-rgb, Charbonnier RGB error weighted by instance boundaries.
 
+pub mod attention_match;
 pub mod boundary;
 pub mod geometry;
 pub mod instance;
@@ -27,6 +29,7 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
+pub use attention_match::{attention_match_loss, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
@@ -140,6 +143,11 @@ pub struct LossConfig {
     /// knows no pose starts at the identity (see [`point_map`]); `None` (also what configs
     /// saved before this switch existed read as) or `false`: the point itself.
     pub point_map_offsets: Option<bool>,
+    /// Weight of L_match inside L_geom, the cross-entropy of the last global layer's first
+    /// attention head against the view-0 token that sees the same point (see
+    /// [`attention_match`]); `None` (also what configs saved before this term existed read
+    /// as) means 0.
+    pub attention_match_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

@@ -115,6 +115,7 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         instance,
         semantic,
         point_map,
+        ..
     } = net.forward(images).expect("forward");
     let (w, b) = net.sem_proj();
     let outputs = session

@@ -45,6 +45,12 @@ impl Block {
 
     /// `x`: `[batch, seq, dim]` → same shape; attention runs within each batch entry.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
+        self.forward_with_keys(x).0
+    }
+
+    /// [`Self::forward`], with the layer's queries and keys, `[batch, heads, seq, head_dim]`
+    /// each (what a loss on the attention itself reads).
+    pub fn forward_with_keys(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
         let [b, l, d] = x.dims();
         let hd = d / self.heads;
         let qkv = self
@@ -62,13 +68,13 @@ impl Block {
             scale: Some(1.0 / (hd as f64).sqrt()),
             ..Default::default()
         };
-        let ctx = attention(q, k, v, None, None, options)
+        let ctx = attention(q.clone(), k.clone(), v, None, None, options)
             .swap_dims(1, 2)
             .reshape([b, l, d]);
         let x = x + self.proj.forward(ctx);
         let h = self
             .fc2
             .forward(gelu(self.fc1.forward(self.norm2.forward(x.clone()))));
-        x + h
+        (x + h, q, k)
     }
 }

@@ -206,6 +206,11 @@ pub struct ModelOutput {
     /// `[N, 3, H, W]`: each pixel's point in view 0's camera frame, metres; only with
     /// [`ModelConfig::point_head`].
     pub point_map: Option<Tensor<4>>,
+    /// `[N, tokens, head_dim]`: the patch tokens' queries and keys of the last global layer's
+    /// first head, for a loss on where that attention looks
+    /// ([`crate::loss::attention_match_loss`]); not exported.
+    pub global_queries: Tensor<3>,
+    pub global_keys: Tensor<3>,
 }
 
 impl InsSplatNet {
@@ -270,14 +275,22 @@ impl InsSplatNet {
         let mut x = self.embed(images.clone());
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
+        let mut keys = None;
         for (i, block) in self.blocks.iter().enumerate() {
             if i % 2 == 0 {
                 x = block.forward(x);
             } else {
-                x = block.forward(x.reshape([1, n * s, d])).reshape([n, s, d]);
+                let (y, q, k) = block.forward_with_keys(x.reshape([1, n * s, d]));
+                x = y.reshape([n, s, d]);
                 levels.push(x.clone().slice([0..n, 1..s]));
+                keys = Some((q, k));
             }
         }
+        let (q, k) = keys.expect("depth ≥ 2 has a global layer");
+        let hd = d / c.heads;
+        // Head 0 of the last global layer, patch tokens only: [N, tokens, head_dim].
+        let patch_rows = |t: Tensor<4>| t.slice([0..1, 0..1, 0..n * s, 0..hd]).reshape([n, s, hd]).slice([0..n, 1..s]);
+        let (global_queries, global_keys) = (patch_rows(q), patch_rows(k));
         let camera = self
             .camera_head
             .forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
@@ -290,6 +303,8 @@ impl InsSplatNet {
             instance: dense.instance,
             semantic: dense.semantic,
             point_map: dense.point_map,
+            global_queries,
+            global_keys,
         })
     }
 

@@ -22,7 +22,7 @@ use inssplat_raster::render::RenderOptions;
 use super::sample::Sample;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
+    attention_match_loss, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{RenderOpError, SplatTensors, render};
@@ -161,6 +161,11 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         let target = point_map_targets(input_cameras, input_depth, size, size, config.point_map_offsets == Some(true))?;
         let scale = median_depth(input_depth).unwrap_or(1.0);
         geometry = geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
+    }
+    if let Some(weight) = config.attention_match_weight.filter(|&w| w > 0.0 && inputs > 1) {
+        let targets = match_targets(input_cameras, input_depth, size, net.config().patch)?;
+        let matching = attention_match_loss(out.global_queries.clone(), out.global_keys.clone(), &targets)?;
+        geometry = geometry + matching.mul_scalar(weight);
     }
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();

@@ -1,0 +1,70 @@
+//! L_match, a loss on the attention itself: each patch token of a view after the first is
+//! asked to attend, with the first head of the last global layer, to the patch token of view 0
+//! that sees the same surface point. The target is found from the ground truth: the token's
+//! centre pixel is lifted by its true depth into view 0's frame ([`super::point_map_targets`])
+//! and projected into view 0; a point outside view 0, or behind what view 0 sees there
+//! (occluded), has no target. L_match is the cross-entropy of the head's softmax over view 0's
+//! patch tokens (q·k/√d, the layer's own attention logits), averaged over the tokens with a
+//! target. The point-map head and the camera term leave it to the network to discover
+//! matching; this term asks for it directly. Added to L_geom with weight
+//! `attention_match_weight`.
+
+use burn::prelude::*;
+use burn::tensor::activation::log_softmax;
+use inssplat_proto::Camera;
+
+use super::{LossError, check_dims, check_len, constant, point_map_targets, zero};
+
+/// Relative depth margin within which a projected point counts as the surface view 0 sees.
+const VISIBLE: f32 = 0.03;
+
+/// For every patch token of views 1.. (view-major, `[V − 1][grid²]`), the index of the patch
+/// token of view 0 that sees its centre pixel's true point, or −1 for none; `patch` pixels a
+/// token side, `depth` the true depth `[V][H][W]` (square views of `size`).
+pub fn match_targets(cameras: &[Camera], depth: &[f32], size: usize, patch: usize) -> Result<Vec<i64>, LossError> {
+    let (hw, grid) = (size * size, size / patch);
+    let points = point_map_targets(cameras, depth, size, size, false)?;
+    let Some(first) = cameras.first() else { return Ok(Vec::new()) };
+    let k = first.intrinsics.scaled_to(size as u32, size as u32);
+    let mut targets = Vec::with_capacity(cameras.len().saturating_sub(1) * grid * grid);
+    for v in 1..cameras.len() {
+        for token in 0..grid * grid {
+            let p = (token / grid * patch + patch / 2) * size + token % grid * patch + patch / 2;
+            let at = |c: usize| points[(v * 3 + c) * hw + p];
+            let (x, y, z) = (at(0), at(1), at(2));
+            let target = (depth[v * hw + p] > 0.0 && z > 0.0)
+                .then(|| (k.fx * x / z + k.cx, k.fy * y / z + k.cy))
+                .filter(|&(u, w)| u >= 0.0 && w >= 0.0 && u < size as f32 && w < size as f32)
+                .filter(|&(u, w)| {
+                    let seen = depth[w as usize * size + u as usize];
+                    seen > 0.0 && z <= seen * (1.0 + VISIBLE)
+                })
+                .map_or(-1, |(u, w)| (w as usize / patch * grid + u as usize / patch) as i64);
+            targets.push(target);
+        }
+    }
+    Ok(targets)
+}
+
+/// L_match of `queries` and `keys` `[V, tokens, head_dim]` (the network's
+/// `global_queries`/`global_keys`) against `targets` (from [`match_targets`]); zero when no
+/// token has a target.
+pub fn attention_match_loss(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<Tensor<1>, LossError> {
+    let [v, t, d] = queries.dims();
+    check_dims("attention keys", &[v, t, d], &keys.dims())?;
+    check_len("attention match targets", v.saturating_sub(1) * t, targets.len())?;
+    let device = queries.device();
+    let valid = targets.iter().filter(|&&i| i >= 0).count();
+    if valid == 0 {
+        return Ok(zero(&device));
+    }
+    let reference = keys.narrow(0, 0, 1).swap_dims(1, 2).repeat_dim(0, v - 1); // [V − 1, d, T]
+    let logits = queries.narrow(0, 1, v - 1).matmul(reference).mul_scalar(1.0 / (d as f64).sqrt());
+    let mut picks = vec![0.0f32; (v - 1) * t * t];
+    for (row, &target) in targets.iter().enumerate() {
+        if target >= 0 {
+            picks[row * t + target as usize] = 1.0 / valid as f32;
+        }
+    }
+    Ok(-(log_softmax(logits, 2) * constant(picks, [v - 1, t, t], &device)).sum())
+}
