@@ -6,7 +6,8 @@ predicted depth along its true rays) onto its predicted point map (in view 0's f
 by least squares (Kabsch), and its rotation is compared with the true one. Printed beside it:
 the camera head's rotation error and that of the identity (what a head that learned nothing
 scores), and the point map's distance to the true points over the scene's median depth,
-against that of the view's own points left where they are (the identity again).
+against that of the view's own points left where they are (the identity again), with the
+predicted depth (what a point map that knows no pose scores) and with the true one.
 
 A measurement for the model card, not part of the product or of CI:
     pip install onnxruntime numpy pillow
@@ -88,6 +89,7 @@ def main(model, data, views="8", offsets=False):
                 angle_deg(head.T @ rel[:3, :3]),
                 angle_deg(rel[:3, :3]),
                 float(np.linalg.norm(mapped - true_points, axis=1).mean() / scale),
+                float(np.linalg.norm(own - true_points, axis=1).mean() / scale),
                 float(np.linalg.norm((ray * truth[v][..., None])[valid] - true_points, axis=1).mean() / scale),
             ))
     r = np.asarray(rows)
@@ -96,7 +98,8 @@ def main(model, data, views="8", offsets=False):
           f"point map {r[:, 0].mean():.2f} / {np.median(r[:, 0]):.2f}, "
           f"camera head {r[:, 1].mean():.2f} / {np.median(r[:, 1]):.2f}, "
           f"identity {r[:, 2].mean():.2f} / {np.median(r[:, 2]):.2f}")
-    print(f"point map error / median depth: {r[:, 3].mean():.3f} (the view's own true points unmoved: {r[:, 4].mean():.3f})")
+    print(f"point map error / median depth: {r[:, 3].mean():.3f}; the view's own points unmoved: {r[:, 4].mean():.3f} "
+          f"(predicted depth), {r[:, 5].mean():.3f} (true depth)")
     near = r[:, 2] < 30
     for name, part in [("within 30° of view 0", near), ("beyond", ~near)]:
         if part.any():
