@@ -382,6 +382,10 @@ pub struct ValidateArgs {
     /// Folder of validation scenes (default: the val split, synthesized at the run's size).
     #[arg(long)]
     val_data: Option<PathBuf>,
+    /// Also score whether the last global layer's first attention head looks at the view-0
+    /// token that sees the same point (what `--attention-match-weight` trains).
+    #[arg(long)]
+    matching: bool,
 }
 
 pub fn run_validate(args: ValidateArgs) -> Result<()> {
@@ -402,6 +406,17 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             v.boundary,
             args.samples
         );
+        if args.matching {
+            let (_, _, m) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
+                .with_context(|| format!("scoring the attention of {}", path.display()))?;
+            println!(
+                "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",
+                m.tokens,
+                m.cross_entropy,
+                100.0 * m.top1,
+                100.0 * m.within_one
+            );
+        }
     }
     Ok(())
 }

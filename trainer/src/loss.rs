@@ -29,7 +29,7 @@ use std::collections::HashMap;
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-pub use attention_match::{attention_match_loss, match_targets};
+pub use attention_match::{MatchScores, attention_match_loss, match_scores, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};

@@ -320,9 +320,16 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     // More samples: the first two are the run's, so the mean moves but stays a loss.
     let (_, _, more) = train::validate_checkpoint(run.path(), 6, None).unwrap();
     assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
+    // The attention's matching on the same samples: some tokens of views 1.. see view 0, and
+    // an untrained head looks elsewhere (chance: 1 token in 64 right, 9 within one).
+    let (_, _, m) = train::checkpoint_matching(run.path(), 2, None).unwrap();
+    assert!(m.tokens > 0, "{m:?}");
+    assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
+    assert!(m.top1 <= m.within_one && m.within_one < 0.5, "{m:?}");
     let empty = tempfile::tempdir().unwrap();
     let err = train::validate_checkpoint(empty.path(), 2, None).unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
+    assert!(train::checkpoint_matching(empty.path(), 2, None).is_err());
 }
 
 #[test]

@@ -68,3 +68,53 @@ pub fn attention_match_loss(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]
     }
     Ok(-(log_softmax(logits, 2) * constant(picks, [v - 1, t, t], &device)).sum())
 }
+
+/// How well an attention head matches the views, over the tokens with a target: the mean
+/// cross-entropy (L_match; ln of the token count for a uniform head), and the shares whose
+/// most-attended view-0 token is the target (chance: one over the token count) or within one
+/// token of it in the grid.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MatchScores {
+    pub tokens: usize,
+    pub cross_entropy: f64,
+    pub top1: f64,
+    pub within_one: f64,
+}
+
+impl MatchScores {
+    /// The scores of both token sets together.
+    pub fn merge(self, o: MatchScores) -> MatchScores {
+        let n = self.tokens + o.tokens;
+        let mean = |a: f64, b: f64| if n == 0 { 0.0 } else { (a * self.tokens as f64 + b * o.tokens as f64) / n as f64 };
+        MatchScores {
+            tokens: n,
+            cross_entropy: mean(self.cross_entropy, o.cross_entropy),
+            top1: mean(self.top1, o.top1),
+            within_one: mean(self.within_one, o.within_one),
+        }
+    }
+}
+
+/// [`MatchScores`] of `queries` and `keys` `[V, tokens, head_dim]` against `targets` (from
+/// [`match_targets`]), the tokens on a square grid.
+pub fn match_scores(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<MatchScores, LossError> {
+    let cross_entropy = f64::from(attention_match_loss(queries.clone(), keys.clone(), targets)?.into_scalar::<f32>());
+    let [v, t, d] = queries.dims();
+    let tokens = targets.iter().filter(|&&i| i >= 0).count();
+    if tokens == 0 {
+        return Ok(MatchScores::default());
+    }
+    let reference = keys.narrow(0, 0, 1).swap_dims(1, 2).repeat_dim(0, v - 1);
+    let best = queries.narrow(0, 1, v - 1).matmul(reference).mul_scalar(1.0 / (d as f64).sqrt()).argmax(2);
+    let best: Vec<i64> = best
+        .into_data()
+        .try_into_vec_as::<i64>()
+        .map_err(|e| LossError::Read { what: "the most-attended tokens", message: format!("{e:?}") })?;
+    let grid = (t as f64).sqrt().round() as i64;
+    let (mut top1, mut within_one) = (0usize, 0usize);
+    for (&b, &target) in best.iter().zip(targets).filter(|(_, t)| **t >= 0) {
+        top1 += usize::from(b == target);
+        within_one += usize::from((b / grid - target / grid).abs() <= 1 && (b % grid - target % grid).abs() <= 1);
+    }
+    Ok(MatchScores { tokens, cross_entropy, top1: top1 as f64 / tokens as f64, within_one: within_one as f64 / tokens as f64 })
+}

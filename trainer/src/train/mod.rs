@@ -310,18 +310,54 @@ pub fn validate_checkpoint(
     samples: usize,
     val_data: Option<DataSpec>,
 ) -> Result<(PathBuf, u64, LossValues), TrainError> {
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &Device::flex().autodiff())?;
+    let loss = validate(&net, &val, &state.config.loss, &Device::flex().autodiff())
+        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
+    Ok((dir, state.step, loss))
+}
+
+/// Whether the last global layer's first attention head looks, from each patch token of a
+/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]), over
+/// the same samples as [`validate_checkpoint`]: the network's ability to match the views,
+/// whether or not it was trained with `--attention-match-weight`.
+pub fn checkpoint_matching(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+) -> Result<(PathBuf, u64, crate::loss::MatchScores), TrainError> {
+    let device = Device::flex();
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
+    let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
+    let mut scores = crate::loss::MatchScores::default();
+    for s in &val {
+        let pixels = s.size * s.size;
+        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
+        let out = net.forward(images).map_err(|e| failed(e.into()))?;
+        let targets = crate::loss::match_targets(&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels], s.size, net.config().patch)
+            .map_err(|e| failed(e.into()))?;
+        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
+        scores = scores.merge(sample);
+    }
+    Ok((dir, state.step, scores))
+}
+
+/// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
+/// fixed validation samples of `val_data` (default: the val split at the run's size).
+fn checkpoint_with_samples(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+    device: &Device,
+) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
     let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
     let state = checkpoint::read_state(&dir)?;
-    let device = Device::flex().autodiff();
-    let net = checkpoint::load_model(&dir, &state, &device)?;
+    let net = checkpoint::load_model(&dir, &state, device)?;
     let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
     let val = val_samples(&state, &session, &label_cache()?)?;
     if val.is_empty() {
         return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
     }
-    let loss = validate(&net, &val, &state.config.loss, &device)
-        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
-    Ok((dir, state.step, loss))
+    Ok((dir, state, net, val))
 }
 
 /// `net` grown to `shape`, which may add an image encoder
