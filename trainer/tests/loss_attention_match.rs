@@ -4,11 +4,10 @@
 //! theirs.
 
 use burn::prelude::*;
-use inssplat_proto::dataset::Scene;
 use inssplat_trainer::loss::{attention_match_loss, match_targets};
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 
 use crate::loss_instance::check_gradient;
+use crate::loss_point_map::synthesized;
 
 fn tensor(values: &[f32], shape: [usize; 3]) -> Tensor<3> {
     Tensor::from_data(TensorData::new(values.to_vec(), shape), &Device::flex())
@@ -49,15 +48,7 @@ fn loss_attention_match_gradient_matches_finite_differences() {
 
 #[test]
 fn match_targets_follow_the_surface_into_view_zero() {
-    let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
-    cfg.width = 64;
-    cfg.height = 64;
-    cfg.frames = (16, 16);
-    cfg.overlap = (0.5, 0.6);
-    let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("scene");
-    synth::generate_split(3, &cfg).unwrap().write(&dir).unwrap();
-    let scene = Scene::load(&dir).unwrap();
+    let (_dir, scene) = synthesized(3, 64, 64, 16, (0.5, 0.6));
     let depth = |f: usize| scene.frames[f].depth.clone().unwrap();
     // View 0 twice: every token sees itself.
     let same = [scene.frames[0].camera, scene.frames[0].camera];

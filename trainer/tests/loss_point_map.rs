@@ -40,17 +40,21 @@ fn loss_point_map_gradient_matches_finite_differences() {
     check_gradient(&predicted, [2, 3, 2, 2], |x| point_map_loss(x, &target, &depth, 1.7).unwrap());
 }
 
-#[test]
-fn point_map_targets_put_every_view_in_view_zeros_frame() {
+/// Train scene `index` synthesized at `width`×`height` with `frames` frames along a path of
+/// `overlap`, written and read back (the folder lives as long as the returned guard).
+pub(crate) fn synthesized(index: u64, width: u32, height: u32, frames: usize, overlap: (f32, f32)) -> (tempfile::TempDir, Scene) {
     let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
-    cfg.width = 48;
-    cfg.height = 40;
-    cfg.frames = (4, 4);
-    cfg.overlap = (0.7, 0.9);
+    (cfg.width, cfg.height, cfg.frames, cfg.overlap) = (width, height, (frames, frames), overlap);
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("scene");
-    synth::generate_split(7, &cfg).unwrap().write(&dir).unwrap();
+    synth::generate_split(index, &cfg).unwrap().write(&dir).unwrap();
     let scene = Scene::load(&dir).unwrap();
+    (tmp, scene)
+}
+
+#[test]
+fn point_map_targets_put_every_view_in_view_zeros_frame() {
+    let (_dir, scene) = synthesized(7, 48, 40, 4, (0.7, 0.9));
     let (w, h) = (48usize, 40usize);
     let cameras: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
     let depth: Vec<f32> = scene.frames.iter().flat_map(|f| f.depth.clone().unwrap()).collect();
