@@ -2,7 +2,7 @@
 //! the transformer backbone), one or more samples per step (side by side on threads, see
 //! [`batch`]) of 2–8 input views plus held-out target views each, data from a folder of scenes
 //! or synthesized on the fly (prefetched on background threads, one per sample of a step), a
-//! validation loss on fixed val samples, checkpoints every few minutes with exact resume, an
+//! validation loss on fixed val samples ([`validation`]), checkpoints every few minutes with exact resume, an
 //! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
 //!
 //! A run lives in one folder `RUN`: `checkpoints/`, `train_log.csv`, `val_log.csv`,
@@ -16,9 +16,9 @@ pub mod log;
 pub mod sample;
 pub mod schedule;
 pub mod step;
+mod validation;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use burn::grad_clipping::GradientClippingConfig;
@@ -27,16 +27,17 @@ use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::store::ModuleSnapshot;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use inssplat_text::LabelCache;
 pub use labels::label_cache;
 
 use crate::loss::{GaussianTraining, LossConfig};
 use crate::model::{InsSplatNet, ModelConfig};
 use checkpoint::{CheckpointError, CheckpointState, CHECKPOINT_FORMAT};
 use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
-use sample::{DataSpec, Prefetcher, Sample, SampleError, Sampler, Source, ViewPlan};
+use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
-use step::{LossValues, StepError, objective};
+use step::{LossValues, StepError};
+pub use validation::{checkpoint_matching, validate_checkpoint};
+use validation::{val_samples, validate};
 
 /// Everything that defines a run; saved in every checkpoint.
 #[derive(Config, Debug)]
@@ -300,66 +301,6 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
     run_loop(run, net, optim, state, session, &device)
 }
 
-/// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
-/// `samples` fixed samples of `val_data` (default: the val split at the run's size) — the
-/// samples a run validates on while it trains, and as many more as asked: model selection
-/// between runs and checkpoints on more samples than a run spends while training. Returns
-/// the checkpoint folder, its step and the mean loss.
-pub fn validate_checkpoint(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-) -> Result<(PathBuf, u64, LossValues), TrainError> {
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &Device::flex().autodiff())?;
-    let loss = validate(&net, &val, &state.config.loss, &Device::flex().autodiff())
-        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
-    Ok((dir, state.step, loss))
-}
-
-/// Whether the last global layer's first attention head looks, from each patch token of a
-/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]), over
-/// the same samples as [`validate_checkpoint`]: the network's ability to match the views,
-/// whether or not it was trained with `--attention-match-weight`.
-pub fn checkpoint_matching(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-) -> Result<(PathBuf, u64, crate::loss::MatchScores), TrainError> {
-    let device = Device::flex();
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
-    let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
-    let mut scores = crate::loss::MatchScores::default();
-    for s in &val {
-        let pixels = s.size * s.size;
-        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let out = net.forward(images).map_err(|e| failed(e.into()))?;
-        let targets = crate::loss::match_targets(&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels], s.size, net.config().patch)
-            .map_err(|e| failed(e.into()))?;
-        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
-        scores = scores.merge(sample);
-    }
-    Ok((dir, state.step, scores))
-}
-
-/// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
-/// fixed validation samples of `val_data` (default: the val split at the run's size).
-fn checkpoint_with_samples(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-    device: &Device,
-) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
-    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
-    let state = checkpoint::read_state(&dir)?;
-    let net = checkpoint::load_model(&dir, &state, device)?;
-    let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
-    let val = val_samples(&state, &session, &label_cache()?)?;
-    if val.is_empty() {
-        return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
-    }
-    Ok((dir, state, net, val))
-}
-
 /// `net` grown to `shape`, which may add an image encoder
 /// ([`crate::model::ModelConfig::image_skips`]) or a point-map head
 /// ([`crate::model::ModelConfig::point_head`]) that `net` lacks: every weight of `net` is kept
@@ -446,37 +387,6 @@ pub fn update(
     batch::move_gradients(&net.blocks, &mut grads, &mut backbone);
     let net = optim.step(lr * config.backbone_lr_scale, net, backbone);
     optim.step(lr, net, grads)
-}
-
-/// The validation loss: mean over fixed samples, without gradients (`device`: the training
-/// device, whose inner device runs it).
-fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
-    let plain = net.valid();
-    let device = device.clone().inner();
-    let mut sum = LossValues::default();
-    for s in samples {
-        sum = sum + objective(&plain, s, loss, &device)?.values();
-    }
-    Ok(sum * (1.0 / samples.len().max(1) as f32))
-}
-
-fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>) -> Result<Vec<Sample>, TrainError> {
-    if session.val_every == 0 || session.val_samples == 0 {
-        return Ok(Vec::new());
-    }
-    let spec = match (&session.val_data, &state.data) {
-        (Some(spec), _) => spec.clone(),
-        (None, DataSpec::Synth { furniture_dir, size, structure, .. }) => DataSpec::Synth {
-            split: crate::synth::Split::Val,
-            furniture_dir: furniture_dir.clone(),
-            size: *size,
-            structure: *structure,
-        },
-        (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
-    };
-    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window: None };
-    let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
-    Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
 }
 
 fn progress_bar(state: &CheckpointState, session: &Session) -> ProgressBar {

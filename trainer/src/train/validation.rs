@@ -1,0 +1,108 @@
+//! Validation: the fixed val-split samples a run validates on, their mean loss without
+//! gradients, and the scores of a saved checkpoint on them (its validation loss, and whether
+//! its global attention matches the views), for choosing between runs and checkpoints.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use burn::prelude::*;
+use inssplat_text::LabelCache;
+
+use super::checkpoint::{self, CheckpointState};
+use super::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
+use super::step::{LossValues, StepError, objective};
+use super::{Session, TrainError, label_cache};
+use crate::loss::LossConfig;
+use crate::model::InsSplatNet;
+
+/// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
+/// `samples` fixed samples of `val_data` (default: the val split at the run's size) — the
+/// samples a run validates on while it trains, and as many more as asked: model selection
+/// between runs and checkpoints on more samples than a run spends while training. Returns
+/// the checkpoint folder, its step and the mean loss.
+pub fn validate_checkpoint(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+) -> Result<(PathBuf, u64, LossValues), TrainError> {
+    let device = Device::flex().autodiff();
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
+    let loss = validate(&net, &val, &state.config.loss, &device)
+        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
+    Ok((dir, state.step, loss))
+}
+
+/// Whether the last global layer's first attention head looks, from each patch token of a
+/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]), over
+/// the same samples as [`validate_checkpoint`]: the network's ability to match the views,
+/// whether or not it was trained with `--attention-match-weight`.
+pub fn checkpoint_matching(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+) -> Result<(PathBuf, u64, crate::loss::MatchScores), TrainError> {
+    let device = Device::flex();
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
+    let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
+    let mut scores = crate::loss::MatchScores::default();
+    for s in &val {
+        let pixels = s.size * s.size;
+        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
+        let out = net.forward(images).map_err(|e| failed(e.into()))?;
+        let targets = crate::loss::match_targets(&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels], s.size, net.config().patch)
+            .map_err(|e| failed(e.into()))?;
+        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
+        scores = scores.merge(sample);
+    }
+    Ok((dir, state.step, scores))
+}
+
+/// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
+/// fixed validation samples of `val_data` (default: the val split at the run's size).
+fn checkpoint_with_samples(
+    from: &Path,
+    samples: usize,
+    val_data: Option<DataSpec>,
+    device: &Device,
+) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
+    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+    let state = checkpoint::read_state(&dir)?;
+    let net = checkpoint::load_model(&dir, &state, device)?;
+    let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
+    let val = val_samples(&state, &session, &label_cache()?)?;
+    if val.is_empty() {
+        return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
+    }
+    Ok((dir, state, net, val))
+}
+
+/// The validation loss: mean over fixed samples, without gradients (`device`: the training
+/// device, whose inner device runs it).
+pub(super) fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
+    let plain = net.valid();
+    let device = device.clone().inner();
+    let mut sum = LossValues::default();
+    for s in samples {
+        sum = sum + objective(&plain, s, loss, &device)?.values();
+    }
+    Ok(sum * (1.0 / samples.len().max(1) as f32))
+}
+
+pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>) -> Result<Vec<Sample>, TrainError> {
+    if session.val_every == 0 || session.val_samples == 0 {
+        return Ok(Vec::new());
+    }
+    let spec = match (&session.val_data, &state.data) {
+        (Some(spec), _) => spec.clone(),
+        (None, DataSpec::Synth { furniture_dir, size, structure, .. }) => DataSpec::Synth {
+            split: crate::synth::Split::Val,
+            furniture_dir: furniture_dir.clone(),
+            size: *size,
+            structure: *structure,
+        },
+        (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
+    };
+    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window: None };
+    let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
+    Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
+}
