@@ -106,6 +106,17 @@ impl Camera {
         (k.fx * p_cam.x / p_cam.z + k.cx, k.fy * p_cam.y / p_cam.z + k.cy)
     }
 
+    /// The pixel (column, row) of the image that a camera-space point in front of the camera
+    /// falls in; `None` behind the camera or outside the image.
+    pub fn pixel_of(&self, p_cam: Vec3) -> Option<(usize, usize)> {
+        if p_cam.z <= 0.0 {
+            return None;
+        }
+        let (u, v) = self.project(p_cam);
+        let (w, h) = (self.intrinsics.width as f32, self.intrinsics.height as f32);
+        ((0.0..w).contains(&u) && (0.0..h).contains(&v)).then_some((u as usize, v as usize))
+    }
+
     /// Camera-space point at depth `z` (along +z) through pixel position (`u`, `v`).
     pub fn unproject(&self, u: f32, v: f32, z: f32) -> Vec3 {
         let k = &self.intrinsics;
@@ -182,6 +193,20 @@ mod tests {
         assert!(p.y < 0.0, "up means −y in OpenCV: {p}");
         let (u, v) = cam.project(p);
         assert!((u - 64.0).abs() < 1e-4 && v < 48.0);
+    }
+
+    #[test]
+    fn pixel_of_finds_the_pixel_a_point_falls_in_and_nothing_outside() {
+        let cam = Camera::look_at(k(), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.3, -0.2, 4.0), Vec3::Y);
+        let (w, h) = (cam.intrinsics.width as f32, cam.intrinsics.height as f32);
+        for (u, v) in [(0.25, 0.75), (70.5, 30.2), (w - 0.01, h - 0.01)] {
+            let p = cam.unproject(u, v, 2.5);
+            assert_eq!(cam.pixel_of(p), Some((u.floor() as usize, v.floor() as usize)), "({u}, {v})");
+        }
+        for (u, v) in [(-0.01, 10.0), (10.0, -0.01), (w, 10.0), (10.0, h)] {
+            assert_eq!(cam.pixel_of(cam.unproject(u, v, 2.5)), None, "({u}, {v}) is outside");
+        }
+        assert_eq!(cam.pixel_of(-cam.unproject(30.0, 30.0, 2.5)), None, "behind the camera");
     }
 
     #[test]

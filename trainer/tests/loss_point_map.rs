@@ -79,12 +79,8 @@ fn point_map_targets_put_every_view_in_view_zeros_frame() {
                 if point.z <= 0.05 {
                     continue;
                 }
-                let (u, y) = first.camera.project(point);
-                let (x, y) = (u.floor() as i64, y.floor() as i64);
-                if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                    continue;
-                }
-                let seen = depth[y as usize * w + x as usize];
+                let Some((x, y)) = first.camera.pixel_of(point) else { continue };
+                let seen = depth[y * w + x];
                 // Farther than what view 0 sees there: occluded from view 0, not compared.
                 if point.z <= seen * 1.05 {
                     errors.push(((point.z - seen) / seen).abs());

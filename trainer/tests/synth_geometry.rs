@@ -35,12 +35,8 @@ fn synth_depth_reprojects_consistently_between_views() {
                     if pb.z <= 0.05 {
                         continue;
                     }
-                    let (u, v) = fb.camera.project(pb);
-                    let (bx, by) = (u.floor() as i64, v.floor() as i64);
-                    if bx < 0 || by < 0 || bx >= w as i64 || by >= h as i64 {
-                        continue;
-                    }
-                    let k = by as usize * w + bx as usize;
+                    let Some((bx, by)) = fb.camera.pixel_of(pb) else { continue };
+                    let k = by * w + bx;
                     let rel = (db[k] - pb.z).abs() / pb.z;
                     errors.push(rel);
                     if rel < 0.01 {

@@ -25,21 +25,21 @@ pub fn match_targets(cameras: &[Camera], depth: &[f32], size: usize, patch: usiz
     let (hw, grid) = (size * size, size / patch);
     let points = point_map_targets(cameras, depth, size, size, false)?;
     let Some(first) = cameras.first() else { return Ok(Vec::new()) };
-    let k = first.intrinsics.scaled_to(size as u32, size as u32);
+    let view0 = Camera { intrinsics: first.intrinsics.scaled_to(size as u32, size as u32), ..*first };
     let mut targets = Vec::with_capacity(cameras.len().saturating_sub(1) * grid * grid);
     for v in 1..cameras.len() {
         for token in 0..grid * grid {
             let p = (token / grid * patch + patch / 2) * size + token % grid * patch + patch / 2;
             let at = |c: usize| points[(v * 3 + c) * hw + p];
-            let (x, y, z) = (at(0), at(1), at(2));
-            let target = (depth[v * hw + p] > 0.0 && z > 0.0)
-                .then(|| (k.fx * x / z + k.cx, k.fy * y / z + k.cy))
-                .filter(|&(u, w)| u >= 0.0 && w >= 0.0 && u < size as f32 && w < size as f32)
-                .filter(|&(u, w)| {
-                    let seen = depth[w as usize * size + u as usize];
-                    seen > 0.0 && z <= seen * (1.0 + VISIBLE)
+            let point = glam::Vec3::new(at(0), at(1), at(2));
+            let target = (depth[v * hw + p] > 0.0)
+                .then(|| view0.pixel_of(point))
+                .flatten()
+                .filter(|&(x, y)| {
+                    let seen = depth[y * size + x];
+                    seen > 0.0 && point.z <= seen * (1.0 + VISIBLE)
                 })
-                .map_or(-1, |(u, w)| (w as usize / patch * grid + u as usize / patch) as i64);
+                .map_or(-1, |(x, y)| (y / patch * grid + x / patch) as i64);
             targets.push(target);
         }
     }
@@ -50,23 +50,37 @@ pub fn match_targets(cameras: &[Camera], depth: &[f32], size: usize, patch: usiz
 /// `global_queries`/`global_keys`) against `targets` (from [`match_targets`]); zero when no
 /// token has a target.
 pub fn attention_match_loss(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<Tensor<1>, LossError> {
+    let device = queries.device();
+    Ok(view_zero_logits(queries, keys, targets)?.map_or_else(|| zero(&device), |logits| cross_entropy(logits, targets)))
+}
+
+/// The attention logits q·k/√d of every patch token of views 1.. over view 0's patch tokens,
+/// `[V − 1, tokens, tokens]`, after checking the shapes against `targets`; `None` when no
+/// token has a target.
+fn view_zero_logits(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<Option<Tensor<3>>, LossError> {
     let [v, t, d] = queries.dims();
     check_dims("attention keys", &[v, t, d], &keys.dims())?;
     check_len("attention match targets", v.saturating_sub(1) * t, targets.len())?;
-    let device = queries.device();
-    let valid = targets.iter().filter(|&&i| i >= 0).count();
-    if valid == 0 {
-        return Ok(zero(&device));
+    if !targets.iter().any(|&i| i >= 0) {
+        return Ok(None);
     }
     let reference = keys.narrow(0, 0, 1).swap_dims(1, 2).repeat_dim(0, v - 1); // [V − 1, d, T]
-    let logits = queries.narrow(0, 1, v - 1).matmul(reference).mul_scalar(1.0 / (d as f64).sqrt());
-    let mut picks = vec![0.0f32; (v - 1) * t * t];
+    Ok(Some(queries.narrow(0, 1, v - 1).matmul(reference).mul_scalar(1.0 / (d as f64).sqrt())))
+}
+
+/// The mean cross-entropy of `logits` `[V − 1, T, T]` at `targets`, over the tokens with one
+/// (at least one has).
+fn cross_entropy(logits: Tensor<3>, targets: &[i64]) -> Tensor<1> {
+    let [rows, t, _] = logits.dims();
+    let device = logits.device();
+    let valid = targets.iter().filter(|&&i| i >= 0).count();
+    let mut picks = vec![0.0f32; rows * t * t];
     for (row, &target) in targets.iter().enumerate() {
         if target >= 0 {
             picks[row * t + target as usize] = 1.0 / valid as f32;
         }
     }
-    Ok(-(log_softmax(logits, 2) * constant(picks, [v - 1, t, t], &device)).sum())
+    -(log_softmax(logits, 2) * constant(picks, [rows, t, t], &device)).sum()
 }
 
 /// How well an attention head matches the views, over the tokens with a target: the mean
@@ -98,19 +112,15 @@ impl MatchScores {
 /// [`MatchScores`] of `queries` and `keys` `[V, tokens, head_dim]` against `targets` (from
 /// [`match_targets`]), the tokens on a square grid.
 pub fn match_scores(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<MatchScores, LossError> {
-    let cross_entropy = f64::from(attention_match_loss(queries.clone(), keys.clone(), targets)?.into_scalar::<f32>());
-    let [v, t, d] = queries.dims();
+    let grid = (queries.dims()[1] as f64).sqrt().round() as i64;
+    let Some(logits) = view_zero_logits(queries, keys, targets)? else { return Ok(MatchScores::default()) };
     let tokens = targets.iter().filter(|&&i| i >= 0).count();
-    if tokens == 0 {
-        return Ok(MatchScores::default());
-    }
-    let reference = keys.narrow(0, 0, 1).swap_dims(1, 2).repeat_dim(0, v - 1);
-    let best = queries.narrow(0, 1, v - 1).matmul(reference).mul_scalar(1.0 / (d as f64).sqrt()).argmax(2);
-    let best: Vec<i64> = best
+    let cross_entropy = f64::from(cross_entropy(logits.clone(), targets).into_scalar::<f32>());
+    let best: Vec<i64> = logits
+        .argmax(2)
         .into_data()
         .try_into_vec_as::<i64>()
         .map_err(|e| LossError::Read { what: "the most-attended tokens", message: format!("{e:?}") })?;
-    let grid = (t as f64).sqrt().round() as i64;
     let (mut top1, mut within_one) = (0usize, 0usize);
     for (&b, &target) in best.iter().zip(targets).filter(|(_, t)| **t >= 0) {
         top1 += usize::from(b == target);
