@@ -148,6 +148,18 @@ pub struct TrainArgs {
     /// global layer's first head against the view-0 token that sees the same point (0: none).
     #[arg(long, default_value_t = 0.0)]
     attention_match_weight: f64,
+    /// Weight of the descriptor term inside L_geom (the pixels of two views that see the same
+    /// point asked for the most alike descriptors, which registration matches; 0: none). Gives
+    /// the network a descriptor head of --descriptor-dim channels; with --init-from, grows one
+    /// on a network that has none.
+    #[arg(long, default_value_t = 0.0)]
+    descriptor_weight: f64,
+    /// Channels of the descriptor head that --descriptor-weight adds.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u16).range(1..))]
+    descriptor_dim: u16,
+    /// Sampled matches per pair of input views of the descriptor term.
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(2..))]
+    descriptor_samples: u16,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
@@ -234,7 +246,8 @@ impl TrainArgs {
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips)
-            .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)));
+            .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
+            .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)));
         let loss = LossConfig::new()
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
@@ -250,6 +263,8 @@ impl TrainArgs {
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_point_map_offsets(self.point_map_offsets.then_some(true))
             .with_attention_match_weight((self.attention_match_weight > 0.0).then_some(self.attention_match_weight))
+            .with_descriptor_weight((self.descriptor_weight > 0.0).then_some(self.descriptor_weight))
+            .with_descriptor_samples((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
@@ -383,7 +398,9 @@ pub struct ValidateArgs {
     #[arg(long)]
     val_data: Option<PathBuf>,
     /// Also score whether the last global layer's first attention head looks at the view-0
-    /// token that sees the same point (what `--attention-match-weight` trains).
+    /// token that sees the same point (what `--attention-match-weight` trains), and, for a
+    /// network with a descriptor head, whether each pixel's most alike descriptor in another
+    /// view sees the same point (what `--descriptor-weight` trains).
     #[arg(long)]
     matching: bool,
 }
@@ -407,7 +424,7 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             args.samples
         );
         if args.matching {
-            let (_, _, m) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
+            let (_, _, m, descriptors) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
                 .with_context(|| format!("scoring the attention of {}", path.display()))?;
             println!(
                 "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",
@@ -416,6 +433,15 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 100.0 * m.top1,
                 100.0 * m.within_one
             );
+            if let Some(d) = descriptors {
+                println!(
+                    "  descriptor matching over {} sampled matches: most alike descriptor on the {}-pixel grid within {} pixels of the match {:.2}%",
+                    d.samples,
+                    d.stride,
+                    d.stride,
+                    100.0 * d.within_stride
+                );
+            }
         }
     }
     Ok(())

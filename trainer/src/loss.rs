@@ -10,8 +10,8 @@
 //!
 //! - [`rgb_loss`]: L_rgb = mean over views, channels and pixels of (Î − I)².
 //! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view (+ the
-//!   [`point_map`] term of a network with a point-map head, and the [`attention_match`] term
-//!   on the global attention).
+//!   [`point_map`] term of a network with a point-map head, the [`descriptor`] term of one
+//!   with a descriptor head, and the [`attention_match`] term on the global attention).
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
 //! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
 //!   or a contrastive form over the label vocabulary.
@@ -19,6 +19,7 @@
 
 pub mod attention_match;
 pub mod boundary;
+pub mod descriptor;
 pub mod geometry;
 pub mod instance;
 pub mod point_map;
@@ -31,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use attention_match::{MatchScores, attention_match_loss, match_scores, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
+pub use descriptor::{DescriptorMatches, DescriptorScores, descriptor_loss, descriptor_matches, descriptor_scores};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
 pub use point_map::{pixel_rays, point_map_loss, point_map_targets};
@@ -148,6 +150,12 @@ pub struct LossConfig {
     /// [`attention_match`]); `None` (also what configs saved before this term existed read
     /// as) means 0.
     pub attention_match_weight: Option<f64>,
+    /// Weight of L_desc inside L_geom (see [`descriptor`]), for a network with a descriptor
+    /// head; `None` (also what configs saved before this term existed read as) means 0.
+    pub descriptor_weight: Option<f64>,
+    /// Samples per pair of input views of L_desc; `None` (also what configs saved before this
+    /// term existed read as) means 256.
+    pub descriptor_samples: Option<usize>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

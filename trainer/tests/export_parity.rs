@@ -115,6 +115,7 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         instance,
         semantic,
         point_map,
+        descriptors,
         ..
     } = net.forward(images).expect("forward");
     let (w, b) = net.sem_proj();
@@ -122,6 +123,7 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         .run(ort::inputs![sig::INPUT_IMAGES.name => input])
         .expect("ORT run");
     let point_map = point_map.map(|p| (sig::OUTPUT_POINT_MAP.name, p.dims().to_vec(), to_vec(p)));
+    let descriptors = descriptors.map(|d| (sig::OUTPUT_DESCRIPTORS.name, d.dims().to_vec(), to_vec(d)));
     let ours = [
         (
             sig::OUTPUT_CAMERA.name,
@@ -156,7 +158,7 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         ),
         (sig::OUTPUT_SEM_PROJ_BIAS.name, b.dims().to_vec(), to_vec(b)),
     ];
-    for (name, dims, values) in ours.into_iter().chain(point_map) {
+    for (name, dims, values) in ours.into_iter().chain(point_map).chain(descriptors) {
         let (shape, theirs) = outputs[name]
             .try_extract_tensor::<f32>()
             .expect("f32 output");
@@ -347,24 +349,26 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     assert_eq!(state.config.model, *source.config(), "the file's shape, not the default one");
 }
 
-/// `--init-from M --image-skips K --point-map-weight W` on a network without an image encoder
-/// or a point-map head: the grown network computes exactly what the source did (the skips join
-/// through zero layers, the point map is an output of its own), has the new parts' weights
-/// besides, and exports (the point map as the optional `point_map` output) and reads back with
-/// parity.
+/// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W` on a network
+/// without an image encoder or either head: the grown network computes exactly what the source
+/// did (the skips join through zero layers, each head has an output of its own), has the new
+/// parts' weights besides, and exports (the point map and the descriptors as the optional
+/// `point_map` and `descriptors` outputs) and reads back with parity.
 #[test]
-fn growing_an_image_encoder_and_a_point_head_keeps_the_output_and_exports_with_parity() {
+fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_and_exports_with_parity() {
     let device = Device::flex();
     device.seed(11);
     let source = small_config().init(&device).expect("valid config").map(&mut Perturb { std: 0.15 });
-    let shape = source.config().clone().with_image_skips(Some(4)).with_point_head(Some(8));
+    let shape = source.config().clone().with_image_skips(Some(4)).with_point_head(Some(8)).with_descriptor_head(Some(6));
     let grown = inssplat_trainer::train::grow(&source, shape, 5, &device).expect("grow");
-    assert_eq!((grown.config().image_skips, grown.config().point_head), (Some(4), Some(8)));
+    let c = grown.config();
+    assert_eq!((c.image_skips, c.point_head, c.descriptor_head), (Some(4), Some(8), Some(6)));
     assert!(grown.num_params() > source.num_params(), "the new parts add weights");
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
     let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
-    assert!(a.point_map.is_none());
+    assert!(a.point_map.is_none() && a.descriptors.is_none());
     assert_eq!(b.point_map.as_ref().map(|p| p.dims()), Some([3, 3, 32, 32]));
+    assert_eq!(b.descriptors.as_ref().map(|p| p.dims()), Some([3, 6, 32, 32]));
     for (name, x, y) in [("depth", a.depth, b.depth), ("gaussians", a.gaussians, b.gaussians), ("instance", a.instance, b.instance), ("semantic", a.semantic, b.semantic)] {
         assert_eq!(to_vec(x), to_vec(y), "{name}: the grown network's output differs");
     }

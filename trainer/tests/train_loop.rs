@@ -322,10 +322,11 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
     // The attention's matching on the same samples: some tokens of views 1.. see view 0, and
     // an untrained head looks elsewhere (chance: 1 token in 64 right, 9 within one).
-    let (_, _, m) = train::checkpoint_matching(run.path(), 2, None).unwrap();
+    let (_, _, m, descriptors) = train::checkpoint_matching(run.path(), 2, None).unwrap();
     assert!(m.tokens > 0, "{m:?}");
     assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
     assert!(m.top1 <= m.within_one && m.within_one < 0.5, "{m:?}");
+    assert!(descriptors.is_none(), "a network without a descriptor head has no descriptor scores");
     let empty = tempfile::tempdir().unwrap();
     let err = train::validate_checkpoint(empty.path(), 2, None).unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
@@ -393,6 +394,9 @@ fn bad_data_and_checkpoints_are_named_errors() {
     let headless = TrainConfig::new(tiny_model(), LossConfig::new().with_point_map_weight(Some(1.0))).with_steps(1);
     let err = train::train(&tmp.path().join("headless"), headless, tiny_data(), &quiet_session()).unwrap_err().to_string();
     assert!(err.contains("point-map weight") && err.contains("point-map head"), "{err}");
+    let headless = TrainConfig::new(tiny_model(), LossConfig::new().with_descriptor_weight(Some(1.0))).with_steps(1);
+    let err = train::train(&tmp.path().join("headless_d"), headless, tiny_data(), &quiet_session()).unwrap_err().to_string();
+    assert!(err.contains("descriptor weight") && err.contains("descriptor head"), "{err}");
 
     // A checkpoint whose state.json describes another network than its weights.
     let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();

@@ -97,6 +97,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
     ];
     debug_assert_eq!(outputs.len(), sig::OUTPUTS.len());
     let point_map = c.point_head.map(|_| (sig::OUTPUT_POINT_MAP.name, vec![n(), F(3), F(hw), F(hw)]));
+    let descriptors = c.descriptor_head.map(|d| (sig::OUTPUT_DESCRIPTORS.name, vec![n(), F(d as i64), F(hw), F(hw)]));
     let graph = GraphProto {
         node: g.nodes,
         name: Some("inssplat".into()),
@@ -108,6 +109,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         output: outputs
             .iter()
             .chain(point_map.iter())
+            .chain(descriptors.iter())
             .map(|(name, dims)| value_info(name, dims))
             .collect(),
     };

@@ -44,5 +44,8 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
     if let Some(hidden) = c.point_head {
         f += 2 * n * hw * (last + 3) * hidden as u64;
     }
+    if let Some(dim) = c.descriptor_head {
+        f += 2 * n * hw * (last + dim as u64) * super::DESCRIPTOR_HIDDEN as u64;
+    }
     f
 }

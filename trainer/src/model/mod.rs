@@ -23,7 +23,7 @@ use inssplat_proto::signature::TEXT_DIM;
 pub use block::{Block, LN_EPS};
 pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
-    OUT_INSTANCE, PointHead, SH_C0, Skip, Stage, gaussian_affine,
+    DESCRIPTOR_HIDDEN, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
 };
 
 /// Shape and output-scaling hyper-parameters of the network.
@@ -75,6 +75,11 @@ pub struct ModelConfig {
     /// frame, DUSt3R-style (see [`PointHead`]), a dense target that only matching the
     /// views can meet; `None` (also what files saved before it existed read as): no such head.
     pub point_head: Option<usize>,
+    /// Channels of a descriptor head: a per-pixel matching descriptor (see [`PixelHead`]),
+    /// trained so that the pixels of two views that see the same point match
+    /// ([`crate::loss::descriptor_loss`]), which registration matches between the views;
+    /// `None` (also what files saved before it existed read as): no such head.
+    pub descriptor_head: Option<usize>,
 }
 
 impl ModelConfig {
@@ -128,8 +133,9 @@ impl ModelConfig {
             || self.mlp_ratio == 0
             || self.image_skips == Some(0)
             || self.point_head == Some(0)
+            || self.descriptor_head == Some(0)
         {
-            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips and point_head must be positive".into());
+            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips, point_head and descriptor_head must be positive".into());
         }
         Ok(())
     }
@@ -206,6 +212,9 @@ pub struct ModelOutput {
     /// `[N, 3, H, W]`: each pixel's point in view 0's camera frame, metres; only with
     /// [`ModelConfig::point_head`].
     pub point_map: Option<Tensor<4>>,
+    /// `[N, D, H, W]`: each pixel's matching descriptor; only with
+    /// [`ModelConfig::descriptor_head`].
+    pub descriptors: Option<Tensor<4>>,
     /// `[N, tokens, head_dim]`: the patch tokens' queries and keys of the last global layer's
     /// first head, for a loss on where that attention looks
     /// ([`crate::loss::attention_match_loss`]); not exported.
@@ -303,6 +312,7 @@ impl InsSplatNet {
             instance: dense.instance,
             semantic: dense.semantic,
             point_map: dense.point_map,
+            descriptors: dense.descriptors,
             global_queries,
             global_keys,
         })

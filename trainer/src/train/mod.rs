@@ -113,6 +113,9 @@ impl TrainConfig {
         if self.loss.point_map_weight.is_some_and(|w| w > 0.0) && self.model.point_head.is_none() {
             return Err(TrainError::Config("a point-map weight needs a network with a point-map head".into()));
         }
+        if self.loss.descriptor_weight.is_some_and(|w| w > 0.0) && self.model.descriptor_head.is_none() {
+            return Err(TrainError::Config("a descriptor weight needs a network with a descriptor head".into()));
+        }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
         }
@@ -267,6 +270,7 @@ pub fn fine_tune(
     for (part, asked, has) in [
         ("an image encoder", config.model.image_skips, &mut shape.image_skips),
         ("a point-map head", config.model.point_head, &mut shape.point_head),
+        ("a descriptor head", config.model.descriptor_head, &mut shape.descriptor_head),
     ] {
         match (asked, *has) {
             (Some(asked), None) => *has = Some(asked),
@@ -302,10 +306,11 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
 }
 
 /// `net` grown to `shape`, which may add an image encoder
-/// ([`crate::model::ModelConfig::image_skips`]) or a point-map head
-/// ([`crate::model::ModelConfig::point_head`]) that `net` lacks: every weight of `net` is kept
-/// and the new parts are drawn from `seed`. The image encoder joins the decoder through layers
-/// that start at zero and the point-map head has an output of its own, so the grown network
+/// ([`crate::model::ModelConfig::image_skips`]), a point-map head
+/// ([`crate::model::ModelConfig::point_head`]) or a descriptor head
+/// ([`crate::model::ModelConfig::descriptor_head`]) that `net` lacks: every weight of `net` is
+/// kept and the new parts are drawn from `seed`. The image encoder joins the decoder through
+/// layers that start at zero and each head has an output of its own, so the grown network
 /// computes exactly what `net` did.
 pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
     let old = net.config();
@@ -315,6 +320,9 @@ pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -
     }
     if old.point_head.is_none() && shape.point_head.is_some() {
         new_parts.push("decoder.point.");
+    }
+    if old.descriptor_head.is_none() && shape.descriptor_head.is_some() {
+        new_parts.push("decoder.descriptor.");
     }
     let mut grown = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
     let result = grown.apply(net.collect(None, None, false), None, None, false);

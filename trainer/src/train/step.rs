@@ -20,9 +20,10 @@ use inssplat_proto::signature::TEXT_DIM;
 use inssplat_raster::render::RenderOptions;
 
 use super::sample::Sample;
+use crate::loss::descriptor::DEFAULT_SAMPLES as DESCRIPTOR_SAMPLES;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    attention_match_loss, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
+    attention_match_loss, descriptor_loss, descriptor_matches, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{RenderOpError, SplatTensors, render};
@@ -166,6 +167,10 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         let targets = match_targets(input_cameras, input_depth, size, net.config().patch)?;
         let matching = attention_match_loss(out.global_queries.clone(), out.global_keys.clone(), &targets)?;
         geometry = geometry + matching.mul_scalar(weight);
+    }
+    if let (Some(descriptors), Some(weight)) = (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1)) {
+        let matches = descriptor_matches(input_cameras, input_depth, size, config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES))?;
+        geometry = geometry + descriptor_loss(descriptors, &matches)?.mul_scalar(weight);
     }
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();

@@ -32,30 +32,45 @@ pub fn validate_checkpoint(
     Ok((dir, state.step, loss))
 }
 
-/// Whether the last global layer's first attention head looks, from each patch token of a
-/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]), over
-/// the same samples as [`validate_checkpoint`]: the network's ability to match the views,
-/// whether or not it was trained with `--attention-match-weight`.
+/// Whether the network matches the views, over the same samples as [`validate_checkpoint`]:
+/// whether the last global layer's first attention head looks, from each patch token of a
+/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]),
+/// whether or not it was trained with `--attention-match-weight`; and, for a network with a
+/// descriptor head, whether each pixel's most alike descriptor in another view is the one that
+/// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid).
 pub fn checkpoint_matching(
     from: &Path,
     samples: usize,
     val_data: Option<DataSpec>,
-) -> Result<(PathBuf, u64, crate::loss::MatchScores), TrainError> {
+) -> Result<(PathBuf, u64, crate::loss::MatchScores, Option<crate::loss::DescriptorScores>), TrainError> {
     let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
     let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
     let mut scores = crate::loss::MatchScores::default();
+    let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     for s in &val {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
         let out = net.forward(images).map_err(|e| failed(e.into()))?;
-        let targets = crate::loss::match_targets(&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels], s.size, net.config().patch)
-            .map_err(|e| failed(e.into()))?;
+        let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
+        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(|e| failed(e.into()))?;
         let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
         scores = scores.merge(sample);
+        if let Some(descriptors) = out.descriptors {
+            let matches = crate::loss::descriptor_matches(cameras, depth, s.size, VALIDATION_DESCRIPTOR_SAMPLES).map_err(|e| failed(e.into()))?;
+            let dims = descriptors.dims();
+            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "descriptors", message: format!("{e:?}") }.into()))?;
+            let sample = crate::loss::descriptor_scores(&host, dims, &matches, REGISTRATION_STRIDE);
+            descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
+        }
     }
-    Ok((dir, state.step, scores))
+    Ok((dir, state.step, scores, descriptor_scores))
 }
+
+/// Matches per pair of views that validation scores the descriptors on.
+const VALIDATION_DESCRIPTOR_SAMPLES: usize = 64;
+/// The grid registration compares descriptors on, in pixels.
+const REGISTRATION_STRIDE: usize = 4;
 
 /// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
 /// fixed validation samples of `val_data` (default: the val split at the run's size).
