@@ -175,6 +175,10 @@ enum Command {
         /// focal length for all views from the matches (the ablation of that estimate).
         #[arg(long)]
         keep_focal: bool,
+        /// Register on keypoint matches alone, ignoring the network's learned descriptors
+        /// (the A/B of learned matches; a model without a descriptor head registers so anyway).
+        #[arg(long)]
+        no_learned_matches: bool,
         /// Name every pixel from its own rendered semantic feature instead of its instance's
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
@@ -356,6 +360,7 @@ fn main() -> anyhow::Result<()> {
             merge_opacity,
             no_register,
             keep_focal,
+            no_learned_matches,
             no_aggregation,
             query_rules,
             perturb,
@@ -380,7 +385,11 @@ fn main() -> anyhow::Result<()> {
                 views,
                 extra_vocab: extra,
                 pipeline: PipelineConfig {
-                    register: (!no_register).then(|| RegisterParams { estimate_focal: !keep_focal, ..RegisterParams::default() }),
+                    register: (!no_register).then(|| RegisterParams {
+                        estimate_focal: !keep_focal,
+                        use_descriptors: !no_learned_matches,
+                        ..RegisterParams::default()
+                    }),
                     cluster: cluster_params,
                     split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,

@@ -1,7 +1,8 @@
 //! The network under ONNX Runtime: finds the shared library (`ORT_DYLIB_PATH` or the setup
 //! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
 //! `proto::signature` (an error names the file and the tensor), reads the shape classifier the
-//! file may carry, sets intra-op threads from the
+//! file may carry, notes whether the network has the optional descriptor head (read on every
+//! run when it does), sets intra-op threads from the
 //! core count, warms up, and runs batches of views into planar output arrays.
 
 use std::path::{Path, PathBuf};
@@ -48,6 +49,9 @@ pub struct ModelOutput {
     /// Φ_sem, `[384][d_s]` row-major, and its bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
     pub sem_proj_bias: Vec<f32>,
+    /// The learned matching descriptors, planar `[N][D][H][W]`, and D; `None` when the
+    /// network has no descriptor head (no `descriptors` output).
+    pub descriptors: Option<(Vec<f32>, usize)>,
 }
 
 /// A loaded, signature-checked model.
@@ -60,6 +64,9 @@ pub struct Model {
     pub model_version: String,
     /// The shape classifier stored with the network, if the file carries one.
     pub shapes: Option<ShapeClassifier>,
+    /// Whether the network has the optional descriptor head (a `descriptors` output), which
+    /// every run then reads into [`ModelOutput::descriptors`].
+    pub has_descriptors: bool,
 }
 
 /// Default place of the library unpacked by scripts/setup, relative to the workspace.
@@ -120,6 +127,11 @@ impl Model {
             .map_err(load_err)?;
         check_tensors(path, "input", &signature::INPUTS, session.inputs().iter().map(|o| (o.name(), o.dtype())))?;
         check_tensors(path, "output", &signature::OUTPUTS, session.outputs().iter().map(|o| (o.name(), o.dtype())))?;
+        let has_descriptors = session.outputs().iter().any(|o| o.name() == signature::OUTPUT_DESCRIPTORS.name);
+        if has_descriptors {
+            let outputs = session.outputs().iter().map(|o| (o.name(), o.dtype()));
+            check_tensors(path, "output", &[signature::OUTPUT_DESCRIPTORS], outputs)?;
+        }
         let meta = session.metadata().map_err(load_err)?;
         let get = |key: &'static str| {
             meta.custom(key)
@@ -157,7 +169,7 @@ impl Model {
                 problem: e.to_string(),
             })?;
         drop(meta);
-        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes };
+        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes, has_descriptors };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
         model.run(&warm, 2)?;
         Ok(model)
@@ -176,6 +188,14 @@ impl Model {
             let (_, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
             Ok(data.to_vec())
         };
+        let descriptors = if self.has_descriptors {
+            let spec = &signature::OUTPUT_DESCRIPTORS;
+            let (shape, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
+            let dim = descriptor_dim(&self.path, shape, views, r)?;
+            Some((data.to_vec(), dim))
+        } else {
+            None
+        };
         Ok(ModelOutput {
             views,
             height: r,
@@ -189,7 +209,22 @@ impl Model {
             semantic: take(&signature::OUTPUT_SEMANTIC)?,
             sem_proj_weight: take(&signature::OUTPUT_SEM_PROJ_WEIGHT)?,
             sem_proj_bias: take(&signature::OUTPUT_SEM_PROJ_BIAS)?,
+            descriptors,
         })
+    }
+}
+
+/// D of a `descriptors` output of `shape` for `views` views at `resolution`², which must be
+/// `[views, D, resolution, resolution]` with D ≥ 1.
+fn descriptor_dim(path: &Path, shape: &[i64], views: usize, resolution: usize) -> Result<usize, RuntimeError> {
+    let (n, r) = (views as i64, resolution as i64);
+    match *shape {
+        [v, d, h, w] if v == n && d >= 1 && h == r && w == r => Ok(d as usize),
+        _ => Err(RuntimeError::Signature {
+            path: path.to_path_buf(),
+            tensor: signature::OUTPUT_DESCRIPTORS.name.into(),
+            problem: format!("shape {shape:?}, expected {} = [{views}, D ≥ 1, {resolution}, {resolution}]", signature::OUTPUT_DESCRIPTORS.shape),
+        }),
     }
 }
 
@@ -217,4 +252,21 @@ fn check_tensors<'a>(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::descriptor_dim;
+
+    #[test]
+    fn a_descriptor_output_of_the_wrong_shape_is_named() {
+        let path = Path::new("m.onnx");
+        assert_eq!(descriptor_dim(path, &[8, 16, 128, 128], 8, 128).unwrap(), 16);
+        for shape in [&[8, 16, 64, 128][..], &[4, 16, 128, 128], &[8, 0, 128, 128], &[8, 128, 128]] {
+            let message = descriptor_dim(path, shape, 8, 128).unwrap_err().to_string();
+            assert!(message.contains("`descriptors`") && message.contains("[N, D, H, W]"), "{message}");
+        }
+    }
 }

@@ -57,6 +57,7 @@ fn registered(frames: &[&Frame], focal_given: f32) -> (Vec<Camera>, Vec<usize>, 
             depth: f.depth.as_deref().expect("synthesized frames carry depth"),
             photo: [0, 0, SIZE, SIZE],
             camera,
+            descriptors: None,
         })
         .collect();
     let reg = register(&views, &RegisterParams::default());

@@ -1,6 +1,9 @@
 //! Camera registration from the photos and the network's depth: the test-time pose stage
 //! that VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
-//! ([`features`]) are matched with every other view's; each pair with enough matches gets a
+//! ([`features`]) are matched with every other view's, and so are the network's learned
+//! per-pixel descriptors when the model outputs them ([`dense`]; unless
+//! [`RegisterParams::use_descriptors`] is off): both kinds of match are lifted by the depth
+//! alike and pooled per pair. Each pair with enough matches gets a
 //! relative pose ([`relative`]), and the views are chained to view 0 along the maximum
 //! spanning tree of the pairs' inlier counts, each view through its best-supported path; then
 //! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors
@@ -22,9 +25,12 @@
 //! network's frame (world = view 0's camera), with the measured focal length and the depth's
 //! metric scale, so it replaces the predicted cameras one for one.
 
+pub mod dense;
 pub mod features;
 mod joint;
 pub mod relative;
+
+pub use dense::Descriptors;
 
 use glam::{DMat3, DQuat, Quat, Vec3};
 use inssplat_proto::Camera;
@@ -64,6 +70,16 @@ pub struct RegisterParams {
     /// Estimate one focal-length multiplier for all views from the matches (the camera
     /// head's field of view is a guess); `false` keeps the intrinsics as given.
     pub estimate_focal: bool,
+    /// Match the views' learned descriptors ([`RegisterView::descriptors`]) beside their
+    /// keypoints; `false` ignores them (the A/B of learned matches).
+    pub use_descriptors: bool,
+    /// Spacing of the descriptor grid that is matched between views, in view pixels.
+    pub descriptor_stride: u32,
+    /// A descriptor match's 1 − cos must be below this × the runner-up's (outside the best's
+    /// neighbouring grid points). Lowe's 0.8 on distances between unit vectors is 0.64 here.
+    pub descriptor_ratio: f32,
+    /// Smallest cosine of a descriptor match.
+    pub descriptor_min_cos: f32,
 }
 
 impl Default for RegisterParams {
@@ -80,6 +96,10 @@ impl Default for RegisterParams {
             min_inliers: 10,
             seed: 0x5eed,
             estimate_focal: true,
+            use_descriptors: true,
+            descriptor_stride: 4,
+            descriptor_ratio: 0.75,
+            descriptor_min_cos: 0.5,
         }
     }
 }
@@ -96,6 +116,14 @@ pub struct RegisterView<'a> {
     /// that is not letterbox padding.
     pub photo: [u32; 4],
     pub camera: &'a Camera,
+    /// The network's per-pixel matching descriptors of this view, if it outputs them.
+    pub descriptors: Option<Descriptors<'a>>,
+}
+
+/// What a view is matched on: its keypoints, and its descriptor grid when it has one.
+struct Described {
+    keypoints: features::Features,
+    dense: Option<dense::DenseView>,
 }
 
 /// A pair of views with its relative pose.
@@ -126,11 +154,14 @@ pub struct Registration {
 /// gets the identity pose.
 pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registration {
     let brief_tests = features::test_pairs();
-    let feats: Vec<features::Features> = views
+    let feats: Vec<Described> = views
         .par_iter()
         .map(|v| {
             let k = &v.camera.intrinsics;
-            features::detect(v.rgb, k.width, k.height, v.photo, &brief_tests, params)
+            Described {
+                keypoints: features::detect(v.rgb, k.width, k.height, v.photo, &brief_tests, params),
+                dense: if params.use_descriptors { dense::prepare(v, params) } else { None },
+            }
         })
         .collect();
     let n = views.len();
@@ -276,12 +307,13 @@ fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose
     focal.scale
 }
 
-/// The matches of views a and b whose keypoints both have depth, lifted into each camera.
+/// The matches of views a and b, on their keypoints and on their descriptors, whose pixels
+/// both have depth, lifted into each camera.
 fn correspondences(
     a: &RegisterView<'_>,
     b: &RegisterView<'_>,
-    fa: &features::Features,
-    fb: &features::Features,
+    fa: &Described,
+    fb: &Described,
     params: &RegisterParams,
 ) -> Vec<Correspondence> {
     let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
@@ -289,11 +321,14 @@ fn correspondences(
         let z = *v.depth.get(p.y as usize * k.width as usize + p.x as usize)?;
         (z.is_finite() && z > 0.0).then(|| v.camera.unproject(p.x, p.y, z))
     };
-    features::match_features(fa, fb, params)
-        .into_iter()
-        .filter_map(|(ia, ib)| {
-            let (pa, pb) = (fa.points[ia], fb.points[ib]);
-            Some(Correspondence { pixel_i: pa, point_i: lift(a, pa)?, pixel_j: pb, point_j: lift(b, pb)? })
-        })
+    let (ka, kb) = (&fa.keypoints, &fb.keypoints);
+    let keypoints = features::match_features(ka, kb, params).into_iter().map(|(ia, ib)| (ka.points[ia], kb.points[ib]));
+    let learned = match (&fa.dense, &fb.dense) {
+        (Some(da), Some(db)) => dense::match_views(da, db, params),
+        _ => Vec::new(),
+    };
+    keypoints
+        .chain(learned)
+        .filter_map(|(pa, pb)| Some(Correspondence { pixel_i: pa, point_i: lift(a, pa)?, pixel_j: pb, point_j: lift(b, pb)? }))
         .collect()
 }

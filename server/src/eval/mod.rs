@@ -305,7 +305,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization of the Gaussians{}",
+             the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization of the Gaussians{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -317,6 +317,11 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 (Some(p), false) if p.estimate_focal => "; cameras registered from keypoint matches and the predicted depth, with one focal length measured from the matches where they pin it down, else the camera head's (stage `register`)",
                 (Some(_), false) => "; cameras registered from keypoint matches and the predicted depth, at the camera head's field of view (stage `register`, --keep-focal)",
                 (None, false) => "; the camera head's poses as they are (--no-register)",
+            },
+            match (&req.pipeline.register, req.known_poses) {
+                (Some(p), false) if model.has_descriptors && p.use_descriptors => "; the network's learned descriptors matched beside the keypoints",
+                (Some(_), false) if model.has_descriptors => "; the network's learned descriptors ignored (--no-learned-matches)",
+                _ => "",
             }
         ),
     })

@@ -17,7 +17,7 @@ use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
-use inssplat_raster::register::{RegisterParams, RegisterView, register};
+use inssplat_raster::register::{Descriptors, RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
@@ -60,7 +60,8 @@ pub struct PipelineConfig {
     /// Split each clustered instance into its parts apart in 3D (`None`: keep the
     /// clustering's instances).
     pub split: Option<SplitParams>,
-    /// Register the views from matched keypoints and the predicted depth (the "register"
+    /// Register the views from matched keypoints (and the network's learned descriptors when
+    /// it outputs them) and the predicted depth (the "register"
     /// stage; views it cannot reach keep the camera head's pose). `None`: the camera head's
     /// poses as they are.
     pub register: Option<RegisterParams>,
@@ -242,6 +243,7 @@ pub fn reconstruct_with(
                             depth: &out.depth[plane(1, v)],
                             photo: decoded[v].letterbox.photo_rect(),
                             camera: &predicted[v],
+                            descriptors: out.descriptors.as_ref().map(|(data, dim)| Descriptors { data: &data[plane(*dim, v)], dim: *dim }),
                         })
                         .collect();
                     let registration = register(&views, params);
