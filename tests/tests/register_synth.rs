@@ -4,13 +4,16 @@
 //! short (a wrong field of view): the stage must measure the focal length, the views that it
 //! chains to view 0 must land on their true poses relative to view 0, most views must be
 //! chained, and the views that no pair links must land closer to their poses than the
-//! identity. The predicted
+//! identity. Learned descriptors only link the pairs that keypoints leave without a pose:
+//! descriptors that match nothing change no pose. The predicted
 //! depth's effect is measured by `inssplat eval` (see the model card).
 
 use glam::Quat;
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
-use inssplat_raster::register::{RegisterParams, RegisterView, register};
+use inssplat_raster::register::{Descriptors, RegisterParams, RegisterView, register};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use inssplat_trainer::train::sample::in_reference_frame;
 
@@ -36,8 +39,9 @@ const UNLINKED_GAIN: f32 = 0.5;
 const MAX_FOCAL_ERROR: f64 = 0.03;
 
 /// The registration of `frames` from cameras at the identity whose focal lengths are
-/// `focal_given` × the true ones, and the focal multiplier it estimated (`None`: not measured).
-fn registered(frames: &[&Frame], focal_given: f32) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
+/// `focal_given` × the true ones, with each view's `descriptors` (`[D][H][W]`, D = the length
+/// over the pixels) if given, and the focal multiplier it estimated (`None`: not measured).
+fn registered(frames: &[&Frame], focal_given: f32, descriptors: Option<&[Vec<f32>]>) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
     let rgb: Vec<Vec<f32>> = frames.iter().map(|f| f.planar_rgb()).collect();
     let blank: Vec<Camera> = frames
         .iter()
@@ -52,12 +56,13 @@ fn registered(frames: &[&Frame], focal_given: f32) -> (Vec<Camera>, Vec<usize>, 
         .iter()
         .zip(&rgb)
         .zip(&blank)
-        .map(|((f, rgb), camera)| RegisterView {
+        .enumerate()
+        .map(|(v, ((f, rgb), camera))| RegisterView {
             rgb,
             depth: f.depth.as_deref().expect("synthesized frames carry depth"),
             photo: [0, 0, SIZE, SIZE],
             camera,
-            descriptors: None,
+            descriptors: descriptors.map(|d| Descriptors { data: &d[v], dim: d[v].len() / (SIZE * SIZE) as usize }),
         })
         .collect();
     let reg = register(&views, &RegisterParams::default());
@@ -84,7 +89,7 @@ fn two_photos_from_one_spot_keep_the_camera_heads_focal_length() {
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     let scene = synth::generate_split(0, &cfg).unwrap().scene;
     let frame = &scene.frames[0];
-    let (cameras, component, focal) = registered(&[frame, frame], 0.85);
+    let (cameras, component, focal) = registered(&[frame, frame], 0.85, None);
     assert_eq!(focal, None);
     assert_eq!(component, [0, 0], "the pair itself still registers");
     assert_eq!(cameras[1].intrinsics, cameras[0].intrinsics);
@@ -101,7 +106,7 @@ fn chained_views_land_on_their_true_poses(focal_given: f32) {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
         let context = scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
         let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
-        let (cameras, component, focal) = registered(&frames, focal_given);
+        let (cameras, component, focal) = registered(&frames, focal_given, None);
         let focal = focal.unwrap_or_else(|| panic!("scene {index}: the focal length was not measured"));
         let focal_error = (focal * focal_given as f64 - 1.0).abs();
         eprintln!("scene {index}: focal multiplier {focal:.4} (true {:.4})", 1.0 / focal_given);
@@ -135,4 +140,27 @@ fn chained_views_land_on_their_true_poses(focal_given: f32) {
     let (placed, identity) = (unlinked_sum / unlinked as f32, identity_sum / unlinked as f32);
     eprintln!("{unlinked} views linked by no pair: mean rotation error {placed:.1}° as placed, {identity:.1}° at the identity");
     assert!(placed < UNLINKED_GAIN * identity, "unlinked views placed {placed}° off, {identity}° at the identity");
+}
+
+#[test]
+fn descriptors_only_link_what_keypoints_leave_unlinked() {
+    // Descriptors that match nothing (seeded noise, D = 16): a pair its keypoints link keeps
+    // the keypoints' pose, and noise links no pair, so every view lands exactly where keypoints
+    // alone put it.
+    let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    for index in 0..3 {
+        let scene = synth::generate_split(index, &cfg).unwrap().scene;
+        let context = scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
+        let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
+        let noise: Vec<Vec<f32>> =
+            (0..VIEWS).map(|_| (0..16 * (SIZE * SIZE) as usize).map(|_| rng.random_range(-1.0..1.0)).collect()).collect();
+        let alone = registered(&frames, 1.0, None);
+        let with_noise = registered(&frames, 1.0, Some(&noise));
+        assert_eq!(with_noise.1, alone.1, "scene {index}: the components");
+        assert_eq!(with_noise.2, alone.2, "scene {index}: the focal multiplier");
+        for (v, (a, b)) in alone.0.iter().zip(&with_noise.0).enumerate() {
+            assert_eq!((a.rotation, a.translation), (b.rotation, b.translation), "scene {index}, view {v}");
+        }
+    }
 }

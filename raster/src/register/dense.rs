@@ -1,6 +1,6 @@
 //! Matches of two views on the network's learned per-pixel descriptors (the optional
 //! `descriptors` output, `[D][H][W]` per view, compared after L2 normalization), which
-//! registration adds to each pair's keypoint matches: on the synthetic rooms at 128² BRIEF
+//! registration matches where a pair's keypoints found no pose: on the synthetic rooms at 128² BRIEF
 //! links no pair to 79 of the 280 non-reference views of the 40 val scenes at 8 views, though
 //! they overlap another view by 80% (median). This module owns the descriptor maps'
 //! preparation (every pixel normalized, a grid of points every

@@ -1,11 +1,12 @@
 //! Camera registration from the photos and the network's depth: the test-time pose stage
 //! that VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
-//! ([`features`]) are matched with every other view's, and so are the network's learned
-//! per-pixel descriptors when the model outputs them ([`dense`]; unless
-//! [`RegisterParams::use_descriptors`] is off): both kinds of match are lifted by the depth
-//! alike and pooled per pair. Each pair with enough matches gets a
-//! relative pose ([`relative`]), and the views are chained to view 0 along the maximum
-//! spanning tree of the pairs' inlier counts, each view through its best-supported path; then
+//! ([`features`]) are matched with every other view's; each pair with enough matches gets a
+//! relative pose ([`relative`]). A pair that its keypoints leave without a pose is matched on
+//! the network's learned per-pixel descriptors instead when the model outputs them ([`dense`];
+//! unless [`RegisterParams::use_descriptors`] is off), lifted by the depth alike, and gets a
+//! pose when [`RegisterParams::descriptor_min_inliers`] of those matches agree. The views are
+//! chained to view 0 along the maximum spanning tree of the pairs' inlier counts, keypoint
+//! pairs before learned ones, each view through its best-supported path; then
 //! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors
 //! do not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms
 //! shot at 50–80°), so one focal-length multiplier for all views is measured first: each
@@ -80,6 +81,11 @@ pub struct RegisterParams {
     pub descriptor_ratio: f32,
     /// Smallest cosine of a descriptor match.
     pub descriptor_min_cos: f32,
+    /// Inliers a pair linked by descriptor matches alone needs (they are matched only where
+    /// keypoints found no pose).
+    pub descriptor_min_inliers: usize,
+    /// Share of a pair's descriptor matches that must agree with its pose.
+    pub descriptor_min_share: f32,
 }
 
 impl Default for RegisterParams {
@@ -100,6 +106,8 @@ impl Default for RegisterParams {
             descriptor_stride: 4,
             descriptor_ratio: 0.75,
             descriptor_min_cos: 0.5,
+            descriptor_min_inliers: 20,
+            descriptor_min_share: 0.0,
         }
     }
 }
@@ -134,6 +142,8 @@ struct PairPose {
     pose: Option<RelativePose>,
     /// The matches that agree with `pose`.
     inliers: Vec<Correspondence>,
+    /// The pose comes from learned descriptors ([`link_by_descriptors`]), not keypoints.
+    learned: bool,
 }
 
 /// The registered cameras and how they were found.
@@ -167,7 +177,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
     let n = views.len();
     let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
     let matches: Vec<Vec<Correspondence>> =
-        jobs.par_iter().map(|&(i, j)| correspondences(&views[i], &views[j], &feats[i], &feats[j], params)).collect();
+        jobs.par_iter().map(|&(i, j)| keypoint_correspondences(&views[i], &views[j], &feats[i], &feats[j], params)).collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
     let mut pairs = pair_poses(&jobs, &matches, &cameras, params);
     let measured = if params.estimate_focal { shared_focal(&cameras, &pairs, params) } else { None };
@@ -180,6 +190,9 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         let matches: Vec<Vec<Correspondence>> =
             matches.iter().map(|m| m.iter().map(|c| c.with_focal(scale)).collect()).collect();
         pairs = pair_poses(&jobs, &matches, &cameras, params);
+    }
+    if params.use_descriptors {
+        link_by_descriptors(&mut pairs, views, &feats, &cameras, measured, params);
     }
     // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
     // view left (every view before it is placed) continues the motion before it and anchors
@@ -201,12 +214,13 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
                 .iter()
                 .filter_map(|p| p.pose.map(|pose| (p, pose)))
                 .filter_map(|(p, pose)| match (component[p.i], component[p.j]) {
-                    (Some(c), None) => Some((p.i, p.j, pose, c)),
-                    (None, Some(c)) => Some((p.j, p.i, pose.inverse(), c)),
+                    (Some(c), None) => Some((p.i, p.j, pose, c, p.learned)),
+                    (None, Some(c)) => Some((p.j, p.i, pose.inverse(), c, p.learned)),
                     _ => None,
                 })
-                .max_by_key(|(_, _, pose, _)| pose.inliers);
-            let Some((from, to, pose, c)) = next else { break };
+                // Keypoint pairs first: a learned pair only reaches views no keypoint pair does.
+                .max_by_key(|&(_, _, pose, _, learned)| (!learned, pose.inliers));
+            let Some((from, to, pose, c, _)) = next else { break };
             let parent = cameras[from];
             let cam = &mut cameras[to];
             cam.rotation = (pose.rotation * parent.rotation).normalize();
@@ -233,7 +247,7 @@ fn pair_poses(jobs: &[(usize, usize)], matches: &[Vec<Correspondence>], cameras:
         .map(|(&(i, j), corr)| {
             let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             let (pose, inliers) = relative_pose(corr, &cameras[i].intrinsics, &cameras[j].intrinsics, params, &mut rng).unzip();
-            PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
+            PairPose { i, j, pose, inliers: inliers.unwrap_or_default(), learned: false }
         })
         .collect()
 }
@@ -307,28 +321,51 @@ fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose
     focal.scale
 }
 
-/// The matches of views a and b, on their keypoints and on their descriptors, whose pixels
-/// both have depth, lifted into each camera.
-fn correspondences(
-    a: &RegisterView<'_>,
-    b: &RegisterView<'_>,
-    fa: &Described,
-    fb: &Described,
-    params: &RegisterParams,
-) -> Vec<Correspondence> {
+/// Pixel matches of views a and b whose pixels both have depth, lifted into each camera.
+fn lifted(a: &RegisterView<'_>, b: &RegisterView<'_>, matches: impl IntoIterator<Item = (glam::Vec2, glam::Vec2)>) -> Vec<Correspondence> {
     let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
         let k = &v.camera.intrinsics;
         let z = *v.depth.get(p.y as usize * k.width as usize + p.x as usize)?;
         (z.is_finite() && z > 0.0).then(|| v.camera.unproject(p.x, p.y, z))
     };
-    let (ka, kb) = (&fa.keypoints, &fb.keypoints);
-    let keypoints = features::match_features(ka, kb, params).into_iter().map(|(ia, ib)| (ka.points[ia], kb.points[ib]));
-    let learned = match (&fa.dense, &fb.dense) {
-        (Some(da), Some(db)) => dense::match_views(da, db, params),
-        _ => Vec::new(),
-    };
-    keypoints
-        .chain(learned)
+    matches
+        .into_iter()
         .filter_map(|(pa, pb)| Some(Correspondence { pixel_i: pa, point_i: lift(a, pa)?, pixel_j: pb, point_j: lift(b, pb)? }))
         .collect()
+}
+
+/// The keypoint matches of views a and b, lifted.
+fn keypoint_correspondences(a: &RegisterView<'_>, b: &RegisterView<'_>, fa: &Described, fb: &Described, params: &RegisterParams) -> Vec<Correspondence> {
+    let (ka, kb) = (&fa.keypoints, &fb.keypoints);
+    lifted(a, b, features::match_features(ka, kb, params).into_iter().map(|(ia, ib)| (ka.points[ia], kb.points[ib])))
+}
+
+/// Gives every pair that its keypoints left without a pose one from its learned descriptors'
+/// matches, when both views have descriptors and the matches agree on a pose with
+/// [`RegisterParams::descriptor_min_inliers`] inliers. Only such pairs: where keypoints link
+/// two views, descriptors pooled with them brought in wrong matches that moved good poses.
+/// `focal` is the multiplier the keypoint pairs measured, if any.
+fn link_by_descriptors(
+    pairs: &mut [PairPose],
+    views: &[RegisterView<'_>],
+    feats: &[Described],
+    cameras: &[Camera],
+    focal: Option<f64>,
+    params: &RegisterParams,
+) {
+    let strict = RegisterParams { min_inliers: params.descriptor_min_inliers, ..params.clone() };
+    let n = cameras.len();
+    pairs.par_iter_mut().filter(|p| p.pose.is_none()).for_each(|p| {
+        let (Some(da), Some(db)) = (&feats[p.i].dense, &feats[p.j].dense) else { return };
+        let corr: Vec<Correspondence> = lifted(&views[p.i], &views[p.j], dense::match_views(da, db, params))
+            .into_iter()
+            .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((p.i * n + p.j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        if let Some((pose, inliers)) = relative_pose(&corr, &cameras[p.i].intrinsics, &cameras[p.j].intrinsics, &strict, &mut rng)
+            && inliers.len() as f32 >= params.descriptor_min_share * corr.len() as f32
+        {
+            (p.pose, p.inliers, p.learned) = (Some(pose), inliers, true);
+        }
+    });
 }
