@@ -1,0 +1,59 @@
+#!/usr/bin/env python3
+"""unlinked_views.py DATA [MODEL]: for every view after the first of each scene's 8-view context
+set, how registration placed it (`inssplat reconstruct --json`: registered, or continued from the
+views before it when no pair links it), its rotation error relative to view 0, and how much of it
+the other context views see in truth (true depth and cameras: the share of its pixels that
+project into another view and meet the surface there within 5%). Prints, per placement, the
+views' rotation error and their largest true overlap with another view: whether the views that
+no match links could be matched at all. Needs numpy and pillow, and target/release/inssplat."""
+import json, os, shutil, subprocess, sys, numpy as np
+from PIL import Image
+data = sys.argv[1]; model = sys.argv[2] if len(sys.argv) > 2 else 'models/inssplat-default.onnx'
+nv = 8
+def load(scene):
+    t = json.load(open(f'{data}/{scene}/transforms.json'))
+    return t
+def cam(t, f):
+    fx = f.get('fl_x', t['fl_x']); fy = f.get('fl_y', t['fl_y']); cx = f.get('cx', t['cx']); cy = f.get('cy', t['cy'])
+    return np.array(f['transform_matrix']), fx, fy, cx, cy
+def depth(t, scene, f):
+    return np.array(Image.open(f'{data}/{scene}/{f["depth_file_path"]}')).astype(np.float64) * t['depth_unit_m']
+def overlap(t, scene, fa, fb):
+    Ta, fx, fy, cx, cy = cam(t, fa); Tb, gx, gy, dx, dy = cam(t, fb)
+    da = depth(t, scene, fa); db = depth(t, scene, fb)
+    h, w = da.shape
+    v, u = np.mgrid[0:h, 0:w]; u = u + .5; v = v + .5
+    ok = da > 0
+    x = (u - cx) / fx * da; y = -(v - cy) / fy * da; z = -da
+    P = np.stack([x, y, z, np.ones_like(z)], -1)[ok]
+    W = P @ Ta.T; C = W @ np.linalg.inv(Tb).T
+    zb = -C[:, 2]
+    ub = C[:, 0] / zb * gx + dx; vb = -C[:, 1] / zb * gy + dy
+    inside = (zb > 1e-3) & (ub >= 0) & (ub < w) & (vb >= 0) & (vb < h)
+    ui = np.clip(ub.astype(int), 0, w - 1); vi = np.clip(vb.astype(int), 0, h - 1)
+    vis = inside & (np.abs(db[vi, ui] - zb) < 0.05 * zb)
+    return vis.sum() / max(ok.sum(), 1)
+def rot_err(Rp, Rt):
+    c = (np.trace(Rp.T @ Rt) - 1) / 2
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))
+rows = []
+for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
+    t = load(scene); ctx = t['eval']['context'][str(nv)]
+    fr = [t['frames'][i] for i in ctx]
+    tmp = f'/tmp/unlinked_views/{scene}'; shutil.rmtree(tmp, ignore_errors=True); os.makedirs(tmp + '/in')
+    for k, f in enumerate(fr): shutil.copy(f'{data}/{scene}/{f["file_path"]}', f'{tmp}/in/{k:03d}.png')
+    out = subprocess.run(['target/release/inssplat', 'reconstruct', '--json', '--model', model, '--out', tmp + '/out', tmp + '/in'], capture_output=True, text=True, check=True).stdout
+    cams = json.loads(out)['cameras']
+    O = np.array([[overlap(t, scene, a, b) if a is not b else 1.0 for b in fr] for a in fr])
+    T0 = cam(t, fr[0])[0]; P0 = np.array(cams[0]['transform_matrix'])
+    for k in range(1, nv):
+        Rt = np.linalg.inv(T0)[:3, :3] @ cam(t, fr[k])[0][:3, :3]
+        Rp = np.linalg.inv(P0)[:3, :3] @ np.array(cams[k]['transform_matrix'])[:3, :3]
+        others = [O[k, j] for j in range(nv) if j != k]
+        rows.append(dict(scene=scene, view=k, placement=cams[k]['placement'], rot=rot_err(Rp, Rt), ov0=O[k, 0], ovmax=max(others)))
+import collections
+by = collections.defaultdict(list)
+for r in rows: by[r['placement']].append(r)
+for p, rs in by.items():
+    rot = np.array([r['rot'] for r in rs]); om = np.array([r['ovmax'] for r in rs])
+    print(f'{p:12s} n={len(rs):3d} rot median {np.median(rot):6.2f} mean {rot.mean():6.2f}  GT max overlap median {np.median(om):.2f}  share with ovmax>0.3: {(om>0.3).mean():.2f} >0.1: {(om>0.1).mean():.2f}')
