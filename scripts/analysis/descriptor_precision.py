@@ -21,7 +21,7 @@ for si in range(nsc):
     imgs = np.stack([np.asarray(Image.open(f'{data}/{scene}/{f["file_path"]}').convert('RGB').resize((S, S)), np.float32) / 255 for f in fr]).transpose(0, 3, 1, 2)
     d = sess.run(['descriptors'], {'images': imgs})[0]  # N,D,H,W
     d = d / np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
-    ys, xs = np.mgrid[0:S:st, 0:S:st]; ys = ys.ravel(); xs = xs.ravel(); G = S // st
+    ys, xs = np.mgrid[st // 2:S:st, st // 2:S:st]; ys = ys.ravel(); xs = xs.ravel(); G = S // st
     D = [d[v][:, ys, xs].T for v in range(8)]  # 1024 x Dim
     deps = [np.array(Image.open(f'{data}/{scene}/{f["depth_file_path"]}')).astype(np.float64) * t['depth_unit_m'] for f in fr]
     W = fr[0].get('w', t['w']); sc = S / W
