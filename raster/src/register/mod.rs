@@ -82,10 +82,10 @@ pub struct RegisterParams {
     /// Smallest cosine of a descriptor match.
     pub descriptor_min_cos: f32,
     /// Inliers a pair linked by descriptor matches alone needs (they are matched only where
-    /// keypoints found no pose).
+    /// keypoints found no pose). On val40 at 8 views with run ds's descriptors (18% of the
+    /// matches right), 20 linked as many views wrongly as rightly (rotation error +0.87 ±
+    /// 0.49°) and 40 changed nothing beyond noise (+0.14 ± 0.15°).
     pub descriptor_min_inliers: usize,
-    /// Share of a pair's descriptor matches that must agree with its pose.
-    pub descriptor_min_share: f32,
 }
 
 impl Default for RegisterParams {
@@ -106,8 +106,7 @@ impl Default for RegisterParams {
             descriptor_stride: 4,
             descriptor_ratio: 0.75,
             descriptor_min_cos: 0.5,
-            descriptor_min_inliers: 20,
-            descriptor_min_share: 0.0,
+            descriptor_min_inliers: 40,
         }
     }
 }
@@ -362,9 +361,7 @@ fn link_by_descriptors(
             .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
             .collect();
         let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((p.i * n + p.j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-        if let Some((pose, inliers)) = relative_pose(&corr, &cameras[p.i].intrinsics, &cameras[p.j].intrinsics, &strict, &mut rng)
-            && inliers.len() as f32 >= params.descriptor_min_share * corr.len() as f32
-        {
+        if let Some((pose, inliers)) = relative_pose(&corr, &cameras[p.i].intrinsics, &cameras[p.j].intrinsics, &strict, &mut rng) {
             (p.pose, p.inliers, p.learned) = (Some(pose), inliers, true);
         }
     });
