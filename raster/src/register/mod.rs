@@ -244,11 +244,16 @@ fn pair_poses(jobs: &[(usize, usize)], matches: &[Vec<Correspondence>], cameras:
     jobs.par_iter()
         .zip(matches)
         .map(|(&(i, j), corr)| {
-            let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let mut rng = pair_rng(params, n, i, j);
             let (pose, inliers) = relative_pose(corr, &cameras[i].intrinsics, &cameras[j].intrinsics, params, &mut rng).unzip();
             PairPose { i, j, pose, inliers: inliers.unwrap_or_default(), learned: false }
         })
         .collect()
+}
+
+/// The RANSAC stream of pair (`i`, `j`) of `n` views: its own, from [`RegisterParams::seed`].
+fn pair_rng(params: &RegisterParams, n: usize, i: usize, j: usize) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15))
 }
 
 fn scale_focal(camera: &mut Camera, scale: f64) {
@@ -360,7 +365,7 @@ fn link_by_descriptors(
             .into_iter()
             .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
             .collect();
-        let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ ((p.i * n + p.j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        let mut rng = pair_rng(params, n, p.i, p.j);
         if let Some((pose, inliers)) = relative_pose(&corr, &cameras[p.i].intrinsics, &cameras[p.j].intrinsics, &strict, &mut rng) {
             (p.pose, p.inliers, p.learned) = (Some(pose), inliers, true);
         }
