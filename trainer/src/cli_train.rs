@@ -160,6 +160,10 @@ pub struct TrainArgs {
     /// Sampled matches per pair of input views of the descriptor term.
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(2..))]
     descriptor_samples: u16,
+    /// The descriptor term's negatives: every point of the other view's grid of this stride
+    /// (pixels; what registration compares, 4 there) instead of the pair's other samples (0).
+    #[arg(long, default_value_t = 0)]
+    descriptor_grid: u16,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
@@ -265,6 +269,7 @@ impl TrainArgs {
             .with_attention_match_weight((self.attention_match_weight > 0.0).then_some(self.attention_match_weight))
             .with_descriptor_weight((self.descriptor_weight > 0.0).then_some(self.descriptor_weight))
             .with_descriptor_samples((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)))
+            .with_descriptor_grid((self.descriptor_weight > 0.0 && self.descriptor_grid > 0).then_some(usize::from(self.descriptor_grid)))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))

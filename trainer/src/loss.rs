@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use attention_match::{MatchScores, attention_match_loss, match_scores, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
-pub use descriptor::{DescriptorMatches, DescriptorScores, descriptor_loss, descriptor_matches, descriptor_scores};
+pub use descriptor::{DescriptorMatches, DescriptorScores, descriptor_grid_loss, descriptor_loss, descriptor_matches, descriptor_scores, registration_grid};
 pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
 pub use instance::{InstanceTerms, instance_loss};
 pub use point_map::{pixel_rays, point_map_loss, point_map_targets};
@@ -156,6 +156,10 @@ pub struct LossConfig {
     /// Samples per pair of input views of L_desc; `None` (also what configs saved before this
     /// term existed read as) means 256.
     pub descriptor_samples: Option<usize>,
+    /// L_desc's negatives: every point of the other view's registration grid of this stride
+    /// ([`descriptor_grid_loss`]); `None` (also what configs saved before this switch existed
+    /// read as): the pair's other samples ([`descriptor_loss`]).
+    pub descriptor_grid: Option<usize>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

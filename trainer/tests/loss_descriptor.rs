@@ -1,11 +1,12 @@
 //! L_desc, the descriptor term: its value worked out by hand, its gradient against finite
 //! differences, its matches (a view identical to another matches every pixel to itself, and a
 //! synthesized scene's matches see one point), and that descriptors made from the true point
-//! each pixel sees score a low loss and match on registration's grid where others do not.
+//! each pixel sees score a low loss and match on registration's grid where others do not; the
+//! same of the form whose negatives are registration's grid.
 
 use burn::prelude::*;
 use inssplat_trainer::loss::descriptor::{NEAR, TEMPERATURE};
-use inssplat_trainer::loss::{DescriptorMatches, descriptor_loss, descriptor_matches, descriptor_scores};
+use inssplat_trainer::loss::{DescriptorMatches, descriptor_grid_loss, descriptor_loss, descriptor_matches, descriptor_scores, registration_grid};
 
 use crate::loss_instance::check_gradient;
 use crate::loss_point_map::synthesized;
@@ -16,6 +17,10 @@ fn tensor(values: &[f32], shape: [usize; 4]) -> Tensor<4> {
 
 fn loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> f64 {
     f64::from(descriptor_loss(descriptors, matches).unwrap().into_scalar::<f32>())
+}
+
+fn grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches, stride: usize) -> f64 {
+    f64::from(descriptor_grid_loss(descriptors, matches, stride).unwrap().into_scalar::<f32>())
 }
 
 #[test]
@@ -66,6 +71,66 @@ fn loss_descriptor_gradient_matches_finite_differences() {
         offsets: vec![0, 3, 4, 6],
     };
     check_gradient(&values, [3, 3, 1, 4], |x| descriptor_loss(x, &matches).unwrap());
+}
+
+#[test]
+fn registration_grid_starts_half_a_stride_in() {
+    assert_eq!(registration_grid(6, 8, 4), vec![2 * 8 + 2, 2 * 8 + 6]);
+    assert_eq!(registration_grid(2, 3, 1).len(), 6);
+    assert_eq!(registration_grid(1, 5, 2), Vec::<usize>::new());
+}
+
+#[test]
+fn loss_descriptor_grid_is_the_cross_entropy_of_the_grid_points_near_the_match() {
+    // Two views of 2×8 pixels, D = 2; stride 2: the grid is pixels 1, 3, 5 and 7 of row 1.
+    // View 0's pixel (0, 0) matches view 1's (6, 0): b's grid points at x 5 and 7 are
+    // positives, 1 and 3 negatives; from b, a's grid point at x 1 is the one positive.
+    let values: Vec<f32> = (0..2 * 2 * 16)
+        .map(|i| {
+            let (v, c, p) = (i / 32, (i / 16) % 2, i % 16);
+            let angle = 0.37 * p as f32 + 1.3 * v as f32;
+            if c == 0 { angle.cos() } else { 1.5 * angle.sin() }
+        })
+        .collect();
+    let descriptors = tensor(&values, [2, 2, 2, 8]);
+    let unit = |v: usize, p: usize| {
+        let (c, s) = (f64::from(values[v * 32 + p]), f64::from(values[v * 32 + 16 + p]));
+        let n = (c * c + s * s).sqrt();
+        (c / n, s / n)
+    };
+    let grid = [9, 11, 13, 15];
+    let term = |query: (f64, f64), view: usize, positives: &[usize]| {
+        let exp = |p: usize| {
+            let key = unit(view, p);
+            ((query.0 * key.0 + query.1 * key.1) / TEMPERATURE).exp()
+        };
+        let all: f64 = grid.iter().map(|&p| exp(p)).sum();
+        let pos: f64 = positives.iter().map(|&p| exp(p)).sum();
+        -(pos / all).ln()
+    };
+    let matches = DescriptorMatches { a: vec![0], b: vec![16 + 6], offsets: vec![0, 1] };
+    let want = 0.5 * (term(unit(0, 0), 1, &[13, 15]) + term(unit(1, 6), 0, &[9]));
+    let got = grid_loss(descriptors.clone(), &matches, 2);
+    assert!((got - want).abs() < 1e-4 * want, "L_desc on the grid {got}, expected {want}");
+    // No matches: zero; a match outside the map or a view smaller than the grid: named errors.
+    assert_eq!(grid_loss(descriptors.clone(), &DescriptorMatches { offsets: vec![0], ..Default::default() }, 2), 0.0);
+    let outside = DescriptorMatches { a: vec![0], b: vec![32], offsets: vec![0, 1] };
+    assert!(descriptor_grid_loss(descriptors.clone(), &outside, 2).unwrap_err().to_string().contains("descriptor map"));
+    let err = descriptor_grid_loss(descriptors, &matches, 4).unwrap_err();
+    assert!(err.to_string().contains("registration grid"), "{err}");
+}
+
+#[test]
+fn loss_descriptor_grid_gradient_matches_finite_differences() {
+    #[rustfmt::skip]
+    let values = [
+        0.3, -0.7, 1.1, 0.2, -0.4, 0.9, 0.5, 0.1, -1.2, 0.6, 0.8, -0.3, // view 0: 3 channels × 2×2
+        0.7, 0.4, -0.6, 1.3, 0.2, -0.9, 1.0, -0.2, 0.3, 0.5, -0.8, 0.6, // view 1
+        -0.5, 0.9, 0.2, 0.4, 1.1, -0.3, 0.6, 0.7, -0.1, 0.2, 0.9, -0.6, // view 2
+    ];
+    // Stride 1: every pixel a grid point, those within one pixel positives. Pair (1, 2) empty.
+    let matches = DescriptorMatches { a: vec![0, 3, 1], b: vec![4 + 3, 4, 8 + 2], offsets: vec![0, 2, 3, 3] };
+    check_gradient(&values, [3, 3, 2, 2], |x| descriptor_grid_loss(x, &matches, 1).unwrap());
 }
 
 #[test]
@@ -152,4 +217,6 @@ fn descriptors_of_the_true_point_match_and_others_do_not() {
     assert!(bad.within_stride < 0.2, "{bad:?}");
     let (l_good, l_bad) = (loss(tensor(&truth, dims), &matches), loss(tensor(&shuffled, dims), &matches));
     assert!(l_good < 0.5 * l_bad, "L_desc {l_good} of the true point's descriptors against {l_bad} shuffled");
+    let (l_good, l_bad) = (grid_loss(tensor(&truth, dims), &matches, 4), grid_loss(tensor(&shuffled, dims), &matches, 4));
+    assert!(l_good < 0.5 * l_bad, "L_desc on the grid {l_good} of the true point's descriptors against {l_bad} shuffled");
 }

@@ -8,7 +8,11 @@
 //! its own match in b than the pair's other samples' matches (the cross-entropy of cos/τ), and
 //! each match in b the same of the samples in a. Two samples within [`NEAR`] pixels of each
 //! other (in a or in b) are not each other's negatives: their descriptors should be alike.
-//! Added to L_geom with weight `descriptor_weight`.
+//! [`descriptor_grid_loss`] asks what registration asks instead: each sample's descriptor is
+//! compared with every point of the other view's [`registration_grid`], and the grid points
+//! within a stride of its match must win (the cross-entropy of cos/τ over the grid, the
+//! positives' probabilities summed), both ways. Added to L_geom with weight
+//! `descriptor_weight`.
 
 use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
@@ -104,10 +108,7 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
     if total == 0 {
         return Ok(zero(&device));
     }
-    let worst = matches.a.iter().chain(&matches.b).max().copied().unwrap_or(0);
-    if worst >= v * h * w {
-        return Err(LossError::Shape { what: "descriptor map holding every match", expected: vec![worst / (h * w) + 1, d, h, w], got: vec![v, d, h, w] });
-    }
+    check_matches_inside(matches, [v, d, h, w])?;
     let pairs = matches.pairs();
     let k = (0..pairs).map(|p| matches.pair(p).len()).max().unwrap_or(0);
     // Every pair padded to k samples; a padded sample points at pixel 0 and is masked out.
@@ -145,9 +146,82 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
     Ok((both * picks).sum().neg())
 }
 
+/// Flat pixel indices `y · W + x` of the grid registration compares descriptors on: every
+/// `stride`-th pixel of an `h`×`w` view in both directions, starting half a stride in.
+pub fn registration_grid(h: usize, w: usize, stride: usize) -> Vec<usize> {
+    let stride = stride.max(1);
+    (stride / 2..h).step_by(stride).flat_map(|y| (stride / 2..w).step_by(stride).map(move |x| y * w + x)).collect()
+}
+
+/// L_desc with the grid's negatives: for every sample of `matches` (from [`descriptor_matches`]
+/// at the size of `descriptors` `[V, D, H, W]`), −log of the probability, under the softmax of
+/// cos/τ between its descriptor in a and every point of b's [`registration_grid`] of `stride`,
+/// of the grid points within `stride` pixels (in x and in y) of its match; the same from b to
+/// a's grid; averaged over the samples and both ways. Zero when there are none.
+pub fn descriptor_grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches, stride: usize) -> Result<Tensor<1>, LossError> {
+    let [v, d, h, w] = descriptors.dims();
+    check_len("descriptor matches", matches.a.len(), matches.b.len())?;
+    let device = descriptors.device();
+    let hw = h * w;
+    check_matches_inside(matches, [v, d, h, w])?;
+    let pairs: Vec<usize> = (0..matches.pairs()).filter(|&p| !matches.pair(p).is_empty()).collect();
+    if pairs.is_empty() {
+        return Ok(zero(&device));
+    }
+    let grid = registration_grid(h, w, stride);
+    let g = grid.len();
+    if g == 0 {
+        return Err(LossError::Shape { what: "descriptor map holding a registration grid point", expected: vec![v, d, stride / 2 + 1, stride / 2 + 1], got: vec![v, d, h, w] });
+    }
+    let k = pairs.iter().map(|&p| matches.pair(p).len()).max().unwrap_or(0);
+    let weight = 0.5 / matches.len() as f32;
+    let rows = pixels_last(descriptors);
+    let rows = rows.clone() / rows.powi_scalar(2).sum_dim(1).add_scalar(NORM_EPS).sqrt();
+    let grid_rows: Vec<i64> = (0..v).flat_map(|view| grid.iter().map(move |&p| (view * hw + p) as i64)).collect();
+    let grid_rows = rows.clone().select(0, indices(grid_rows, &device)).reshape([v, g, d]);
+    // One direction: queries at `from`'s samples, keys on the grid of the view of `to`'s.
+    let one_way = |from: &[usize], to: &[usize]| {
+        let mut query = vec![0i64; pairs.len() * k];
+        let mut key_view = vec![0i64; pairs.len()];
+        // 0 on a row's positives, MASKED elsewhere; a padded row counts every point (its loss
+        // is then 0, and its weight 0 besides).
+        let mut bias = vec![0.0f32; pairs.len() * k * g];
+        let mut weights = vec![0.0f32; pairs.len() * k];
+        for (row, &p) in pairs.iter().enumerate() {
+            key_view[row] = (to[matches.offsets[p]] / hw) as i64;
+            for (i, s) in matches.pair(p).enumerate() {
+                let r = row * k + i;
+                query[r] = from[s] as i64;
+                weights[r] = weight;
+                let (tx, ty) = (to[s] % w, (to[s] % hw) / w);
+                for (j, &q) in grid.iter().enumerate() {
+                    let near = (q % w).abs_diff(tx) <= stride && (q / w).abs_diff(ty) <= stride;
+                    bias[r * g + j] = if near { 0.0 } else { MASKED };
+                }
+            }
+        }
+        let queries = rows.clone().select(0, indices(query, &device)).reshape([pairs.len(), k, d]);
+        let keys = grid_rows.clone().select(0, indices(key_view, &device));
+        let logits = queries.matmul(keys.swap_dims(1, 2)).mul_scalar(1.0 / TEMPERATURE);
+        let positives = (log_softmax(logits, 2) + constant(bias, [pairs.len(), k, g], &device)).exp().sum_dim(2).log();
+        (positives * constant(weights, [pairs.len(), k, 1], &device)).sum().neg()
+    };
+    Ok(one_way(&matches.a, &matches.b) + one_way(&matches.b, &matches.a))
+}
+
+/// A named error unless every match of `matches` lies inside a descriptor map of `dims`.
+fn check_matches_inside(matches: &DescriptorMatches, dims: [usize; 4]) -> Result<(), LossError> {
+    let [v, d, h, w] = dims;
+    let worst = matches.a.iter().chain(&matches.b).max().copied().unwrap_or(0);
+    if worst >= v * h * w {
+        return Err(LossError::Shape { what: "descriptor map holding every match", expected: vec![worst / (h * w) + 1, d, h, w], got: vec![v, d, h, w] });
+    }
+    Ok(())
+}
+
 /// How well descriptors match on the true matches, for validation: over the samples of
-/// [`descriptor_matches`], the share whose most alike descriptor among b's pixels on a grid of
-/// `stride` (what registration compares) lies within `stride` pixels of the true match.
+/// [`descriptor_matches`], the share whose most alike descriptor among the points of b's
+/// [`registration_grid`] of `stride` lies within `stride` pixels of the true match.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct DescriptorScores {
     pub samples: usize,
@@ -179,21 +253,17 @@ pub fn descriptor_scores(descriptors: &[f32], dims: [usize; 4], matches: &Descri
         row.iter_mut().for_each(|x| *x /= norm);
     }
     let row = |i: usize| &rows[i * d..(i + 1) * d];
+    let grid = registration_grid(h, w, stride);
     let hits = matches
         .a
         .iter()
         .zip(&matches.b)
         .filter(|&(&a, &b)| {
             let view = b / hw;
-            let best = (0..h)
-                .step_by(stride)
-                .flat_map(|y| (0..w).step_by(stride).map(move |x| y * w + x))
-                .max_by(|&p, &q| {
-                    let dot = |p: usize| row(view * hw + p).iter().zip(row(a)).map(|(x, y)| x * y).sum::<f32>();
-                    dot(p).total_cmp(&dot(q))
-                });
+            let cosine = |p: usize| row(view * hw + p).iter().zip(row(a)).map(|(x, y)| x * y).sum::<f32>();
+            let best = grid.iter().map(|&p| (p, cosine(p))).max_by(|x, y| x.1.total_cmp(&y.1));
             let truth = b % hw;
-            best.is_some_and(|p| (p % w).abs_diff(truth % w) <= stride && (p / w).abs_diff(truth / w) <= stride)
+            best.is_some_and(|(p, _)| (p % w).abs_diff(truth % w) <= stride && (p / w).abs_diff(truth / w) <= stride)
         })
         .count();
     DescriptorScores { samples: matches.len(), stride, within_stride: hits as f64 / matches.len().max(1) as f64 }

@@ -23,7 +23,7 @@ use super::sample::Sample;
 use crate::loss::descriptor::DEFAULT_SAMPLES as DESCRIPTOR_SAMPLES;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    attention_match_loss, descriptor_loss, descriptor_matches, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
+    attention_match_loss, descriptor_grid_loss, descriptor_loss, descriptor_matches, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{RenderOpError, SplatTensors, render};
@@ -170,7 +170,11 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     }
     if let (Some(descriptors), Some(weight)) = (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1)) {
         let matches = descriptor_matches(input_cameras, input_depth, size, config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES))?;
-        geometry = geometry + descriptor_loss(descriptors, &matches)?.mul_scalar(weight);
+        let term = match config.descriptor_grid {
+            Some(stride) => descriptor_grid_loss(descriptors, &matches, stride)?,
+            None => descriptor_loss(descriptors, &matches)?,
+        };
+        geometry = geometry + term.mul_scalar(weight);
     }
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();
