@@ -6,11 +6,18 @@ matches it before refinement (a 4-pixel grid, mutual nearest neighbours by cosin
 0.5, and a ratio of 0.75 on 1 − cos against the best outside the match's 3×3 cells); a match
 is right when the true depth and cameras carry its point within 4 pixels of where it landed.
 Prints the running count of right matches, all matches and their share, scene by scene.
+MODEL `patches:R` matches raw pixels instead, the comparison: each pixel's (2R+1)² RGB patch,
+less its mean (zero padding at the border).
 A measurement for the model card, not part of the product or of CI (numpy, pillow, onnxruntime)."""
 import json, sys, numpy as np, onnxruntime as ort
 from PIL import Image
 model, data = sys.argv[1], sys.argv[2]; nsc = int(sys.argv[3]) if len(sys.argv) > 3 else 40
-sess = ort.InferenceSession(model, providers=['CPUExecutionProvider'])
+sess = None if model.startswith('patches:') else ort.InferenceSession(model, providers=['CPUExecutionProvider'])
+def patches(imgs, r):
+    """N,3,H,W → N,3(2r+1)²,H,W: every pixel's RGB patch less its mean."""
+    n, c, h, w = imgs.shape; pad = np.pad(imgs, ((0, 0), (0, 0), (r, r), (r, r)))
+    out = np.stack([pad[:, :, dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1)], 2).reshape(n, -1, h, w)
+    return out - out.mean(1, keepdims=True)
 S = 128; st = 4; RATIO = 0.75; MINCOS = 0.5
 def cam(t, f):
     return np.array(f['transform_matrix']), f.get('fl_x', t['fl_x']), f.get('fl_y', t['fl_y']), f.get('cx', t['cx']), f.get('cy', t['cy'])
@@ -19,7 +26,7 @@ for si in range(nsc):
     scene = f'scene_{si:06d}'; t = json.load(open(f'{data}/{scene}/transforms.json'))
     fr = [t['frames'][i] for i in t['eval']['context']['8']]
     imgs = np.stack([np.asarray(Image.open(f'{data}/{scene}/{f["file_path"]}').convert('RGB').resize((S, S)), np.float32) / 255 for f in fr]).transpose(0, 3, 1, 2)
-    d = sess.run(['descriptors'], {'images': imgs})[0]  # N,D,H,W
+    d = patches(imgs, int(model.split(':')[1])) if sess is None else sess.run(['descriptors'], {'images': imgs})[0]  # N,D,H,W
     d = d / np.linalg.norm(d, axis=1, keepdims=True).clip(1e-12)
     ys, xs = np.mgrid[st // 2:S:st, st // 2:S:st]; ys = ys.ravel(); xs = xs.ravel(); G = S // st
     D = [d[v][:, ys, xs].T for v in range(8)]  # 1024 x Dim

@@ -161,8 +161,8 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(2..))]
     descriptor_samples: u16,
     /// The descriptor term's negatives: every point of the other view's grid of this stride
-    /// (pixels; what registration compares, 4 there) instead of the pair's other samples (0).
-    #[arg(long, default_value_t = 0)]
+    /// (pixels; what registration compares), or the pair's other samples (0).
+    #[arg(long, default_value_t = 4)]
     descriptor_grid: u16,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
