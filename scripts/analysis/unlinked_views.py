@@ -4,7 +4,8 @@ set, how registration placed it (`inssplat reconstruct --json`: registered, or c
 views before it when no pair links it), its rotation error relative to view 0, and how much of it
 the other context views see in truth (true depth and cameras: the share of its pixels that
 project into another view and meet the surface there within 5%). Prints, per placement, the
-views' rotation error, their largest true overlap with another view, and their largest with
+views' rotation error (and its split about the true up: heading, pitch and roll), their
+largest true overlap with another view, and their largest with
 view 0 or a view registration chained to it: whether the views that no match links could be
 linked by any matcher at all. Needs numpy and pillow, and target/release/inssplat."""
 import json, os, shutil, subprocess, sys, numpy as np
@@ -51,7 +52,14 @@ for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
         Rt = np.linalg.inv(T0)[:3, :3] @ cam(t, fr[k])[0][:3, :3]
         Rp = np.linalg.inv(P0)[:3, :3] @ np.array(cams[k]['transform_matrix'])[:3, :3]
         others = [O[k, j] for j in range(nv) if j != k]
-        rows.append(dict(scene=scene, view=k, placement=cams[k]['placement'], rot=rot_err(Rp, Rt), ov0=O[k, 0], ovmax=max(others)))
+        # The error split about the true up (view 0's frame): heading, pitch, roll.
+        up = np.linalg.inv(T0)[:3, :3] @ np.array([0, 1.0, 0])
+        fp, ft = -Rp[:, 2], -Rt[:, 2]
+        hp, ht = fp - (fp @ up) * up, ft - (ft @ up) * up
+        heading = np.degrees(np.arccos(np.clip(hp @ ht / np.linalg.norm(hp) / np.linalg.norm(ht), -1, 1)))
+        tilt = lambda a, b: abs(np.degrees(np.arcsin(np.clip(a @ up, -1, 1)) - np.arcsin(np.clip(b @ up, -1, 1))))
+        rows.append(dict(scene=scene, view=k, placement=cams[k]['placement'], rot=rot_err(Rp, Rt), ov0=O[k, 0], ovmax=max(others),
+                         heading=heading, pitch=tilt(fp, ft), roll=tilt(Rp[:, 0], Rt[:, 0])))
     # What a matcher could link a view to: view 0 and the views registration chained to it.
     linked = [0] + [k for k in range(1, nv) if cams[k]['placement'] == 'registered']
     for r in rows[-(nv - 1):]:
@@ -63,4 +71,5 @@ for p, rs in by.items():
     rot = np.array([r['rot'] for r in rs]); om = np.array([r['ovmax'] for r in rs])
     ol = np.array([r['ovlinked'] for r in rs])
     print(f'{p:12s} n={len(rs):3d} rot median {np.median(rot):6.2f} mean {rot.mean():6.2f}  GT max overlap median {np.median(om):.2f}  share with ovmax>0.3: {(om>0.3).mean():.2f} >0.1: {(om>0.1).mean():.2f}')
+    print(f'{"":12s} error medians about the true up: heading {np.median([r["heading"] for r in rs]):.1f}, pitch {np.median([r["pitch"] for r in rs]):.1f}, roll {np.median([r["roll"] for r in rs]):.1f}')
     print(f'{"":12s} with view 0 or a view chained to it: overlap median {np.median(ol):.2f}, views over 0.3: {(ol>0.3).sum()}, under 0.05: {(ol<0.05).sum()}')
