@@ -1,17 +1,22 @@
 #!/usr/bin/env python3
-"""descriptor_precision.py MODEL DATA [SCENES]: how often the learned descriptor matches that
+"""descriptor_precision.py MODEL DATA [SCENES] [PAIRS.json]: how often the learned descriptor matches that
 registration keeps are right. For each scene's 8-view context set, the model's `descriptors`
 output (ONNX Runtime) is matched between every pair of views as `raster/src/register/dense.rs`
 matches it before refinement (a 4-pixel grid, mutual nearest neighbours by cosine, at least
 0.5, and a ratio of 0.75 on 1 − cos against the best outside the match's 3×3 cells); a match
 is right when the true depth and cameras carry its point within 4 pixels of where it landed.
 Prints the running count of right matches, all matches and their share, scene by scene.
-MODEL `patches:R` matches raw pixels instead, the comparison: each pixel's (2R+1)² RGB patch,
+PAIRS.json (from `unlinked_views.py`) limits it to those pairs of views. MODEL `patches:R`
+matches raw pixels instead, the comparison: each pixel's (2R+1)² RGB patch,
 less its mean (zero padding at the border).
 A measurement for the model card, not part of the product or of CI (numpy, pillow, onnxruntime)."""
 import json, sys, numpy as np, onnxruntime as ort
 from PIL import Image
 model, data = sys.argv[1], sys.argv[2]; nsc = int(sys.argv[3]) if len(sys.argv) > 3 else 40
+only = None
+if len(sys.argv) > 4:
+    only = {}
+    for scene, a, b, _ in json.load(open(sys.argv[4])): only.setdefault(scene, set()).add((min(a, b), max(a, b)))
 sess = None if model.startswith('patches:') else ort.InferenceSession(model, providers=['CPUExecutionProvider'])
 def patches(imgs, r):
     """N,3,H,W → N,3(2r+1)²,H,W: every pixel's RGB patch less its mean."""
@@ -23,7 +28,9 @@ def cam(t, f):
     return np.array(f['transform_matrix']), f.get('fl_x', t['fl_x']), f.get('fl_y', t['fl_y']), f.get('cx', t['cx']), f.get('cy', t['cy'])
 tot = {}; 
 for si in range(nsc):
-    scene = f'scene_{si:06d}'; t = json.load(open(f'{data}/{scene}/transforms.json'))
+    scene = f'scene_{si:06d}'
+    if only is not None and scene not in only: continue
+    t = json.load(open(f'{data}/{scene}/transforms.json'))
     fr = [t['frames'][i] for i in t['eval']['context']['8']]
     imgs = np.stack([np.asarray(Image.open(f'{data}/{scene}/{f["file_path"]}').convert('RGB').resize((S, S)), np.float32) / 255 for f in fr]).transpose(0, 3, 1, 2)
     d = patches(imgs, int(model.split(':')[1])) if sess is None else sess.run(['descriptors'], {'images': imgs})[0]  # N,D,H,W
@@ -34,6 +41,7 @@ for si in range(nsc):
     W = fr[0].get('w', t['w']); sc = S / W
     for a in range(8):
         for b in range(a + 1, 8):
+            if only is not None and (a, b) not in only[scene]: continue
             C = D[a] @ D[b].T
             ba = C.argmax(1); bb = C.argmax(0)
             ok = []

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""unlinked_views.py DATA [MODEL]: for every view after the first of each scene's 8-view context
+"""unlinked_views.py DATA [MODEL] [PAIRS.json]: for every view after the first of each scene's 8-view context
 set, how registration placed it (`inssplat reconstruct --json`: registered, or continued from the
 views before it when no pair links it), its rotation error relative to view 0, and how much of it
 the other context views see in truth (true depth and cameras: the share of its pixels that
@@ -7,10 +7,14 @@ project into another view and meet the surface there within 5%). Prints, per pla
 views' rotation error (and its split about the true up: heading, pitch and roll), their
 largest true overlap with another view, and their largest with
 view 0 or a view registration chained to it: whether the views that no match links could be
-linked by any matcher at all. Needs numpy and pillow, and target/release/inssplat."""
+linked by any matcher at all. PAIRS.json gets, for each unlinked view that overlaps view 0 or
+a view chained to it by more than 30%, that pair [scene, view, other view, overlap]: the pairs
+a matcher could link (`descriptor_precision.py` scores matches on them alone). Needs numpy
+and pillow, and target/release/inssplat."""
 import json, os, shutil, subprocess, sys, numpy as np
 from PIL import Image
 data = sys.argv[1]; model = sys.argv[2] if len(sys.argv) > 2 else 'models/inssplat-default.onnx'
+pairs_out = sys.argv[3] if len(sys.argv) > 3 else None
 nv = 8
 def load(scene):
     t = json.load(open(f'{data}/{scene}/transforms.json'))
@@ -64,6 +68,7 @@ for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
     linked = [0] + [k for k in range(1, nv) if cams[k]['placement'] == 'registered']
     for r in rows[-(nv - 1):]:
         r['ovlinked'] = max(O[r['view'], j] for j in linked if j != r['view'])
+        r['partner'] = max((j for j in linked if j != r['view']), key=lambda j: O[r['view'], j])
 import collections
 by = collections.defaultdict(list)
 for r in rows: by[r['placement']].append(r)
@@ -73,3 +78,5 @@ for p, rs in by.items():
     print(f'{p:12s} n={len(rs):3d} rot median {np.median(rot):6.2f} mean {rot.mean():6.2f}  GT max overlap median {np.median(om):.2f}  share with ovmax>0.3: {(om>0.3).mean():.2f} >0.1: {(om>0.1).mean():.2f}')
     print(f'{"":12s} error medians about the true up: heading {np.median([r["heading"] for r in rs]):.1f}, pitch {np.median([r["pitch"] for r in rs]):.1f}, roll {np.median([r["roll"] for r in rs]):.1f}')
     print(f'{"":12s} with view 0 or a view chained to it: overlap median {np.median(ol):.2f}, views over 0.3: {(ol>0.3).sum()}, under 0.05: {(ol<0.05).sum()}')
+if pairs_out:
+    json.dump([[r['scene'], r['view'], int(r['partner']), float(r['ovlinked'])] for r in rows if r['placement'] != 'registered' and r['ovlinked'] > 0.3], open(pairs_out, 'w'))
