@@ -56,21 +56,24 @@ fn loss_descriptor_is_infonce_both_ways_over_the_pairs_samples() {
     assert!(err.to_string().contains("descriptor map"), "{err}");
 }
 
+/// Three views' descriptors, 3 channels of 4 pixels each (as 1×4 or 2×2), for the
+/// finite-difference checks.
+#[rustfmt::skip]
+const VALUES: [f32; 36] = [
+    0.3, -0.7, 1.1, 0.2, -0.4, 0.9, 0.5, 0.1, -1.2, 0.6, 0.8, -0.3, // view 0
+    0.7, 0.4, -0.6, 1.3, 0.2, -0.9, 1.0, -0.2, 0.3, 0.5, -0.8, 0.6, // view 1
+    -0.5, 0.9, 0.2, 0.4, 1.1, -0.3, 0.6, 0.7, -0.1, 0.2, 0.9, -0.6, // view 2
+];
+
 #[test]
 fn loss_descriptor_gradient_matches_finite_differences() {
-    #[rustfmt::skip]
-    let values = [
-        0.3, -0.7, 1.1, 0.2, -0.4, 0.9, 0.5, 0.1, -1.2, 0.6, 0.8, -0.3, // view 0: 3 channels × 1×4
-        0.7, 0.4, -0.6, 1.3, 0.2, -0.9, 1.0, -0.2, 0.3, 0.5, -0.8, 0.6, // view 1
-        -0.5, 0.9, 0.2, 0.4, 1.1, -0.3, 0.6, 0.7, -0.1, 0.2, 0.9, -0.6, // view 2
-    ];
     // Pairs (0, 1) with three samples 3 pixels apart, (0, 2) with one, (1, 2) with two.
     let matches = DescriptorMatches {
         a: vec![0, 3, 0, 0, 4, 4 + 3],
         b: vec![4 + 3, 4, 4 + 1, 8 + 2, 8, 8 + 3],
         offsets: vec![0, 3, 4, 6],
     };
-    check_gradient(&values, [3, 3, 1, 4], |x| descriptor_loss(x, &matches).unwrap());
+    check_gradient(&VALUES, [3, 3, 1, 4], |x| descriptor_loss(x, &matches).unwrap());
 }
 
 #[test]
@@ -122,15 +125,9 @@ fn loss_descriptor_grid_is_the_cross_entropy_of_the_grid_points_near_the_match()
 
 #[test]
 fn loss_descriptor_grid_gradient_matches_finite_differences() {
-    #[rustfmt::skip]
-    let values = [
-        0.3, -0.7, 1.1, 0.2, -0.4, 0.9, 0.5, 0.1, -1.2, 0.6, 0.8, -0.3, // view 0: 3 channels × 2×2
-        0.7, 0.4, -0.6, 1.3, 0.2, -0.9, 1.0, -0.2, 0.3, 0.5, -0.8, 0.6, // view 1
-        -0.5, 0.9, 0.2, 0.4, 1.1, -0.3, 0.6, 0.7, -0.1, 0.2, 0.9, -0.6, // view 2
-    ];
     // Stride 1: every pixel a grid point, those within one pixel positives. Pair (1, 2) empty.
     let matches = DescriptorMatches { a: vec![0, 3, 1], b: vec![4 + 3, 4, 8 + 2], offsets: vec![0, 2, 3, 3] };
-    check_gradient(&values, [3, 3, 2, 2], |x| descriptor_grid_loss(x, &matches, 1).unwrap());
+    check_gradient(&VALUES, [3, 3, 2, 2], |x| descriptor_grid_loss(x, &matches, 1).unwrap());
 }
 
 #[test]
