@@ -164,6 +164,10 @@ pub struct TrainArgs {
     /// (pixels; what registration compares), or the pair's other samples (0).
     #[arg(long, default_value_t = 4)]
     descriptor_grid: u16,
+    /// The descriptor term only on the pairs of views that turn by at least this many degrees
+    /// from one to the other (0: every pair).
+    #[arg(long, default_value_t = 0.0)]
+    descriptor_min_angle: f64,
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
@@ -270,6 +274,7 @@ impl TrainArgs {
             .with_descriptor_weight((self.descriptor_weight > 0.0).then_some(self.descriptor_weight))
             .with_descriptor_samples((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)))
             .with_descriptor_grid((self.descriptor_weight > 0.0 && self.descriptor_grid > 0).then_some(usize::from(self.descriptor_grid)))
+            .with_descriptor_min_angle((self.descriptor_weight > 0.0 && self.descriptor_min_angle > 0.0).then_some(self.descriptor_min_angle))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))

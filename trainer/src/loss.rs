@@ -160,6 +160,10 @@ pub struct LossConfig {
     /// ([`descriptor_grid_loss`]); `None` (also what configs saved before this switch existed
     /// read as): the pair's other samples ([`descriptor_loss`]).
     pub descriptor_grid: Option<usize>,
+    /// L_desc only on the pairs of views that turn by at least this many degrees from one to
+    /// the other ([`DescriptorMatches::turned_at_least`]); `None` (also what configs saved
+    /// before this switch existed read as): every pair.
+    pub descriptor_min_angle: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

@@ -164,6 +164,32 @@ fn descriptor_matches_see_one_point_in_both_views() {
     assert!(moved > m.len() / 2, "{moved} of {} matches moved: the views are not the same", m.len());
 }
 
+#[test]
+fn turned_at_least_keeps_only_the_pairs_that_turn_that_much() {
+    let size = 64;
+    let (_dir, scene) = synthesized(3, size as u32, size as u32, 16, (0.5, 0.6));
+    let frames = [0, 2, 4, 0];
+    let cameras: Vec<_> = frames.iter().map(|&f| scene.frames[f].camera).collect();
+    let depth: Vec<f32> = frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
+    let m = descriptor_matches(&cameras, &depth, size, 20).unwrap();
+    let angle = |k: usize| {
+        let (a, b) = (0..4).flat_map(|a| (a + 1..4).map(move |b| (a, b))).nth(k).unwrap();
+        cameras[a].rotation.angle_between(cameras[b].rotation)
+    };
+    // Pair (0, 3) sees one camera twice: it turns by nothing and goes first.
+    assert!(angle(2) < 1e-3 && !m.pair(2).is_empty());
+    let min = angle(0).max(angle(1)).min(0.5) * 0.99;
+    let kept = m.turned_at_least(&cameras, min);
+    assert_eq!(kept.pairs(), m.pairs());
+    for k in 0..m.pairs() {
+        let want = if angle(k) >= min { m.pair(k).len() } else { 0 };
+        assert_eq!(kept.pair(k).len(), want, "pair {k} turns {} rad", angle(k));
+        assert_eq!(&kept.a[kept.pair(k)], if want > 0 { &m.a[m.pair(k)] } else { &[][..] });
+    }
+    assert!(kept.len() < m.len() && !kept.is_empty(), "{} of {} samples kept", kept.len(), m.len());
+    assert_eq!(m.turned_at_least(&cameras, 0.0), m);
+}
+
 /// D = 16 random Fourier features of the world point each pixel of `frames` sees.
 fn true_point_descriptors(scene: &inssplat_proto::dataset::Scene, frames: &[usize], size: usize) -> Vec<f32> {
     let hw = size * size;

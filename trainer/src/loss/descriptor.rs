@@ -57,6 +57,22 @@ impl DescriptorMatches {
     pub fn pair(&self, k: usize) -> std::ops::Range<usize> {
         self.offsets[k]..self.offsets[k + 1]
     }
+
+    /// The same matches but those of the pairs of `cameras` (in [`descriptor_matches`]' order)
+    /// whose views turn by less than `min_angle` radians from one to the other: such pairs are
+    /// left without samples, so that the loss weighs the wide baselines registration fails on.
+    pub fn turned_at_least(&self, cameras: &[Camera], min_angle: f32) -> DescriptorMatches {
+        let pairs = (0..cameras.len()).flat_map(|a| (a + 1..cameras.len()).map(move |b| (a, b)));
+        let mut out = DescriptorMatches { offsets: vec![0], ..Default::default() };
+        for (k, (a, b)) in pairs.enumerate().take(self.pairs()) {
+            if cameras[a].rotation.angle_between(cameras[b].rotation) >= min_angle {
+                out.a.extend_from_slice(&self.a[self.pair(k)]);
+                out.b.extend_from_slice(&self.b[self.pair(k)]);
+            }
+            out.offsets.push(out.a.len());
+        }
+        out
+    }
 }
 
 /// For every pair of the `cameras`' views a < b (square views of `size`, true `depth`

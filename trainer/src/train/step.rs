@@ -169,7 +169,10 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         geometry = geometry + matching.mul_scalar(weight);
     }
     if let (Some(descriptors), Some(weight)) = (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1)) {
-        let matches = descriptor_matches(input_cameras, input_depth, size, config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES))?;
+        let mut matches = descriptor_matches(input_cameras, input_depth, size, config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES))?;
+        if let Some(degrees) = config.descriptor_min_angle {
+            matches = matches.turned_at_least(input_cameras, (degrees as f32).to_radians());
+        }
         let term = match config.descriptor_grid {
             Some(stride) => descriptor_grid_loss(descriptors, &matches, stride)?,
             None => descriptor_loss(descriptors, &matches)?,
