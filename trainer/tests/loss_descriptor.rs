@@ -5,7 +5,7 @@
 //! same of the form whose negatives are registration's grid.
 
 use burn::prelude::*;
-use inssplat_trainer::loss::descriptor::{NEAR, TEMPERATURE};
+use inssplat_trainer::loss::descriptor::{NEAR, TEMPERATURE, view_pairs};
 use inssplat_trainer::loss::{DescriptorMatches, descriptor_grid_loss, descriptor_loss, descriptor_matches, descriptor_scores, registration_grid};
 
 use crate::loss_instance::check_gradient;
@@ -173,7 +173,7 @@ fn turned_at_least_keeps_only_the_pairs_that_turn_that_much() {
     let depth: Vec<f32> = frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
     let m = descriptor_matches(&cameras, &depth, size, 20).unwrap();
     let angle = |k: usize| {
-        let (a, b) = (0..4).flat_map(|a| (a + 1..4).map(move |b| (a, b))).nth(k).unwrap();
+        let (a, b) = view_pairs(4).nth(k).unwrap();
         cameras[a].rotation.angle_between(cameras[b].rotation)
     };
     // Pair (0, 3) sees one camera twice: it turns by nothing and goes first.

@@ -18,7 +18,7 @@ use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
 use inssplat_proto::Camera;
 
-use super::{LossError, NORM_EPS, check_len, constant, indices, pixels_last, zero};
+use super::{LossError, check_len, constant, indices, normalize_rows, pixels_last, zero};
 
 /// Relative depth margin within which a projected point counts as the surface b sees.
 const VISIBLE: f32 = 0.03;
@@ -62,9 +62,8 @@ impl DescriptorMatches {
     /// whose views turn by less than `min_angle` radians from one to the other: such pairs are
     /// left without samples, so that the loss weighs the wide baselines registration fails on.
     pub fn turned_at_least(&self, cameras: &[Camera], min_angle: f32) -> DescriptorMatches {
-        let pairs = (0..cameras.len()).flat_map(|a| (a + 1..cameras.len()).map(move |b| (a, b)));
         let mut out = DescriptorMatches { offsets: vec![0], ..Default::default() };
-        for (k, (a, b)) in pairs.enumerate().take(self.pairs()) {
+        for (k, (a, b)) in view_pairs(cameras.len()).enumerate().take(self.pairs()) {
             if cameras[a].rotation.angle_between(cameras[b].rotation) >= min_angle {
                 out.a.extend_from_slice(&self.a[self.pair(k)]);
                 out.b.extend_from_slice(&self.b[self.pair(k)]);
@@ -73,6 +72,11 @@ impl DescriptorMatches {
         }
         out
     }
+}
+
+/// The pairs (a, b) of `views` views, a < b, in the order of [`DescriptorMatches`]' pairs.
+pub fn view_pairs(views: usize) -> impl Iterator<Item = (usize, usize)> {
+    (0..views).flat_map(move |a| (a + 1..views).map(move |b| (a, b)))
 }
 
 /// For every pair of the `cameras`' views a < b (square views of `size`, true `depth`
@@ -87,29 +91,27 @@ pub fn descriptor_matches(cameras: &[Camera], depth: &[f32], size: usize, per_pa
         .map(|c| Camera { intrinsics: c.intrinsics.scaled_to(size as u32, size as u32), ..*c })
         .collect();
     let mut matches = DescriptorMatches { offsets: vec![0], ..Default::default() };
-    for a in 0..cameras.len() {
-        for b in a + 1..cameras.len() {
-            let seen: Vec<(usize, usize)> = (0..hw)
-                .filter_map(|p| {
-                    let z = depth[a * hw + p];
-                    if z <= 0.0 {
-                        return None;
-                    }
-                    let own = cameras[a].unproject((p % size) as f32 + 0.5, (p / size) as f32 + 0.5, z);
-                    let point = cameras[b].world_to_camera(cameras[a].camera_to_world(own));
-                    let (x, y) = cameras[b].pixel_of(point)?;
-                    let there = depth[b * hw + y * size + x];
-                    ((point.z - there).abs() <= VISIBLE * there).then_some((a * hw + p, b * hw + y * size + x))
-                })
-                .collect();
-            let take = seen.len().min(per_pair);
-            for i in 0..take {
-                let (pa, pb) = seen[i * seen.len() / take];
-                matches.a.push(pa);
-                matches.b.push(pb);
-            }
-            matches.offsets.push(matches.a.len());
+    for (a, b) in view_pairs(cameras.len()) {
+        let seen: Vec<(usize, usize)> = (0..hw)
+            .filter_map(|p| {
+                let z = depth[a * hw + p];
+                if z <= 0.0 {
+                    return None;
+                }
+                let own = cameras[a].unproject((p % size) as f32 + 0.5, (p / size) as f32 + 0.5, z);
+                let point = cameras[b].world_to_camera(cameras[a].camera_to_world(own));
+                let (x, y) = cameras[b].pixel_of(point)?;
+                let there = depth[b * hw + y * size + x];
+                ((point.z - there).abs() <= VISIBLE * there).then_some((a * hw + p, b * hw + y * size + x))
+            })
+            .collect();
+        let take = seen.len().min(per_pair);
+        for i in 0..take {
+            let (pa, pb) = seen[i * seen.len() / take];
+            matches.a.push(pa);
+            matches.b.push(pb);
         }
+        matches.offsets.push(matches.a.len());
     }
     Ok(matches)
 }
@@ -152,8 +154,7 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
             }
         }
     }
-    let rows = pixels_last(descriptors);
-    let rows = rows.clone() / rows.powi_scalar(2).sum_dim(1).add_scalar(NORM_EPS).sqrt();
+    let rows = normalize_rows(pixels_last(descriptors));
     let gather = |index: Vec<i64>| rows.clone().select(0, indices(index, &device)).reshape([pairs, k, d]);
     let (a, b) = (gather(index_a), gather(index_b));
     let logits = a.matmul(b.swap_dims(1, 2)).mul_scalar(1.0 / TEMPERATURE) + constant(bias, [pairs, k, k], &device);
@@ -191,8 +192,7 @@ pub fn descriptor_grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches,
     }
     let k = pairs.iter().map(|&p| matches.pair(p).len()).max().unwrap_or(0);
     let weight = 0.5 / matches.len() as f32;
-    let rows = pixels_last(descriptors);
-    let rows = rows.clone() / rows.powi_scalar(2).sum_dim(1).add_scalar(NORM_EPS).sqrt();
+    let rows = normalize_rows(pixels_last(descriptors));
     let grid_rows: Vec<i64> = (0..v).flat_map(|view| grid.iter().map(move |&p| (view * hw + p) as i64)).collect();
     let grid_rows = rows.clone().select(0, indices(grid_rows, &device)).reshape([v, g, d]);
     // One direction: queries at `from`'s samples, keys on the grid of the view of `to`'s.
