@@ -1,5 +1,7 @@
 //! The shape classifier: a small MLP from an instance's shape descriptor (its size, height
-//! above the floor and colour, [`DESCRIPTOR`]) to a probability over the training labels.
+//! above the floor and colour, [`DESCRIPTOR`]) to a probability over the training labels;
+//! a [`ShapeClassifier::semantic`] one also reads how close the instance's semantic
+//! prototype lies to each label's text ([`label_cosines`]).
 //! The trainer fits it on synthesized rooms and stores it in the model file as JSON under
 //! [`crate::signature::META_SHAPE_CLASSIFIER`]; the server reads it back to name instances
 //! by what they look like in 3D as well as by their semantic features. Only the contract and
@@ -31,6 +33,9 @@ pub const LENGTHS: usize = 5;
 pub struct LabelledDescriptor {
     pub label: String,
     pub descriptor: [f32; DESCRIPTOR.len()],
+    /// The instance's semantic prototype (text space) where it was recorded.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prototype: Vec<f32>,
 }
 
 /// One fully connected layer: `y = W·x + b`, `W` row-major `[outputs][inputs]`.
@@ -53,6 +58,25 @@ pub struct ShapeClassifier {
     /// How it was fitted (scenes, instances, held-out accuracy), for people.
     #[serde(default)]
     pub provenance: String,
+    /// Whether the input goes on past the descriptor with the [`label_cosines`] of the
+    /// instance's semantic prototype to `labels`' text embeddings.
+    #[serde(default)]
+    pub semantic: bool,
+}
+
+/// The cosine of `prototype` to each of `texts` (0 where either is zero): the semantic part
+/// of a [`ShapeClassifier::semantic`] classifier's input.
+pub fn label_cosines<T: AsRef<[f32]>>(prototype: &[f32], texts: &[T]) -> Vec<f32> {
+    let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let p = norm(prototype);
+    texts
+        .iter()
+        .map(|t| {
+            let t = t.as_ref();
+            let n = p * norm(t);
+            if n > 0.0 { prototype.iter().zip(t).map(|(a, b)| a * b).sum::<f32>() / n } else { 0.0 }
+        })
+        .collect()
 }
 
 /// What is wrong with a stored classifier.
@@ -76,13 +100,18 @@ impl ShapeClassifier {
         serde_json::to_string(self).expect("numbers and strings serialize")
     }
 
-    /// Shapes agree from the descriptor through every layer to the labels, and every number
+    /// Entries of the input: the descriptor's, and with [`Self::semantic`] one cosine a label.
+    pub fn input_width(&self) -> usize {
+        DESCRIPTOR.len() + if self.semantic { self.labels.len() } else { 0 }
+    }
+
+    /// Shapes agree from the input through every layer to the labels, and every number
     /// is finite.
     pub fn validate(&self) -> Result<(), ShapeError> {
         let bad = |m: String| Err(ShapeError::Invalid(m));
-        let d = DESCRIPTOR.len();
+        let d = self.input_width();
         if self.mean.len() != d || self.std.len() != d {
-            return bad(format!("mean/std have {}/{} entries, the descriptor {d}", self.mean.len(), self.std.len()));
+            return bad(format!("mean/std have {}/{} entries, the input {d}", self.mean.len(), self.std.len()));
         }
         if self.std.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
             return bad("std has an entry that is not positive and finite".into());
@@ -109,9 +138,14 @@ impl ShapeClassifier {
         Ok(())
     }
 
-    /// Probability of each label (in [`Self::labels`] order) for one descriptor.
-    pub fn probabilities(&self, descriptor: &[f32; DESCRIPTOR.len()]) -> Vec<f32> {
-        let mut x: Vec<f32> = descriptor.iter().zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
+    /// Probability of each label (in [`Self::labels`] order) for one descriptor and, for a
+    /// [`Self::semantic`] classifier, the [`label_cosines`] of the instance's prototype to
+    /// [`Self::labels`] (one a label; ignored otherwise).
+    pub fn probabilities(&self, descriptor: &[f32; DESCRIPTOR.len()], cosines: &[f32]) -> Vec<f32> {
+        let semantic: &[f32] = if self.semantic { cosines } else { &[] };
+        assert_eq!(semantic.len() + DESCRIPTOR.len(), self.input_width(), "one cosine a label");
+        let input = descriptor.iter().chain(semantic);
+        let mut x: Vec<f32> = input.zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
         for (i, l) in self.layers.iter().enumerate() {
             let relu = i + 1 < self.layers.len();
             x = l
@@ -147,6 +181,7 @@ mod tests {
             std: vec![1.0; d],
             layers: vec![Dense { inputs: d, outputs: 2, weight, bias: vec![0.0, 0.0] }],
             provenance: String::new(),
+            semantic: false,
         }
     }
 
@@ -155,11 +190,37 @@ mod tests {
         let c = two_way();
         let mut x = [0.0; DESCRIPTOR.len()];
         x[0] = 2.0;
-        let p = c.probabilities(&x);
+        let p = c.probabilities(&x, &[]);
         assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-6);
         assert!((p[0] - 1.0 / (1.0 + (-2.0f32).exp())).abs() < 1e-6, "{p:?}");
         let back = ShapeClassifier::from_json(&c.to_json()).unwrap();
         assert_eq!(back, c);
+    }
+
+    #[test]
+    fn a_semantic_classifier_reads_the_prototypes_cosines_to_its_labels() {
+        // Logits: the two cosines, the descriptor ignored.
+        let d = DESCRIPTOR.len();
+        let mut weight = vec![0.0; 2 * (d + 2)];
+        weight[d] = 4.0;
+        weight[(d + 2) + d + 1] = 4.0;
+        let c = ShapeClassifier {
+            mean: vec![0.0; d + 2],
+            std: vec![1.0; d + 2],
+            layers: vec![Dense { inputs: d + 2, outputs: 2, weight, bias: vec![0.0, 0.0] }],
+            semantic: true,
+            ..two_way()
+        };
+        c.validate().unwrap();
+        let texts = [vec![1.0, 0.0], vec![0.0, 3.0]];
+        let cos = label_cosines(&[0.2, 2.0], &texts);
+        assert!((cos[1] - 2.0 / 4.04f32.sqrt()).abs() < 1e-6 && (cos[0] - 0.2 / 4.04f32.sqrt()).abs() < 1e-6, "{cos:?}");
+        let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &cos);
+        assert!(p[1] > 0.95, "{p:?}");
+        assert_eq!(label_cosines(&[0.0, 0.0], &texts), [0.0, 0.0]);
+        // Stored as a plain classifier's input width, it is refused.
+        let plain = ShapeClassifier { semantic: false, ..c };
+        assert!(plain.validate().unwrap_err().to_string().contains("the input 11"));
     }
 
     #[test]

@@ -186,6 +186,7 @@ fn with_classifier(name: &str, json: Option<&str>) -> PathBuf {
         std: vec![1.0; d],
         layers: vec![Dense { inputs: d, outputs: 1, weight: vec![0.0; d], bias: vec![0.0] }],
         provenance: "hand-made".into(),
+        semantic: false,
     };
     let path = dir.path().join(name);
     inssplat_trainer::shapes::attach(model, &path, &lamp, None).unwrap();

@@ -1,6 +1,7 @@
 //! The `fit-shapes` subcommand: synthesize train- and val-split rooms (progress bar), fit
-//! the shape classifier on the train rooms' objects, report its accuracy on the val rooms'
-//! and write a copy of a model file that carries it.
+//! the shape classifier on the train rooms' objects (or on example files of the pipeline's
+//! own instances, with their semantic prototypes if asked), report its accuracy on the val
+//! rooms' and write a copy of a model file that carries it.
 
 use std::path::PathBuf;
 
@@ -9,6 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_trainer::shapes::{FitShapesConfig, attach, draw_views, fit, scene_examples};
 use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_trainer::train::label_cache;
 use rayon::prelude::*;
 
 #[derive(clap::Args)]
@@ -42,6 +44,11 @@ pub struct FitShapesArgs {
     /// Width of the two hidden layers.
     #[arg(long, default_value_t = FitShapesConfig::default().hidden)]
     hidden: usize,
+    /// Also read each instance's semantic prototype: the cosines of it to the labels' texts
+    /// join the descriptor (the labels embedded by MiniLM, or the table named by
+    /// INSSPLAT_LABEL_TABLE). Needs --examples and --held-out, which record the prototypes.
+    #[arg(long, requires_all = ["examples", "held_out"])]
+    semantic: bool,
     /// New model version for the written file (default: keep the old one).
     #[arg(long)]
     model_version: Option<String>,
@@ -65,9 +72,10 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
     let config = FitShapesConfig { epochs: a.epochs, hidden: a.hidden, ..FitShapesConfig::default() };
+    let texts = if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };
     let bar = bar(config.epochs as u64, "epochs");
     let (mut classifier, report) =
-        fit(&train, &held_out, &config, &|epoch, loss| {
+        fit(&train, &held_out, &config, texts.as_deref(), &|epoch, loss| {
             bar.set_position(epoch as u64 + 1);
             bar.set_message(format!("loss {loss:.3}"));
         })
@@ -76,7 +84,8 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
     let held = report.held_out_accuracy.map_or("–".into(), |x| format!("{:.1}%", 100.0 * x));
     let source = |file: &Option<PathBuf>, rooms: String| file.as_ref().map_or(rooms, |f| format!("the instances in {}", f.display()));
     classifier.provenance = format!(
-        "inssplat-train fit-shapes: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
+        "inssplat-train fit-shapes{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
+        if a.semantic { " --semantic" } else { "" },
         source(&a.examples, format!("the objects of train rooms {}..{}", a.first_scene, a.first_scene + a.scenes)),
         train.len(),
         config.epochs,

@@ -3,7 +3,9 @@
 //! depth with the true cameras of a random subset of 2–16 views (what a request sees), by the
 //! same `inssplat_raster::label::shape` code the server runs on its Gaussians; an MLP fitted
 //! to them with cross-entropy, the lengths rescaled at random each epoch (the network's depth
-//! has a scale error of its own); and [`attach`], which stores the result in a model file.
+//! has a scale error of its own), optionally with the cosines of each instance's semantic
+//! prototype to the labels' texts as well (a semantic classifier, fitted on the pipeline's own
+//! instances); and [`attach`], which stores the result in a model file.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -16,7 +18,8 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use glam::Vec3;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier};
+use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines};
+use inssplat_text::LabelCache;
 use inssplat_proto::signature::{META_MODEL_VERSION, META_SHAPE_CLASSIFIER};
 use inssplat_raster::label::shape::{camera_up, descriptor, ground};
 use prost::Message;
@@ -69,7 +72,7 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
         .iter()
         .filter_map(|(id, (p, c))| {
             let label = scene.instances.iter().find(|i| i.id == u32::from(*id))?.label.clone();
-            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)? })
+            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new() })
         })
         .collect()
 }
@@ -117,13 +120,38 @@ pub struct FitShapesReport {
     pub final_loss: f32,
 }
 
+/// The label texts a semantic classifier compares prototypes with, in `labels` order.
+fn label_texts(labels: &[String], cache: &LabelCache) -> Result<Vec<Vec<f32>>, String> {
+    let names: Vec<&str> = labels.iter().map(String::as_str).collect();
+    let texts = cache.embed(&names).map_err(|e| format!("embedding the labels: {e}"))?;
+    Ok(texts.iter().map(|t| t.to_vec()).collect())
+}
+
+/// The classifier's input for `e` (before standardizing): its descriptor, then with `texts`
+/// the cosines of its prototype to them. Err names the example that has no prototype.
+fn example_input(e: &LabelledDescriptor, i: usize, texts: Option<&[Vec<f32>]>) -> Result<Vec<f32>, String> {
+    let mut x = e.descriptor.to_vec();
+    if let Some(texts) = texts {
+        if e.prototype.is_empty() {
+            return Err(format!(
+                "example {i} ({}) has no prototype: a semantic classifier fits on `inssplat eval --shape-examples` files",
+                e.label
+            ));
+        }
+        x.extend(label_cosines(&e.prototype, texts));
+    }
+    Ok(x)
+}
+
 /// Fits the classifier to `train` (labels: every label in it, sorted); scores it on
-/// `held_out` (examples whose label `train` lacks count as wrong). `on_epoch(epoch, loss)`
-/// reports progress.
+/// `held_out` (examples whose label `train` lacks count as wrong). With `semantic` (the
+/// label texts' source) it is a [`ShapeClassifier::semantic`] one, and every example needs
+/// its prototype. `on_epoch(epoch, loss)` reports progress.
 pub fn fit(
     train: &[LabelledDescriptor],
     held_out: &[LabelledDescriptor],
     config: &FitShapesConfig,
+    semantic: Option<&LabelCache>,
     on_epoch: &dyn Fn(usize, f32),
 ) -> Result<(ShapeClassifier, FitShapesReport), String> {
     if train.is_empty() {
@@ -132,12 +160,14 @@ pub fn fit(
     let mut labels: Vec<String> = train.iter().map(|e| e.label.clone()).collect();
     labels.sort();
     labels.dedup();
-    let d = DESCRIPTOR.len();
+    let texts = semantic.map(|cache| label_texts(&labels, cache)).transpose()?;
+    let inputs: Vec<Vec<f32>> =
+        train.iter().enumerate().map(|(i, e)| example_input(e, i, texts.as_deref())).collect::<Result<_, _>>()?;
+    let d = inputs[0].len();
     let n = train.len() as f32;
-    let mean: Vec<f32> = (0..d).map(|a| train.iter().map(|e| e.descriptor[a]).sum::<f32>() / n).collect();
-    let std: Vec<f32> = (0..d)
-        .map(|a| (train.iter().map(|e| (e.descriptor[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4))
-        .collect();
+    let mean: Vec<f32> = (0..d).map(|a| inputs.iter().map(|x| x[a]).sum::<f32>() / n).collect();
+    let std: Vec<f32> =
+        (0..d).map(|a| (inputs.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4)).collect();
     let targets: Vec<i64> = train.iter().map(|e| labels.binary_search(&e.label).expect("from train") as i64).collect();
 
     let device = Device::flex().autodiff();
@@ -152,9 +182,9 @@ pub fn fit(
     let mut final_loss = f32::NAN;
     for epoch in 0..config.epochs {
         let mut x = Vec::with_capacity(train.len() * d);
-        for e in train {
+        for input in &inputs {
             let s = if log_j > 0.0 { rng.random_range(-log_j..log_j).exp() } else { 1.0 };
-            x.extend((0..d).map(|a| (e.descriptor[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]));
+            x.extend((0..d).map(|a| (input[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]));
         }
         let x = Tensor::<2>::from_data(TensorData::new(x, [train.len(), d]), &device);
         let loss = ce.forward(mlp.forward(x), y.clone());
@@ -181,27 +211,30 @@ pub fn fit(
             Ok(Dense { inputs, outputs, weight, bias })
         })
         .collect::<Result<Vec<_>, String>>()?;
-    let classifier = ShapeClassifier { labels, mean, std, layers, provenance: String::new() };
+    let semantic = texts.is_some();
+    let classifier = ShapeClassifier { labels, mean, std, layers, provenance: String::new(), semantic };
     classifier.validate().map_err(|e| e.to_string())?;
+    let texts = texts.unwrap_or_default();
     let report = FitShapesReport {
-        train_accuracy: accuracy(&classifier, train).unwrap_or(0.0),
-        held_out_accuracy: accuracy(&classifier, held_out),
+        train_accuracy: accuracy(&classifier, train, &texts)?.unwrap_or(0.0),
+        held_out_accuracy: accuracy(&classifier, held_out, &texts)?,
         final_loss,
     };
     Ok((classifier, report))
 }
 
-/// Share of `examples` whose most probable label is theirs.
-pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor]) -> Option<f64> {
-    let right = examples
-        .iter()
-        .filter(|e| {
-            let p = c.probabilities(&e.descriptor);
-            let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]));
-            best.is_some_and(|b| c.labels[b] == e.label)
-        })
-        .count();
-    (!examples.is_empty()).then(|| right as f64 / examples.len() as f64)
+/// Share of `examples` whose most probable label is theirs (`None` without examples);
+/// `texts` are the embeddings of a semantic classifier's labels (else unused). Err names an
+/// example a semantic classifier cannot read.
+pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor], texts: &[Vec<f32>]) -> Result<Option<f64>, String> {
+    let mut right = 0;
+    for (i, e) in examples.iter().enumerate() {
+        let cosines = example_input(e, i, c.semantic.then_some(texts))?.split_off(DESCRIPTOR.len());
+        let p = c.probabilities(&e.descriptor, &cosines);
+        let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]));
+        right += usize::from(best.is_some_and(|b| c.labels[b] == e.label));
+    }
+    Ok((!examples.is_empty()).then(|| right as f64 / examples.len() as f64))
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -1,17 +1,22 @@
 //! The shape classifier on real synthesized rooms: descriptors measured from true depth stand
 //! on the floor the code finds, an MLP fitted on some rooms names the objects of others better
-//! than the most common label does, and `attach` stores it in a real exported model file.
+//! than the most common label does (better again when it also reads the instances' semantic
+//! prototypes), and `attach` stores it in a real exported model file.
 
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{LabelledDescriptor, ShapeClassifier};
+use inssplat_proto::shape::{DESCRIPTOR, LabelledDescriptor, ShapeClassifier};
+use inssplat_text::LabelCache;
 use inssplat_proto::signature as sig;
 use inssplat_trainer::export::onnx_pb::ModelProto;
 use inssplat_trainer::export::{ExportMeta, export_onnx};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::shapes::{FitShapesConfig, accuracy, attach, draw_views, fit, scene_examples};
 use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_trainer::train::label_cache;
 use prost::Message;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 fn room(split: Split, index: u64) -> Scene {
     let mut cfg = SynthConfig::new(split, Furniture::Primitives);
@@ -55,7 +60,7 @@ fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
     let train = examples(Split::Train, 0..40);
     let held_out = examples(Split::Val, 0..12);
     let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
-    let (c, report) = fit(&train, &held_out, &config, &|_, _| {}).unwrap();
+    let (c, report) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
     let common = {
         let mut counts = std::collections::BTreeMap::<&str, usize>::new();
         train.iter().for_each(|e| *counts.entry(&e.label).or_default() += 1);
@@ -64,9 +69,42 @@ fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
     };
     let acc = report.held_out_accuracy.unwrap();
     assert!(acc > common + 0.2, "held-out accuracy {acc} against {common} for the most common label");
-    assert_eq!(Some(acc), accuracy(&c, &held_out));
+    assert_eq!(Some(acc), accuracy(&c, &held_out, &[]).unwrap());
     assert!(report.train_accuracy >= acc);
     assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
+}
+
+/// `examples` with a prototype each: its label's text embedding plus as much noise again
+/// (seeded), as a semantic head that knows the label but not well would give.
+fn with_prototypes(mut ex: Vec<LabelledDescriptor>, cache: &LabelCache, seed: u64) -> Vec<LabelledDescriptor> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    for e in &mut ex {
+        let text = cache.embed(&[e.label.as_str()]).unwrap()[0];
+        let noise: Vec<f32> = (0..text.len()).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+        let scale = text.iter().map(|x| x * x).sum::<f32>().sqrt() / noise.iter().map(|x| x * x).sum::<f32>().sqrt();
+        e.prototype = text.iter().zip(&noise).map(|(t, n)| t + n * scale).collect();
+    }
+    ex
+}
+
+#[test]
+fn a_semantic_classifier_also_reads_the_prototypes_and_needs_them() {
+    let cache = label_cache().unwrap();
+    let train = with_prototypes(examples(Split::Train, 0..40), &cache, 1);
+    let held_out = with_prototypes(examples(Split::Val, 0..12), &cache, 2);
+    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (plain, plain_report) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
+    let (c, report) = fit(&train, &held_out, &config, Some(&cache), &|_, _| {}).unwrap();
+    assert!(!plain.semantic && c.semantic);
+    assert_eq!(c.input_width(), DESCRIPTOR.len() + c.labels.len());
+    let (acc, plain_acc) = (report.held_out_accuracy.unwrap(), plain_report.held_out_accuracy.unwrap());
+    assert!(acc > plain_acc + 0.1, "held out: {acc} with the prototypes, {plain_acc} without");
+    assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
+    // An example without its prototype is named.
+    let mut bare = held_out.clone();
+    bare[3].prototype.clear();
+    let err = fit(&train, &bare, &config, Some(&cache), &|_, _| {}).unwrap_err();
+    assert!(err.contains("example 3") && err.contains("no prototype"), "{err}");
 }
 
 #[test]
@@ -76,7 +114,9 @@ fn attach_stores_the_classifier_in_a_model_file_and_refuses_other_files() {
     let net = net.init(&Device::flex()).unwrap();
     let plain = tmp.path().join("plain.onnx");
     export_onnx(&net, &plain, &ExportMeta { model_version: "v1".into(), train_steps: 3 }).unwrap();
-    let (c, _) = fit(&examples(Split::Train, 0..4), &[], &FitShapesConfig { epochs: 5, ..Default::default() }, &|_, _| {}).unwrap();
+    let (c, _) =
+        fit(&examples(Split::Train, 0..4), &[], &FitShapesConfig { epochs: 5, ..Default::default() }, None, &|_, _| {})
+            .unwrap();
     let with = tmp.path().join("with.onnx");
     attach(&plain, &with, &c, Some("v2")).unwrap();
     // Attaching again replaces the entry instead of adding one.

@@ -339,7 +339,8 @@ fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])
             } else {
                 top(&mut v.iter())
             }?;
-            Some(LabelledDescriptor { label, descriptor: *d })
+            let prototype = rec.prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
+            Some(LabelledDescriptor { label, descriptor: *d, prototype })
         })
         .collect()
 }

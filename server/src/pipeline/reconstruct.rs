@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use glam::{Quat, Vec3};
 use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
-use inssplat_proto::shape::DESCRIPTOR;
+use inssplat_proto::shape::{DESCRIPTOR, label_cosines};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
@@ -291,10 +291,18 @@ pub fn reconstruct_with(
         let mut prototypes = semantic_prototypes(scene, &projection).map_err(|e| err(&e))?;
         let (_, descriptors) = instance_descriptors(scene, &cameras);
         if let Some(classifier) = model.shapes.as_ref().filter(|_| config.shape_weight > 0.0) {
-            let probabilities: Vec<(u32, Vec<f32>)> =
-                descriptors.iter().map(|(id, d)| (*id, classifier.probabilities(d))).collect();
             let names: Vec<&str> = classifier.labels.iter().map(String::as_str).collect();
             let texts = labels.embed(&names).map_err(|e| err(&e))?;
+            let probabilities: Vec<(u32, Vec<f32>)> = descriptors
+                .iter()
+                .filter_map(|(id, d)| {
+                    let cosines = match classifier.semantic {
+                        true => label_cosines(&prototypes.iter().find(|p| p.id == *id)?.embedding, &texts),
+                        false => Vec::new(),
+                    };
+                    Some((*id, classifier.probabilities(d, &cosines)))
+                })
+                .collect();
             fuse(&mut prototypes, &probabilities, &texts, config.shape_weight);
         }
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
