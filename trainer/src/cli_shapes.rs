@@ -22,9 +22,10 @@ pub struct FitShapesArgs {
     #[arg(long)]
     out: PathBuf,
     /// Fit on these examples (JSON from `inssplat eval --shape-examples` on train-split
-    /// scenes: the pipeline's own instances) instead of synthesizing rooms.
+    /// scenes: the pipeline's own instances) instead of synthesizing rooms; repeat the flag
+    /// for several files (taken in order).
     #[arg(long)]
-    examples: Option<PathBuf>,
+    examples: Vec<PathBuf>,
     /// Report held-out accuracy on these examples (`inssplat eval --shape-examples` on val
     /// scenes) instead of synthesizing val rooms.
     #[arg(long)]
@@ -63,9 +64,9 @@ pub struct FitShapesArgs {
 pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
     // Furniture is needed only for the rooms synthesized here, not with example files.
     let furniture = || crate::furniture(a.primitives_only, &a.furniture_dir);
-    let train = match &a.examples {
-        Some(path) => read_examples(path, "--examples")?,
-        None => examples(Split::Train, a.first_scene, a.scenes, &furniture()?)?,
+    let train = match a.examples.as_slice() {
+        [] => examples(Split::Train, a.first_scene, a.scenes, &furniture()?)?,
+        files => files.iter().map(|f| read_examples(f, "--examples")).collect::<Result<Vec<_>>>()?.concat(),
     };
     let held_out = match &a.held_out {
         Some(path) => read_examples(path, "--held-out")?,
@@ -82,7 +83,10 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         .map_err(|e| anyhow!("fitting the shape classifier: {e}"))?;
     bar.finish_and_clear();
     let held = report.held_out_accuracy.map_or("–".into(), |x| format!("{:.1}%", 100.0 * x));
-    let source = |file: &Option<PathBuf>, rooms: String| file.as_ref().map_or(rooms, |f| format!("the instances in {}", f.display()));
+    let source = |files: &[PathBuf], rooms: String| match files {
+        [] => rooms,
+        files => format!("the instances in {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" + ")),
+    };
     classifier.provenance = format!(
         "inssplat-train fit-shapes{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
         if a.semantic { " --semantic" } else { "" },
@@ -91,7 +95,7 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         config.epochs,
         config.hidden,
         100.0 * report.train_accuracy,
-        source(&a.held_out, format!("the objects of val rooms 0..{}", a.val_scenes)),
+        source(a.held_out.as_slice(), format!("the objects of val rooms 0..{}", a.val_scenes)),
         held_out.len(),
     );
     println!("{}", classifier.provenance);
