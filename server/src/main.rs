@@ -151,8 +151,9 @@ enum Command {
         /// clustering's instances.
         #[arg(long, default_value_t = SplitParams::default().cell_voxels)]
         split_cell: f32,
-        /// Write every found instance's shape descriptor with its majority true label here
-        /// (JSON), for `inssplat-train fit-shapes --examples` (use train-split scenes).
+        /// Write every found instance's shape descriptor and unfused semantic prototype with
+        /// its majority true label here (JSON), for `inssplat-train fit-shapes --examples`
+        /// (use train-split scenes).
         #[arg(long)]
         shape_examples: Option<PathBuf>,
         /// Place the network's outputs with the scenes' true context cameras instead of the

@@ -2,10 +2,13 @@
 //! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
 //! every metric of the protocol is reported within its range for each view count (and the
 //! names each true label got), that the JSON and markdown files are written, and that bad
-//! arguments are named errors. Also
+//! arguments are named errors; `--shape-examples` records the prototypes as the features give
+//! them, before the shipped shape classifier moves them. Also
 //! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
 
 use inssplat_e2e::inssplat;
+use inssplat_proto::shape::LabelledDescriptor;
+use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use serde_json::Value;
 use crate::support::{self, s};
 
@@ -103,6 +106,36 @@ fn eval_reports_every_metric_per_view_count() {
     }
     // The context-view diagnosis reads the 3D clustering's ids, which 2D mode does not use.
     assert!(m.get("context_ceiling_miou").is_none(), "{m}");
+}
+
+#[test]
+fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("test");
+    // At the shipped model's resolution.
+    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
+    cfg.objects = (3, 5);
+    synth::generate_split(0, &cfg).unwrap().write(&data.join("scene_000000")).unwrap();
+    let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
+    let examples = |weight: &str| -> Vec<LabelledDescriptor> {
+        let file = dir.path().join(format!("examples_{weight}.json"));
+        let out_dir = dir.path().join(format!("eval_{weight}"));
+        let out = inssplat(&[
+            "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--shape-weight", weight, "--shape-examples",
+            s(&file), "--out", s(&out_dir),
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()
+    };
+    let (plain, fused) = (examples("0"), examples("4"));
+    assert!(!plain.is_empty());
+    for e in &plain {
+        assert_eq!(e.prototype.len(), 384, "{e:?}");
+        let norm = e.prototype.iter().map(|x| x * x).sum::<f32>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-3, "{e:?}");
+    }
+    // The classifier at weight 4 names the instances differently, not what they record.
+    assert_eq!(plain, fused);
 }
 
 #[test]

@@ -45,6 +45,11 @@ pub struct FitShapesArgs {
     /// Width of the two hidden layers.
     #[arg(long, default_value_t = FitShapesConfig::default().hidden)]
     hidden: usize,
+    /// Post-hoc logit adjustment τ: each label's score is lowered by τ·ln of its share of
+    /// the training examples, trading accuracy on frequent labels for recall on rare ones
+    /// (0: none; 1: the balanced-error choice of Menon et al., 2021).
+    #[arg(long, default_value_t = FitShapesConfig::default().logit_adjust)]
+    logit_adjust: f32,
     /// Also read each instance's semantic prototype: the cosines of it to the labels' texts
     /// join the descriptor (the labels embedded by MiniLM, or the table named by
     /// INSSPLAT_LABEL_TABLE). Needs --examples and --held-out, which record the prototypes.
@@ -72,7 +77,11 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         Some(path) => read_examples(path, "--held-out")?,
         None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
-    let config = FitShapesConfig { epochs: a.epochs, hidden: a.hidden, ..FitShapesConfig::default() };
+    if !(a.logit_adjust.is_finite() && a.logit_adjust >= 0.0) {
+        return Err(anyhow!("--logit-adjust {}: must be a number ≥ 0", a.logit_adjust));
+    }
+    let config =
+        FitShapesConfig { epochs: a.epochs, hidden: a.hidden, logit_adjust: a.logit_adjust, ..FitShapesConfig::default() };
     let texts = if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };
     let bar = bar(config.epochs as u64, "epochs");
     let (mut classifier, report) =
@@ -88,8 +97,9 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         files => format!("the instances in {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" + ")),
     };
     classifier.provenance = format!(
-        "inssplat-train fit-shapes{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
+        "inssplat-train fit-shapes{}{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
         if a.semantic { " --semantic" } else { "" },
+        if a.logit_adjust > 0.0 { format!(" --logit-adjust {}", a.logit_adjust) } else { String::new() },
         source(&a.examples, format!("the objects of train rooms {}..{}", a.first_scene, a.first_scene + a.scenes)),
         train.len(),
         config.epochs,

@@ -1,7 +1,8 @@
 //! The shape classifier on real synthesized rooms: descriptors measured from true depth stand
 //! on the floor the code finds, an MLP fitted on some rooms names the objects of others better
 //! than the most common label does (better again when it also reads the instances' semantic
-//! prototypes), and `attach` stores it in a real exported model file.
+//! prototypes), logit adjustment moves only its last bias, and `attach` stores it in a real
+//! exported model file.
 
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
@@ -72,6 +73,37 @@ fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
     assert_eq!(Some(acc), accuracy(&c, &held_out, &[]).unwrap());
     assert!(report.train_accuracy >= acc);
     assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
+}
+
+#[test]
+fn logit_adjustment_moves_only_the_last_bias_and_names_frequent_labels_less_often() {
+    let train = examples(Split::Train, 0..40);
+    let held_out = examples(Split::Val, 0..12);
+    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (plain, _) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
+    let (adjusted, _) = fit(&train, &held_out, &FitShapesConfig { logit_adjust: 1.0, ..config }, None, &|_, _| {}).unwrap();
+    let (last, plain_last) = (adjusted.layers.last().unwrap(), plain.layers.last().unwrap());
+    assert_eq!(adjusted.layers[..2], plain.layers[..2]);
+    assert_eq!(last.weight, plain_last.weight);
+    for (k, label) in plain.labels.iter().enumerate() {
+        let share = train.iter().filter(|e| &e.label == label).count() as f32 / train.len() as f32;
+        let shift = last.bias[k] - plain_last.bias[k];
+        assert!((shift + share.ln()).abs() < 1e-4, "{label}: bias moved {shift}, share {share}");
+    }
+    // Every example's probability of the most frequent label falls (its share is the
+    // largest, so its odds against every other label shrink), and it is named less often.
+    let top = (0..plain.labels.len())
+        .max_by_key(|&k| train.iter().filter(|e| e.label == plain.labels[k]).count())
+        .unwrap();
+    let argmax = |p: &[f32]| (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b])).unwrap();
+    let (mut named_plain, mut named_adjusted) = (0, 0);
+    for e in &held_out {
+        let (p, a) = (plain.probabilities(&e.descriptor, &[]), adjusted.probabilities(&e.descriptor, &[]));
+        assert!(a[top] <= p[top] + 1e-6, "{}: {} adjusted against {} plain", plain.labels[top], a[top], p[top]);
+        named_plain += usize::from(argmax(&p) == top);
+        named_adjusted += usize::from(argmax(&a) == top);
+    }
+    assert!(named_adjusted < named_plain, "{} named {named_adjusted} times adjusted, {named_plain} plain", plain.labels[top]);
 }
 
 /// `examples` with a prototype each: its label's text embedding plus as much noise again

@@ -317,7 +317,8 @@ const OBJECT_SHARE: f64 = 0.25;
 /// views), with the instance's descriptor: the object label with the most of its pixels when
 /// objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that hold an object
 /// and a piece of floor are named for the object, as a user would), else the label with the
-/// most. Instances without labelled pixels are left out.
+/// most. Instances without labelled pixels are left out. The prototype is the unfused one (as
+/// a semantic classifier reads it), whatever `--shape-weight` named the instances with.
 fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
     let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
     for (found, truth) in pairs {
@@ -339,7 +340,8 @@ fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])
             } else {
                 top(&mut v.iter())
             }?;
-            let prototype = rec.prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
+            let prototype =
+                rec.unfused_prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
             Some(LabelledDescriptor { label, descriptor: *d, prototype })
         })
         .collect()

@@ -125,6 +125,9 @@ pub struct Reconstruction {
     pub views: Vec<ViewResult>,
     pub instances: Vec<InstanceOut>,
     pub prototypes: Vec<InstancePrototype>,
+    /// The semantic prototypes as the features gave them, before the shape classifier moved
+    /// them toward its labels (what a semantic classifier reads).
+    pub unfused_prototypes: Vec<InstancePrototype>,
     /// Each instance's shape descriptor (ids with too few Gaussians left out).
     pub descriptors: Vec<(u32, [f32; DESCRIPTOR.len()])>,
     pub vocabulary: Vec<String>,
@@ -286,9 +289,10 @@ pub fn reconstruct_with(
     let scene = &mut voxelized.scene;
 
     let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
-    let (prototypes, matches, descriptors) = clock.time("label", || -> Result<_, PipelineError> {
+    let (prototypes, unfused_prototypes, matches, descriptors) = clock.time("label", || -> Result<_, PipelineError> {
         let err = stage_err("label");
         let mut prototypes = semantic_prototypes(scene, &projection).map_err(|e| err(&e))?;
+        let unfused = prototypes.clone();
         let (_, descriptors) = instance_descriptors(scene, &cameras);
         if let Some(classifier) = model.shapes.as_ref().filter(|_| config.shape_weight > 0.0) {
             let names: Vec<&str> = classifier.labels.iter().map(String::as_str).collect();
@@ -308,7 +312,7 @@ pub fn reconstruct_with(
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
         let texts = labels.embed(&words).map_err(|e| err(&e))?;
         let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
-        Ok((prototypes, matches, descriptors))
+        Ok((prototypes, unfused, matches, descriptors))
     })?;
     let k = scene.instance_id.iter().copied().max().unwrap_or(0) as usize;
     let mut label_of_id = vec![None; k];
@@ -350,6 +354,7 @@ pub fn reconstruct_with(
         views,
         instances,
         prototypes,
+        unfused_prototypes,
         descriptors,
         vocabulary: vocabulary.to_vec(),
         sem_proj_weight: out.sem_proj_weight.clone(),
