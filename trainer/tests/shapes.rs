@@ -35,6 +35,11 @@ fn examples(split: Split, rooms: std::ops::Range<u64>) -> Vec<LabelledDescriptor
         .collect()
 }
 
+/// The rooms the classifier tests fit on and score on, and their fit's knobs.
+fn fit_and_held_out_rooms() -> (Vec<LabelledDescriptor>, Vec<LabelledDescriptor>, FitShapesConfig) {
+    (examples(Split::Train, 0..40), examples(Split::Val, 0..12), FitShapesConfig { epochs: 300, ..FitShapesConfig::default() })
+}
+
 #[test]
 fn descriptors_of_a_room_stand_on_the_floor_found_in_it() {
     let scene = room(Split::Train, 3);
@@ -58,9 +63,7 @@ fn descriptors_of_a_room_stand_on_the_floor_found_in_it() {
 
 #[test]
 fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
-    let train = examples(Split::Train, 0..40);
-    let held_out = examples(Split::Val, 0..12);
-    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (train, held_out, config) = fit_and_held_out_rooms();
     let (c, report) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
     let common = {
         let mut counts = std::collections::BTreeMap::<&str, usize>::new();
@@ -77,9 +80,7 @@ fn a_classifier_fitted_on_some_rooms_names_the_objects_of_others() {
 
 #[test]
 fn logit_adjustment_moves_only_the_last_bias_and_names_frequent_labels_less_often() {
-    let train = examples(Split::Train, 0..40);
-    let held_out = examples(Split::Val, 0..12);
-    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (train, held_out, config) = fit_and_held_out_rooms();
     let (plain, _) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
     let (adjusted, _) = fit(&train, &held_out, &FitShapesConfig { logit_adjust: 1.0, ..config }, None, &|_, _| {}).unwrap();
     let (last, plain_last) = (adjusted.layers.last().unwrap(), plain.layers.last().unwrap());
@@ -122,9 +123,8 @@ fn with_prototypes(mut ex: Vec<LabelledDescriptor>, cache: &LabelCache, seed: u6
 #[test]
 fn a_semantic_classifier_also_reads_the_prototypes_and_needs_them() {
     let cache = label_cache().unwrap();
-    let train = with_prototypes(examples(Split::Train, 0..40), &cache, 1);
-    let held_out = with_prototypes(examples(Split::Val, 0..12), &cache, 2);
-    let config = FitShapesConfig { epochs: 300, ..FitShapesConfig::default() };
+    let (train, held_out, config) = fit_and_held_out_rooms();
+    let (train, held_out) = (with_prototypes(train, &cache, 1), with_prototypes(held_out, &cache, 2));
     let (plain, plain_report) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
     let (c, report) = fit(&train, &held_out, &config, Some(&cache), &|_, _| {}).unwrap();
     assert!(!plain.semantic && c.semantic);
