@@ -67,6 +67,9 @@ pub struct FitShapesArgs {
 }
 
 pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
+    if !(a.logit_adjust.is_finite() && a.logit_adjust >= 0.0) {
+        return Err(anyhow!("--logit-adjust {}: must be a number ≥ 0", a.logit_adjust));
+    }
     // Furniture is needed only for the rooms synthesized here, not with example files.
     let furniture = || crate::furniture(a.primitives_only, &a.furniture_dir);
     let train = match a.examples.as_slice() {
@@ -77,9 +80,6 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         Some(path) => read_examples(path, "--held-out")?,
         None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
-    if !(a.logit_adjust.is_finite() && a.logit_adjust >= 0.0) {
-        return Err(anyhow!("--logit-adjust {}: must be a number ≥ 0", a.logit_adjust));
-    }
     let config =
         FitShapesConfig { epochs: a.epochs, hidden: a.hidden, logit_adjust: a.logit_adjust, ..FitShapesConfig::default() };
     let texts = if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };

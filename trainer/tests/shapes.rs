@@ -1,8 +1,8 @@
 //! The shape classifier on real synthesized rooms: descriptors measured from true depth stand
 //! on the floor the code finds, an MLP fitted on some rooms names the objects of others better
 //! than the most common label does (better again when it also reads the instances' semantic
-//! prototypes), logit adjustment moves only its last bias, and `attach` stores it in a real
-//! exported model file.
+//! prototypes), logit adjustment moves only its last bias, `attach` stores it in a real
+//! exported model file, and `inssplat-train fit-shapes` names a bad flag and its value.
 
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
@@ -168,4 +168,26 @@ fn attach_stores_the_classifier_in_a_model_file_and_refuses_other_files() {
     std::fs::write(&text, "not a model").unwrap();
     let err = attach(&text, &with, &c, None).unwrap_err().to_string();
     assert!(err.contains("notes.txt") && err.contains("not an ONNX model"), "{err}");
+}
+
+#[test]
+fn fit_shapes_names_a_bad_logit_adjustment_and_a_missing_examples_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
+            .args(["fit-shapes", "--model", "missing.onnx", "--out"])
+            .arg(tmp.path().join("out.onnx"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    for bad in ["-1", "NaN"] {
+        let err = run(&[&format!("--logit-adjust={bad}"), "--primitives-only"]);
+        assert!(err.contains("--logit-adjust") && err.contains("≥ 0"), "{err}");
+    }
+    let err = run(&["--examples", "/nonexistent/examples.json"]);
+    assert!(err.contains("--examples") && err.contains("/nonexistent/examples.json"), "{err}");
+    assert!(!tmp.path().join("out.onnx").exists());
 }
