@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use burn::module::Module;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use inssplat_trainer::export::{ExportMeta, to_onnx_bytes};
+use inssplat_trainer::export::{ExportMeta, Weights, to_onnx_bytes};
 use burn::optim::{AdamWConfig, GradientsParams};
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
@@ -156,6 +156,7 @@ fn bench_ort(config: &ModelConfig, steps: usize) {
         &ExportMeta {
             model_version: "bench".into(),
             train_steps: 0,
+            weights: Weights::F32,
         },
     )
     .expect("export");

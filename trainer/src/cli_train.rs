@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, quantize_file};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
@@ -390,9 +390,29 @@ pub fn run_export(args: ExportArgs) -> Result<()> {
         let run = args.checkpoint.file_name().and_then(|n| n.to_str()).unwrap_or("run");
         format!("inssplat-{}+{run}.{}", env!("CARGO_PKG_VERSION"), state.step)
     });
-    let meta = ExportMeta { model_version: version.clone(), train_steps: state.step };
+    let meta = ExportMeta { model_version: version.clone(), train_steps: state.step, weights: Weights::F32 };
     export_onnx(&net, &args.out, &meta).with_context(|| format!("exporting to {}", args.out.display()))?;
     println!("wrote {} ({version}, {} steps, {:.1} MB)", args.out.display(), state.step, std::fs::metadata(&args.out)?.len() as f64 / 1e6);
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct QuantizeArgs {
+    /// The ONNX file to read (as `inssplat-train export`, `fit-shapes` or `quantize` wrote it).
+    #[arg(long)]
+    model: PathBuf,
+    /// The ONNX file to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Model version recorded in the metadata (default: the input's).
+    #[arg(long)]
+    model_version: Option<String>,
+}
+
+pub fn run_quantize(args: QuantizeArgs) -> Result<()> {
+    let meta = quantize_file(&args.model, &args.out, args.model_version.as_deref())?;
+    let mb = |p: &PathBuf| std::fs::metadata(p).map_or(0.0, |m| m.len() as f64 / 1e6);
+    println!("wrote {} ({}, int8 linear weights, {:.1} MB; {} is {:.1} MB)", args.out.display(), meta.model_version, mb(&args.out), args.model.display(), mb(&args.model));
     Ok(())
 }
 

@@ -10,13 +10,25 @@ use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use inssplat_proto::signature as sig;
-use inssplat_trainer::export::{ExportMeta, export_onnx, to_model_proto};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, to_model_proto};
 use inssplat_trainer::model::{InsSplatNet, ModelConfig, ModelOutput};
 use ort::session::Session;
 use ort::value::Tensor as OrtTensor;
 
 /// Absolute tolerance; values larger than 1 in magnitude are compared relative to themselves.
 const TOL: f32 = 1e-3;
+/// An int8 file's bound on each output's mean |burn − ORT| over its mean |burn|: its
+/// activations are quantized at every linear layer, so single elements can move further.
+const INT8_TOL: f32 = 0.05;
+
+/// How closely ONNX Runtime must follow burn.
+#[derive(Clone, Copy, PartialEq)]
+enum Tol {
+    /// Every element within [`TOL`].
+    Exact,
+    /// Each output's mean error within [`INT8_TOL`] of its mean magnitude.
+    Int8,
+}
 
 fn small_config() -> ModelConfig {
     ModelConfig::new()
@@ -80,9 +92,10 @@ fn session_of(bytes: &[u8]) -> Session {
         .expect("ONNX Runtime accepts the exported graph")
 }
 
-fn compare(name: &str, ours: Vec<f32>, theirs: &[f32]) -> f32 {
+/// The largest difference (with [`Tol::Exact`]) or the mean relative one (with [`Tol::Int8`]).
+fn compare(name: &str, ours: Vec<f32>, theirs: &[f32], tol: Tol) -> f32 {
     assert_eq!(ours.len(), theirs.len(), "{name}: element count");
-    let mut worst = 0f32;
+    let (mut worst, mut error, mut magnitude) = (0f32, 0f64, 0f64);
     for (i, (a, b)) in ours.iter().zip(theirs).enumerate() {
         assert!(
             a.is_finite() && b.is_finite(),
@@ -90,15 +103,24 @@ fn compare(name: &str, ours: Vec<f32>, theirs: &[f32]) -> f32 {
         );
         let diff = (a - b).abs();
         assert!(
-            diff <= TOL * a.abs().max(1.0),
+            tol == Tol::Int8 || diff <= TOL * a.abs().max(1.0),
             "{name}[{i}]: burn {a} vs ORT {b} (diff {diff})"
         );
         worst = worst.max(diff);
+        error += f64::from(diff);
+        magnitude += f64::from(a.abs());
     }
-    worst
+    if tol == Tol::Exact {
+        return worst;
+    }
+    let relative = (error / magnitude.max(1e-12)) as f32;
+    assert!(relative <= INT8_TOL, "{name}: mean |burn - ORT| is {relative:.4} of the mean |burn|");
+    relative
 }
 
-fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &Device) {
+/// Runs `views` random images through `net` and the session, compares every output, and
+/// returns each output's [`compare`] figure by name.
+fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &Device, tol: Tol) -> Vec<(&'static str, f32)> {
     let size = net.config().image_size;
     let images = Tensor::<4>::random(
         [views, 3, size, size],
@@ -158,15 +180,18 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         ),
         (sig::OUTPUT_SEM_PROJ_BIAS.name, b.dims().to_vec(), to_vec(b)),
     ];
+    let mut figures = Vec::new();
     for (name, dims, values) in ours.into_iter().chain(point_map).chain(descriptors) {
         let (shape, theirs) = outputs[name]
             .try_extract_tensor::<f32>()
             .expect("f32 output");
         let shape: Vec<usize> = shape.iter().map(|&d| d as usize).collect();
         assert_eq!(shape, dims, "{name}: shape");
-        let worst = compare(name, values, theirs);
-        eprintln!("{views} views, {name} {dims:?}: max |burn - ORT| = {worst:.2e}");
+        let figure = compare(name, values, theirs, tol);
+        eprintln!("{views} views, {name} {dims:?}: {} = {figure:.2e}", if tol == Tol::Exact { "max |burn - ORT|" } else { "mean relative |burn - ORT|" });
+        figures.push((name, figure));
     }
+    figures
 }
 
 #[test]
@@ -178,12 +203,13 @@ fn export_matches_burn_forward_at_2_and_5_views() {
     let meta = ExportMeta {
         model_version: "parity-test".into(),
         train_steps: 0,
+        weights: Weights::F32,
     };
     export_onnx(&net, &path, &meta).expect("export");
     let bytes = std::fs::read(&path).expect("read back");
     let mut session = session_of(&bytes);
     for views in [2, 5] {
-        check_views(views, &net, &mut session, &device);
+        check_views(views, &net, &mut session, &device, Tol::Exact);
     }
     let metadata = session.metadata().expect("metadata");
     assert_eq!(
@@ -220,11 +246,11 @@ fn a_briefly_trained_checkpoint_exports_with_parity() {
     let state = checkpoint::read_state(&dir).expect("state");
     let device = Device::flex();
     let net = checkpoint::load_model(&dir, &state, &device).expect("load");
-    let meta = ExportMeta { model_version: "parity-trained".into(), train_steps: state.step };
+    let meta = ExportMeta { model_version: "parity-trained".into(), train_steps: state.step, weights: Weights::F32 };
     let bytes = inssplat_trainer::export::to_onnx_bytes(&net, &meta).expect("export");
     let mut session = session_of(&bytes);
     for views in [2, 5] {
-        check_views(views, &net, &mut session, &device);
+        check_views(views, &net, &mut session, &device, Tol::Exact);
     }
     assert_eq!(session.metadata().expect("metadata").custom(sig::META_TRAIN_STEPS).as_deref(), Some("3"));
 }
@@ -237,6 +263,7 @@ fn export_declares_the_signature() {
         &ExportMeta {
             model_version: "x".into(),
             train_steps: 3,
+            weights: Weights::F32,
         },
     )
     .expect("export");
@@ -291,7 +318,8 @@ fn shipped_model() -> std::path::PathBuf {
 }
 
 /// The shipped model read back into a burn network computes what ONNX Runtime computes from
-/// the file itself: training can go on from a release whose run folder is gone.
+/// the file itself (an int8 file within [`INT8_TOL`]): training can go on from a release
+/// whose run folder is gone.
 #[test]
 fn the_shipped_model_reads_back_into_a_network_with_parity() {
     let device = Device::flex();
@@ -301,7 +329,8 @@ fn the_shipped_model_reads_back_into_a_network_with_parity() {
     assert_eq!((c.image_size, c.dim, c.depth, c.heads, c.sem_dim), (128, 192, 6, 3, 16));
     assert!(meta.train_steps > 0, "the release records its steps");
     let mut session = session_of(&std::fs::read(&path).expect("read the shipped model"));
-    check_views(2, &net, &mut session, &device);
+    let tol = if meta.weights == Weights::Int8 { Tol::Int8 } else { Tol::Exact };
+    check_views(2, &net, &mut session, &device, tol);
 }
 
 /// A file with one weight taken out, and a file that is not ONNX, are refused with errors
@@ -311,7 +340,7 @@ fn an_onnx_file_without_a_weight_or_not_onnx_is_refused_by_name() {
     use prost::Message;
     let dir = tempfile::tempdir().expect("temp dir");
     let net = network(&Device::flex());
-    let mut model = to_model_proto(&net, &ExportMeta { model_version: "x".into(), train_steps: 3 }).expect("export");
+    let mut model = to_model_proto(&net, &ExportMeta { model_version: "x".into(), train_steps: 3, weights: Weights::F32 }).expect("export");
     let graph = model.graph.as_mut().expect("graph");
     let before = graph.initializer.len();
     graph.initializer.retain(|t| !t.name.as_deref().unwrap_or_default().starts_with("blocks.1.fc1.weight_"));
@@ -337,7 +366,7 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let dir = tempfile::tempdir().expect("temp dir");
     let source = network(&Device::flex());
     let onnx = dir.path().join("start.onnx");
-    export_onnx(&source, &onnx, &ExportMeta { model_version: "start".into(), train_steps: 41 }).expect("export");
+    export_onnx(&source, &onnx, &ExportMeta { model_version: "start".into(), train_steps: 41, weights: Weights::F32 }).expect("export");
     let config = TrainConfig::new(ModelConfig::new(), LossConfig::new()).with_steps(2).with_warmup(1).with_max_views(3).with_first_scene(5);
     let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
@@ -374,9 +403,76 @@ fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_
     }
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("grown.onnx");
-    export_onnx(&grown, &path, &ExportMeta { model_version: "grown".into(), train_steps: 1 }).expect("export");
+    export_onnx(&grown, &path, &ExportMeta { model_version: "grown".into(), train_steps: 1, weights: Weights::F32 }).expect("export");
     let (back, _) = inssplat_trainer::export::import_onnx(&path, &device).expect("read back");
     assert_eq!(back.config(), grown.config());
     let mut session = session_of(&std::fs::read(&path).expect("read"));
-    check_views(2, &back, &mut session, &device);
+    check_views(2, &back, &mut session, &device, Tol::Exact);
+}
+
+/// `inssplat-train quantize`: the int8 file holds one `MatMulInteger` a linear layer and no
+/// float weight for any of them, is smaller, keeps the input's other metadata, runs in ONNX
+/// Runtime close to the network (but not exactly: it is quantized), and reads back into a
+/// network whose weights lie within half a step of the originals and whose export is the
+/// file again (`import_onnx` checks that).
+#[test]
+fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_back() {
+    use inssplat_trainer::export::onnx_pb::{ModelProto, StringStringEntryProto};
+    use prost::Message;
+    let device = Device::flex();
+    let net = network(&device);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plain = dir.path().join("plain.onnx");
+    let mut model = to_model_proto(&net, &ExportMeta { model_version: "plain".into(), train_steps: 9, weights: Weights::F32 }).expect("export");
+    model.metadata_props.push(StringStringEntryProto { key: Some("inssplat.extra".into()), value: Some("kept".into()) });
+    std::fs::write(&plain, model.encode_to_vec()).expect("write");
+    let int8 = dir.path().join("int8.onnx");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
+        .args(["quantize", "--model"])
+        .arg(&plain)
+        .arg("--out")
+        .arg(&int8)
+        .args(["--model-version", "small-int8"])
+        .output()
+        .expect("run inssplat-train");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&int8).expect("the int8 file");
+    assert!(bytes.len() < std::fs::metadata(&plain).expect("plain").len() as usize, "int8 weights take less space");
+
+    let proto = ModelProto::decode(bytes.as_slice()).expect("ONNX");
+    let graph = proto.graph.as_ref().expect("graph");
+    let count = |op: &str| graph.node.iter().filter(|n| n.op_type.as_deref() == Some(op)).count();
+    let linear = 4 * net.config().depth + 4; // qkv, proj, fc1, fc2 a block; patch embedding, camera head ×2, decoder fusion
+    assert_eq!((count("MatMulInteger"), count("DynamicQuantizeLinear")), (linear, linear));
+    assert_eq!(count("MatMul"), 2 * net.config().depth, "only the attention products stay float");
+    let meta = |key: &str| proto.metadata_props.iter().find(|p| p.key.as_deref() == Some(key)).and_then(|p| p.value.clone());
+    assert_eq!(meta("inssplat.extra").as_deref(), Some("kept"));
+    assert_eq!(meta(sig::META_MODEL_VERSION).as_deref(), Some("small-int8"));
+    assert_eq!(meta(inssplat_trainer::export::META_WEIGHTS).as_deref(), Some("int8"));
+
+    let mut session = session_of(&bytes);
+    let figures = check_views(3, &net, &mut session, &device, Tol::Int8);
+    let depth = figures.iter().find(|(n, _)| *n == sig::OUTPUT_DEPTH.name).expect("depth").1;
+    assert!(depth > 0.0, "an int8 forward differs from the float one");
+
+    let (back, back_meta) = inssplat_trainer::export::import_onnx(&int8, &device).expect("an int8 file reads back");
+    assert_eq!((back_meta.weights, back_meta.train_steps), (Weights::Int8, 9));
+    let weight = |n: &InsSplatNet| -> Vec<f32> {
+        let m = to_model_proto(n, &ExportMeta { model_version: "w".into(), train_steps: 0, weights: Weights::F32 }).expect("export");
+        let t = m.graph.expect("graph").initializer.into_iter().find(|t| t.name.as_deref().is_some_and(|n| n.starts_with("blocks.0.fc1.weight_"))).expect("blocks.0.fc1.weight");
+        t.raw_data.expect("raw").chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+    };
+    let (a, b) = (weight(&net), weight(&back));
+    let step = a.iter().fold(0f32, |m, v| m.max(v.abs())) / 127.0;
+    assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 0.5 * step * 1.001), "dequantized within half a step");
+    assert!(a != b, "the read-back weights are the quantized ones");
+
+    let missing = std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
+        .args(["quantize", "--model", "/nonexistent/m.onnx", "--out"])
+        .arg(dir.path().join("never.onnx"))
+        .output()
+        .expect("run inssplat-train");
+    let err = String::from_utf8_lossy(&missing.stderr);
+    assert!(!missing.status.success() && err.contains("/nonexistent/m.onnx"), "{err}");
+    assert!(!dir.path().join("never.onnx").exists());
 }

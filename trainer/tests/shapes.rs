@@ -10,7 +10,7 @@ use inssplat_proto::shape::{DESCRIPTOR, LabelledDescriptor, ShapeClassifier};
 use inssplat_text::LabelCache;
 use inssplat_proto::signature as sig;
 use inssplat_trainer::export::onnx_pb::ModelProto;
-use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::shapes::{FitShapesConfig, accuracy, attach, draw_views, fit, scene_examples};
 use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
@@ -145,7 +145,7 @@ fn attach_stores_the_classifier_in_a_model_file_and_refuses_other_files() {
     let net = ModelConfig::new().with_image_size(32).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32);
     let net = net.init(&Device::flex()).unwrap();
     let plain = tmp.path().join("plain.onnx");
-    export_onnx(&net, &plain, &ExportMeta { model_version: "v1".into(), train_steps: 3 }).unwrap();
+    export_onnx(&net, &plain, &ExportMeta { model_version: "v1".into(), train_steps: 3, weights: Weights::F32 }).unwrap();
     let (c, _) =
         fit(&examples(Split::Train, 0..4), &[], &FitShapesConfig { epochs: 5, ..Default::default() }, None, &|_, _| {})
             .unwrap();

@@ -8,7 +8,7 @@ pub mod web;
 use std::path::{Path, PathBuf};
 
 use burn::prelude::Device;
-use inssplat_trainer::export::{ExportMeta, export_onnx};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::train::seeded_init;
 
@@ -23,7 +23,7 @@ pub fn tiny_model(dir: &Path) -> PathBuf {
         .with_decoder_min_dim(16);
     let net = seeded_init(&config, 7, &Device::flex()).unwrap();
     let model = dir.join("tiny.onnx");
-    export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0 }).unwrap();
+    export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0, weights: Weights::F32 }).unwrap();
     model
 }
 

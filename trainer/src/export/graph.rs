@@ -15,6 +15,8 @@ pub struct Graph {
     pub nodes: Vec<NodeProto>,
     pub initializers: Vec<TensorProto>,
     counter: usize,
+    /// Whether linear layers store their weights as int8 ([`super::int8`]).
+    pub int8: bool,
 }
 
 /// Attribute constructors.
@@ -46,7 +48,7 @@ pub fn attr_float(name: &str, f: f32) -> AttributeProto {
 }
 
 impl Graph {
-    fn fresh(&mut self, hint: &str) -> String {
+    pub(super) fn fresh(&mut self, hint: &str) -> String {
         self.counter += 1;
         format!("{hint}_{}", self.counter)
     }

@@ -20,8 +20,8 @@ use burn::tensor::{Bytes, DType};
 use inssplat_proto::signature as sig;
 use prost::Message;
 
-use super::onnx_pb::{DATA_TYPE_FLOAT, GraphProto, ModelProto, TensorProto};
-use super::{ExportMeta, to_model_proto};
+use super::onnx_pb::{DATA_TYPE_FLOAT, DATA_TYPE_INT8, GraphProto, ModelProto, TensorProto};
+use super::{ExportMeta, META_WEIGHTS, Weights, to_model_proto};
 use crate::model::{InsSplatNet, ModelConfig};
 
 /// Why an ONNX file could not be read back into a network.
@@ -78,29 +78,57 @@ fn metadata(props: &Props<'_>) -> Result<ExportMeta, String> {
         return Err(format!("{} is {io}, this trainer writes {}", sig::META_IO_VERSION, sig::IO_VERSION));
     }
     let steps = get(sig::META_TRAIN_STEPS)?;
+    let weights = match props.get(META_WEIGHTS) {
+        None => Weights::F32,
+        Some(w) => Weights::parse(w).ok_or_else(|| format!("{META_WEIGHTS} {w:?} is neither \"f32\" nor \"int8\""))?,
+    };
     Ok(ExportMeta {
         model_version: get(sig::META_MODEL_VERSION)?.to_string(),
         train_steps: steps.parse().map_err(|_| format!("{} {steps:?} is not a step count", sig::META_TRAIN_STEPS))?,
+        weights,
     })
 }
 
-/// Float initializers by the module path the exporter named them after (`{path}_{counter}`).
+/// Float initializers by the module path the exporter named them after (`{path}_{counter}`),
+/// and int8 weights dequantized with their `{path}.scale`.
 fn weights(graph: &GraphProto) -> Result<HashMap<String, Weight>, String> {
+    let hint = |t: &TensorProto| {
+        let name = t.name.as_deref().unwrap_or_default();
+        name.rsplit_once('_').map_or(name, |(hint, _)| hint).to_string()
+    };
+    fn err(t: &TensorProto) -> impl Fn(String) -> String + '_ {
+        move |e| format!("initializer {}: {e}", t.name.as_deref().unwrap_or_default())
+    }
     let mut out = HashMap::new();
     for t in graph.initializer.iter().filter(|t| t.data_type == Some(DATA_TYPE_FLOAT)) {
-        let name = t.name.as_deref().unwrap_or_default();
-        let hint = name.rsplit_once('_').map_or(name, |(hint, _)| hint);
-        out.insert(hint.to_string(), weight(t).map_err(|e| format!("initializer {name}: {e}"))?);
+        out.insert(hint(t), weight(t).map_err(err(t))?);
+    }
+    for t in graph.initializer.iter().filter(|t| t.data_type == Some(DATA_TYPE_INT8)) {
+        let hint = hint(t);
+        let scale = match out.get(&format!("{hint}.scale")).map(|s| s.values.as_slice()) {
+            Some(&[scale]) => scale,
+            _ => return Err(err(t)(format!("an int8 weight without one float {hint}.scale"))),
+        };
+        let dims = dims(t, 1).map_err(err(t))?;
+        let q: Vec<i8> = t.raw_data.as_deref().unwrap_or_default().iter().map(|&b| b as i8).collect();
+        out.insert(hint, Weight { dims, values: super::int8::dequantize(&q, scale) });
     }
     Ok(out)
 }
 
-fn weight(t: &TensorProto) -> Result<Weight, String> {
+/// An initializer's shape, checked against its raw data of `bytes` a value.
+fn dims(t: &TensorProto, bytes: usize) -> Result<Vec<usize>, String> {
     let raw = t.raw_data.as_deref().ok_or("no raw_data")?;
     let dims: Vec<usize> = t.dims.iter().map(|&d| usize::try_from(d).map_err(|_| format!("dimension {d}"))).collect::<Result<_, _>>()?;
-    if raw.len() != 4 * dims.iter().product::<usize>() {
+    if raw.len() != bytes * dims.iter().product::<usize>() {
         return Err(format!("{} bytes for shape {dims:?}", raw.len()));
     }
+    Ok(dims)
+}
+
+fn weight(t: &TensorProto) -> Result<Weight, String> {
+    let dims = dims(t, 4)?;
+    let raw = t.raw_data.as_deref().unwrap_or_default();
     let values = raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     Ok(Weight { dims, values })
 }

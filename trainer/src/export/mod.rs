@@ -1,7 +1,9 @@
 //! ONNX export of the network: the single hand-off to the server. [`export_onnx`] walks the
 //! model's modules (same structure and arithmetic as `InsSplatNet::forward`) into an ONNX
 //! graph, opset 17, IR 8, with the view count N as the symbolic dimension "N", the weights
-//! as initializers, and the signature's metadata keys in `metadata_props`.
+//! as initializers, and the signature's metadata keys in `metadata_props`. With
+//! [`Weights::Int8`] the linear layers' weights are stored as int8 ([`int8`]; `inssplat-train
+//! quantize` writes such a file from any exported one).
 //!
 //! Why hand-written `prost` messages rather than onnx.proto compiled at build time or the
 //! `onnx-protobuf` crate: compiling the schema needs protoc (absent from CI machines) or a
@@ -13,6 +15,7 @@
 
 mod graph;
 mod import;
+mod int8;
 mod net;
 pub mod onnx_pb;
 
@@ -24,6 +27,7 @@ use prost::Message;
 use crate::model::InsSplatNet;
 use graph::Graph;
 pub use import::{ImportError, import_onnx};
+pub use int8::{QuantizeError, quantize_file};
 use onnx_pb::{
     DATA_TYPE_FLOAT, GraphProto, ModelProto, OperatorSetIdProto, StringStringEntryProto,
     TensorShapeProto, TypeProto, ValueInfoProto, tensor_shape_proto::Dimension,
@@ -39,6 +43,32 @@ pub const VIEWS_DIM: &str = "N";
 /// Metadata key of the network's whole [`crate::model::ModelConfig`] as JSON, which
 /// [`import_onnx`] reads back (the server does not need it).
 pub const META_MODEL_CONFIG: &str = "inssplat.model_config";
+/// Metadata key of the file's [`Weights`] ("f32" or "int8"; files without it are "f32").
+pub const META_WEIGHTS: &str = "inssplat.weights";
+
+/// How the linear layers' weights are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Weights {
+    /// As trained.
+    #[default]
+    F32,
+    /// Int8 with one scale a weight, run through ONNX Runtime's dynamic quantization
+    /// (`inssplat-train quantize`; the pattern is [`int8`]'s).
+    Int8,
+}
+
+impl Weights {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Weights::F32 => "f32",
+            Weights::Int8 => "int8",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        [Weights::F32, Weights::Int8].into_iter().find(|w| w.as_str() == s)
+    }
+}
 
 /// What the exported file says about where it came from.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -47,6 +77,7 @@ pub struct ExportMeta {
     pub model_version: String,
     /// Optimizer steps the weights were trained for (0 for a fresh network).
     pub train_steps: u64,
+    pub weights: Weights,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -65,6 +96,7 @@ pub enum ExportError {
 /// Builds the ONNX model of `net` in memory.
 pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto, ExportError> {
     let mut g = Graph::default();
+    g.int8 = meta.weights == Weights::Int8;
     net::network(&mut g, net)?;
     let c = net.config();
     let (hw, ds) = (c.image_size as i64, c.sem_dim as i64);
@@ -121,6 +153,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         (sig::META_SEM_DIM, c.sem_dim.to_string()),
         (sig::META_TRAIN_STEPS, meta.train_steps.to_string()),
         (META_MODEL_CONFIG, serde_json::to_string(c).expect("a ModelConfig (numbers only) serializes")),
+        (META_WEIGHTS, meta.weights.as_str().to_string()),
     ];
     Ok(ModelProto {
         ir_version: Some(IR_VERSION),

@@ -2,7 +2,8 @@
 //! its `forward`, emitting ONNX nodes with the module weights as initializers. Every op is
 //! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
 //! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
-//! Shape, Expand, Exp, Softplus, Sigmoid, Identity). The view count stays symbolic: shapes
+//! Shape, Expand, Exp, Softplus, Sigmoid, Identity; in an int8 file also DynamicQuantizeLinear,
+//! MatMulInteger and Cast). The view count stays symbolic: shapes
 //! are given with 0 (copy) and -1 (infer), and the only data-dependent size, the number of
 //! non-reference views, comes from a Shape node.
 
@@ -20,8 +21,12 @@ use crate::model::{
 const END: i64 = i64::MAX;
 
 fn linear(g: &mut Graph, hint: &str, m: &Linear, x: &str) -> Result<String, ExportError> {
-    let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
-    let y = g.op("MatMul", &[x, &w], vec![]);
+    let y = if g.int8 {
+        g.int8_matmul(&format!("{hint}.weight"), m.weight.val(), x)?
+    } else {
+        let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
+        g.op("MatMul", &[x, &w], vec![])
+    };
     match &m.bias {
         Some(b) => {
             let b = g.param(&format!("{hint}.bias"), b.val())?;

@@ -8,6 +8,8 @@ use prost::Message;
 
 /// `TensorProto.DataType.FLOAT`.
 pub const DATA_TYPE_FLOAT: i32 = 1;
+/// `TensorProto.DataType.INT8`.
+pub const DATA_TYPE_INT8: i32 = 3;
 /// `TensorProto.DataType.INT64`.
 pub const DATA_TYPE_INT64: i32 = 7;
 
