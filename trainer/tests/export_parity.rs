@@ -19,7 +19,9 @@ use ort::value::Tensor as OrtTensor;
 const TOL: f32 = 1e-3;
 /// An int8 file's bound on each output's mean |burn − ORT| over its mean |burn|: its
 /// activations are quantized at every linear layer, so single elements can move further.
-const INT8_TOL: f32 = 0.05;
+/// The small random network below reaches 4.2% (instance and semantic features), the shipped
+/// model under 0.5%.
+const INT8_TOL: f32 = 0.08;
 
 /// How closely ONNX Runtime must follow burn.
 #[derive(Clone, Copy, PartialEq)]
@@ -463,7 +465,7 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
         t.raw_data.expect("raw").chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
     };
     let (a, b) = (weight(&net), weight(&back));
-    let step = a.iter().fold(0f32, |m, v| m.max(v.abs())) / 127.0;
+    let step = a.iter().fold(0f32, |m, v| m.max(v.abs())) / 63.0;
     assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 0.5 * step * 1.001), "dequantized within half a step");
     assert!(a != b, "the read-back weights are the quantized ones");
 

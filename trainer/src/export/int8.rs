@@ -5,10 +5,13 @@
 //! `linear` layers are quantized (the blocks, the patch embedding, the camera head and the
 //! decoder's fusion); attention products, convolutions and Φ_sem stay float.
 //!
-//! Each weight has one symmetric scale, max |w| / 127, moved to the fixed point of
+//! Each weight has one symmetric scale, max |w| / [`LEVELS`], moved to the fixed point of
 //! dequantizing and quantizing again, so that a file read back by [`super::import_onnx`]
 //! (which dequantizes) exports to the same bytes: its check that the graph is the one this
-//! trainer writes holds for int8 files too.
+//! trainer writes holds for int8 files too. The weights use 7 of the 8 bits (ONNX Runtime's
+//! `reduce_range`): CPUs without VNNI multiply uint8 by int8 in pairs summed into int16
+//! (`vpmaddubsw`), which saturates when 255·|w| + 255·|w'| > 32767; at |w| ≤ 63 it cannot, so
+//! the file computes the same on every x86 CPU.
 
 use std::path::Path;
 
@@ -42,16 +45,19 @@ pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Resu
     Ok(meta)
 }
 
+/// Largest |quantized weight|.
+pub const LEVELS: f32 = 63.0;
+
 /// The symmetric per-tensor scale of `values` (1 for an all-zero tensor).
 pub fn scale(values: &[f32]) -> f32 {
     let max = values.iter().fold(0f32, |m, v| m.max(v.abs()));
     if !(max > 0.0 && max.is_finite()) {
         return 1.0;
     }
-    // `s` must survive a round trip: the largest dequantized value, 127·s, gives s back.
-    let mut s = max / 127.0;
+    // `s` must survive a round trip: the largest dequantized value, LEVELS·s, gives s back.
+    let mut s = max / LEVELS;
     for _ in 0..16 {
-        let again = (s * 127.0) / 127.0;
+        let again = (s * LEVELS) / LEVELS;
         if again == s {
             break;
         }
@@ -61,7 +67,7 @@ pub fn scale(values: &[f32]) -> f32 {
 }
 
 pub fn quantize(values: &[f32], scale: f32) -> Vec<i8> {
-    values.iter().map(|v| (v / scale).round().clamp(-127.0, 127.0) as i8).collect()
+    values.iter().map(|v| (v / scale).round().clamp(-LEVELS, LEVELS) as i8).collect()
 }
 
 pub fn dequantize(q: &[i8], scale: f32) -> Vec<f32> {
@@ -105,7 +111,7 @@ mod tests {
             let values: Vec<f32> = (0..64).map(|_| rng.random_range(-1.0..1.0) * magnitude).collect();
             let s = scale(&values);
             let q = quantize(&values, s);
-            assert!(q.iter().any(|&v| v.unsigned_abs() == 127), "trial {trial}: the largest weight uses the whole range");
+            assert!(q.iter().any(|&v| f32::from(v.unsigned_abs()) == LEVELS), "trial {trial}: the largest weight uses the whole range");
             for (v, &k) in values.iter().zip(&q) {
                 assert!((v - f32::from(k) * s).abs() <= 0.5 * s * 1.0001, "trial {trial}: {v} → {k} at scale {s}");
             }
