@@ -404,7 +404,7 @@ pub struct QuantizeArgs {
     /// The ONNX file to write.
     #[arg(long)]
     out: PathBuf,
-    /// Model version recorded in the metadata (default: the input's).
+    /// Model version recorded in the metadata (default: the input's with `+int8`).
     #[arg(long)]
     model_version: Option<String>,
 }

@@ -434,7 +434,6 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
         .arg(&plain)
         .arg("--out")
         .arg(&int8)
-        .args(["--model-version", "small-int8"])
         .output()
         .expect("run inssplat-train");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -449,7 +448,7 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
     assert_eq!(count("MatMul"), 2 * net.config().depth, "only the attention products stay float");
     let meta = |key: &str| proto.metadata_props.iter().find(|p| p.key.as_deref() == Some(key)).and_then(|p| p.value.clone());
     assert_eq!(meta("inssplat.extra").as_deref(), Some("kept"));
-    assert_eq!(meta(sig::META_MODEL_VERSION).as_deref(), Some("small-int8"));
+    assert_eq!(meta(sig::META_MODEL_VERSION).as_deref(), Some("plain+int8"), "the input's version, marked");
     assert_eq!(meta(inssplat_trainer::export::META_WEIGHTS).as_deref(), Some("int8"));
 
     let mut session = session_of(&bytes);

@@ -33,10 +33,12 @@ pub enum QuantizeError {
 
 /// Writes the network of the ONNX file `input` to `output` with int8 linear weights, keeping
 /// every metadata entry of `input` the exporter does not write itself (the shape classifier),
-/// and `version` as its model version if given. Returns what `output` says about itself.
+/// and `version` as its model version (by default the input's with `+int8`, so that reports
+/// tell the two apart). Returns what `output` says about itself.
 pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Result<ExportMeta, QuantizeError> {
     let (net, meta) = import_onnx(input, &Device::flex())?;
-    let meta = ExportMeta { weights: Weights::Int8, model_version: version.map_or(meta.model_version, str::to_string), ..meta };
+    let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
+    let meta = ExportMeta { weights: Weights::Int8, model_version, ..meta };
     let mut model = to_model_proto(&net, &meta)?;
     let original = std::fs::read(input).ok().and_then(|b| ModelProto::decode(b.as_slice()).ok()).expect("import_onnx read and decoded it");
     let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
