@@ -40,7 +40,9 @@ pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Resu
     let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
     let meta = ExportMeta { weights: Weights::Int8, model_version, ..meta };
     let mut model = to_model_proto(&net, &meta)?;
-    let original = std::fs::read(input).ok().and_then(|b| ModelProto::decode(b.as_slice()).ok()).expect("import_onnx read and decoded it");
+    let path = || input.to_path_buf();
+    let bytes = std::fs::read(input).map_err(|e| ImportError::Read { path: path(), problem: e.to_string() })?;
+    let original = ModelProto::decode(bytes.as_slice()).map_err(|e| ImportError::Foreign { path: path(), problem: e.to_string() })?;
     let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
     model.metadata_props.extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
     std::fs::write(output, model.encode_to_vec()).map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
