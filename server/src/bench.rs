@@ -3,7 +3,9 @@
 //! that say how cost grows with views (16 vs 8 views per stage) and how post-processing compares
 //! with the network; and the paper's per-view 2D clustering timed on the same views against
 //! inssplat's single 3D clustering. One process, one run of the table, so ratios compare like
-//! with like.
+//! with like. With a second model ([`compare`]), the two take turns run by run on the same
+//! views, so that a machine's drift falls on both alike, and the table gives each one's
+//! medians and the median of the paired ratios.
 
 use std::collections::BTreeMap;
 
@@ -140,6 +142,77 @@ pub fn bench(
             })
         })
         .collect()
+}
+
+/// Two models timed in turns at one view count: medians of each one's network stage and whole
+/// request, and the medians of the run-by-run ratios (second over first).
+#[derive(Debug, Clone, Serialize)]
+pub struct CompareRow {
+    pub views: usize,
+    pub runs: usize,
+    pub model_ms: [f64; 2],
+    pub total_ms: [f64; 2],
+    pub model_ratio: f64,
+    pub total_ratio: f64,
+}
+
+/// Runs the pipeline with `models[0]` and `models[1]` in turns, `runs` times each (after one
+/// warm-up each), at each count in `views`.
+pub fn compare(
+    models: [&mut Model; 2],
+    labels: &LabelCache,
+    scene: &Scene,
+    views: &[usize],
+    runs: usize,
+    vocabulary: &[String],
+) -> anyhow::Result<Vec<CompareRow>> {
+    let config = PipelineConfig::default();
+    let [a, b] = models;
+    let time = |model: &mut Model, images: &[InputImage]| -> anyhow::Result<[f64; 2]> {
+        let rec = reconstruct(model, labels, images, vocabulary, &config)?;
+        let stage = |name: &str| rec.timings.iter().filter(|t| t.stage == name).map(|t| t.ms).sum::<f64>();
+        Ok([stage("model"), rec.timings.iter().map(|t| t.ms).sum()])
+    };
+    views
+        .iter()
+        .map(|&v| {
+            let images = inputs(scene, v)?;
+            time(a, &images)?;
+            time(b, &images)?;
+            let mut pairs = Vec::new();
+            for _ in 0..runs.max(1) {
+                pairs.push((time(a, &images)?, time(b, &images)?));
+            }
+            let of = |f: &dyn Fn(&([f64; 2], [f64; 2])) -> f64| median(pairs.iter().map(f).collect());
+            Ok(CompareRow {
+                views: v,
+                runs: pairs.len(),
+                model_ms: [of(&|p| p.0[0]), of(&|p| p.1[0])],
+                total_ms: [of(&|p| p.0[1]), of(&|p| p.1[1])],
+                model_ratio: of(&|p| p.1[0] / p.0[0]),
+                total_ratio: of(&|p| p.1[1] / p.0[1]),
+            })
+        })
+        .collect()
+}
+
+/// [`compare`]'s table in markdown, the models named by `names`.
+pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -> String {
+    let [a, b] = names;
+    let mut out = format!(
+        "Median milliseconds ({} runs each, the two models in turns, {threads} ONNX Runtime threads). A: {a}. B: {b}. \
+         The ratios are medians of the run-by-run B / A.\n\n\
+         | views | model, A | model, B | model, B / A | end to end, A | end to end, B | end to end, B / A |\n\
+         |---|---|---|---|---|---|---|\n",
+        rows.first().map_or(0, |r| r.runs)
+    );
+    for r in rows {
+        out += &format!(
+            "| {} | {:.0} | {:.0} | {:.2} | {:.0} | {:.0} | {:.2} |\n",
+            r.views, r.model_ms[0], r.model_ms[1], r.model_ratio, r.total_ms[0], r.total_ms[1], r.total_ratio
+        );
+    }
+    out
 }
 
 /// The table and the growth ratios, in markdown.

@@ -95,6 +95,10 @@ enum Command {
         runs: usize,
         #[arg(long, env = "INSSPLAT_MODEL", default_value = "models/inssplat-default.onnx")]
         model: PathBuf,
+        /// A second model to time against --model: the two run in turns, and the table gives
+        /// each one's medians and the ratios (this one over --model) instead of the stages.
+        #[arg(long)]
+        against: Option<PathBuf>,
         /// Print JSON instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -321,7 +325,7 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Command::Bench { data, views, runs, model, json, threads } => {
+        Command::Bench { data, views, runs, model, against, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -330,6 +334,17 @@ fn main() -> anyhow::Result<()> {
             let threads = default_threads(threads);
             let mut model = Model::load(&model, threads)?;
             let labels = text_labels()?;
+            if let Some(other) = against {
+                let mut other = Model::load(&other, threads)?;
+                let rows = bench::compare([&mut model, &mut other], &labels, &scene, &views, runs, &vocab::vocabulary(None)?)?;
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&rows)?);
+                } else {
+                    let name = |m: &Model| format!("{} (`{}`)", m.model_version, m.path.display());
+                    print!("{}", bench::compare_markdown(&rows, [&name(&model), &name(&other)], threads));
+                }
+                return Ok(());
+            }
             let gpu = GpuRenderer::new().ok();
             let rows = bench::bench(&mut model, &labels, &scene, &views, runs, &vocab::vocabulary(None)?, gpu.as_ref())?;
             if json {

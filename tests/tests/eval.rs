@@ -178,6 +178,41 @@ fn bench_times_every_stage_per_view_count() {
     assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
 }
 
+/// `bench --against`: the tiny model and its int8 file (`inssplat-train quantize`'s
+/// function) timed in turns; each row has both medians and the paired ratios, the table names
+/// both models, and a missing second model is named.
+#[test]
+fn bench_against_times_two_models_in_turns() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let int8 = dir.path().join("tiny-int8.onnx");
+    inssplat_trainer::export::quantize_file(&model, &int8, None).unwrap();
+    let scene = support::test_scene(dir.path(), 1);
+    let out = inssplat(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "3", "--model", s(&model), "--against", s(&int8), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.iter().map(|r| r["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
+    for r in rows {
+        assert_eq!(r["runs"].as_u64(), Some(3));
+        for key in ["model_ms", "total_ms"] {
+            let [a, b] = [0, 1].map(|i| r[key][i].as_f64().unwrap());
+            assert!(a > 0.0 && b > 0.0, "{r}");
+        }
+        for key in ["model_ratio", "total_ratio"] {
+            let x = r[key].as_f64().unwrap();
+            assert!(x.is_finite() && x > 0.0, "{r}");
+        }
+        assert!(r["model_ms"][0].as_f64() < r["total_ms"][0].as_f64(), "the network is one stage of the request: {r}");
+    }
+    let table = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--against", s(&int8)]);
+    let text = String::from_utf8_lossy(&table.stdout);
+    assert!(table.status.success() && text.contains("A: e2e-random (") && text.contains("B: e2e-random+int8 ("), "{text}");
+    let missing = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--model", s(&model), "--against", "/nonexistent/b.onnx"]);
+    let err = String::from_utf8_lossy(&missing.stderr);
+    assert!(!missing.status.success() && err.contains("/nonexistent/b.onnx"), "{err}");
+}
+
 #[test]
 fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     let dir = tempfile::tempdir().unwrap();
