@@ -41,9 +41,19 @@ struct Weight {
 
 /// The network stored in the ONNX file at `path`, on `device`, and what the file says about it.
 pub fn import_onnx(path: &Path, device: &Device) -> Result<(InsSplatNet, ExportMeta), ImportError> {
+    import_model(path, &read_model(path)?, device)
+}
+
+/// The ONNX file at `path`, decoded.
+pub(super) fn read_model(path: &Path) -> Result<ModelProto, ImportError> {
     let bytes = std::fs::read(path).map_err(|e| ImportError::Read { path: path.to_path_buf(), problem: e.to_string() })?;
+    ModelProto::decode(bytes.as_slice())
+        .map_err(|e| ImportError::Foreign { path: path.to_path_buf(), problem: format!("not an ONNX model: {e}") })
+}
+
+/// [`import_onnx`] of a file already read from `path` (which errors name).
+pub(super) fn import_model(path: &Path, model: &ModelProto, device: &Device) -> Result<(InsSplatNet, ExportMeta), ImportError> {
     let foreign = |problem: String| ImportError::Foreign { path: path.to_path_buf(), problem };
-    let model = ModelProto::decode(bytes.as_slice()).map_err(|e| foreign(format!("not an ONNX model: {e}")))?;
     let props: Props<'_> = model
         .metadata_props
         .iter()

@@ -19,8 +19,9 @@ use burn::prelude::*;
 use prost::Message;
 
 use super::graph::{Graph, attr_int};
-use super::onnx_pb::{DATA_TYPE_FLOAT, DATA_TYPE_INT8, ModelProto, TensorProto};
-use super::{ExportError, ExportMeta, ImportError, Weights, import_onnx, to_model_proto};
+use super::import::{import_model, read_model};
+use super::onnx_pb::{DATA_TYPE_FLOAT, DATA_TYPE_INT8, TensorProto};
+use super::{ExportError, ExportMeta, ImportError, Weights, to_model_proto};
 
 /// Why a file could not be quantized.
 #[derive(Debug, thiserror::Error)]
@@ -36,13 +37,11 @@ pub enum QuantizeError {
 /// and `version` as its model version (by default the input's with `+int8`, so that reports
 /// tell the two apart). Returns what `output` says about itself.
 pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Result<ExportMeta, QuantizeError> {
-    let (net, meta) = import_onnx(input, &Device::flex())?;
+    let original = read_model(input)?;
+    let (net, meta) = import_model(input, &original, &Device::flex())?;
     let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
     let meta = ExportMeta { weights: Weights::Int8, model_version, ..meta };
     let mut model = to_model_proto(&net, &meta)?;
-    let path = || input.to_path_buf();
-    let bytes = std::fs::read(input).map_err(|e| ImportError::Read { path: path(), problem: e.to_string() })?;
-    let original = ModelProto::decode(bytes.as_slice()).map_err(|e| ImportError::Foreign { path: path(), problem: e.to_string() })?;
     let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
     model.metadata_props.extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
     std::fs::write(output, model.encode_to_vec()).map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
