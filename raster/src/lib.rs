@@ -2,7 +2,8 @@
 //! of predicted depth into per-pixel Gaussians, confidence-aware voxelization and feature
 //! fusion, the differentiable CPU tile rasterizer (forward and hand-written backward, any
 //! channel count), the wgpu forward rasterizer for serving, instance clustering in 3D
-//! (HDBSCAN) and label assignment, the image metrics of the evaluation protocol, and the
+//! (HDBSCAN) and label assignment, the image metrics of the evaluation protocol (and the
+//! test-time refinement of a target camera's pose that a flag of it asks for), and the
 //! ideal network outputs of views with known ground truth that prove the chain. It knows
 //! nothing of HTTP or ONNX.
 
@@ -14,4 +15,5 @@ pub mod metrics;
 pub mod register;
 pub mod render;
 pub mod rotation;
+pub mod target_pose;
 pub mod voxel;

@@ -7,3 +7,4 @@ mod register_learned;
 mod render_forward;
 mod render_grad;
 mod support;
+mod target_pose;

@@ -188,6 +188,12 @@ enum Command {
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
         no_aggregation: bool,
+        /// Refine each target camera's pose against its photo for this many Adam steps before
+        /// scoring it, the Gaussians frozen (the test-time pose optimization of pose-free
+        /// novel-view evaluations; 0, the default, scores at the mapped camera). The protocol
+        /// line says so when it is used.
+        #[arg(long, default_value_t = 0, value_name = "STEPS")]
+        target_pose_steps: usize,
         /// Also score the text queries under a grid of query rules (minimum score, margin to
         /// the best, margin to the instance's own label) and add the best to the report.
         #[arg(long)]
@@ -378,6 +384,7 @@ fn main() -> anyhow::Result<()> {
             keep_focal,
             no_learned_matches,
             no_aggregation,
+            target_pose_steps,
             query_rules,
             perturb,
             sweep,
@@ -416,6 +423,7 @@ fn main() -> anyhow::Result<()> {
                 known_poses,
                 known_depth,
                 no_aggregation,
+                target_pose_steps,
                 query_rules,
                 perturb,
                 out: out.clone(),

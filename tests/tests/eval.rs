@@ -65,6 +65,7 @@ fn eval_reports_every_metric_per_view_count() {
         (depth(scene, "depth_abs_rel"), depth(scene, "depth_abs_rel_objects"), depth(scene, "depth_abs_rel_shell"));
     assert!(objects.min(shell) - 1e-9 <= all && all <= objects.max(shell) + 1e-9, "{scene}");
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
+    assert!(scene.get("target_pose_turn_deg").is_none(), "no target pose refinement unless asked: {scene}");
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
@@ -74,16 +75,21 @@ fn eval_reports_every_metric_per_view_count() {
     assert_eq!(report["cluster"], "3d");
 
     // With the true context cameras the alignment is exact, with the true depth so is the
-    // depth, and the report says so ...
+    // depth, and the report says so, as it says that the target cameras were refined ...
     let out = inssplat(&[
-        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation", "--json",
+        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
+        "--target-pose-steps", "6", "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
     assert_eq!(report["known_depth"], true);
     assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras and depth"));
+    assert_eq!(report["target_pose_steps"], 6);
+    assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of each target camera's pose"));
     let scene = &report["scenes"][0];
+    let turn = scene["target_pose_turn_deg"].as_f64().unwrap_or_else(|| panic!("no turn reported: {scene}"));
+    assert!((0.0..10.0).contains(&turn), "{scene}");
     assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");
     assert!(depth(scene, "depth_abs_rel") < 1e-6 && depth(scene, "depth_abs_rel_objects") < 1e-6, "{scene}");
     // ... and the labels come from every pixel's own semantic feature (still a valid score).

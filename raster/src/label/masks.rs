@@ -17,13 +17,15 @@ pub enum MaskError {
     Scene(#[from] LengthMismatch),
     #[error("rendering the instance channels: {0}")]
     Render(#[from] RenderError),
+    #[error("the photo has {got} values where the camera's size needs {expected} (three planes of width × height)")]
+    PhotoSize { expected: usize, got: usize },
 }
 
 /// Alpha above which a pixel belongs to some instance.
 pub const MASK_ALPHA: f32 = 0.5;
 
 /// The scene's Gaussians with `features` (`channels` per Gaussian) as the rasterizer's input.
-fn splats<'a>(scene: &'a GaussianScene, features: &'a [f32], channels: usize) -> Splats<'a> {
+pub(crate) fn splats<'a>(scene: &'a GaussianScene, features: &'a [f32], channels: usize) -> Splats<'a> {
     Splats {
         means: &scene.means,
         log_scales: &scene.log_scales,
@@ -62,8 +64,12 @@ pub fn render_instance_ids_on(
 /// clamped (a metric clamps if it needs to).
 pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
-    let colours: Vec<f32> = scene.sh_dc.iter().flat_map(|c| c.map(inssplat_proto::gaussian::sh_dc_to_rgb)).collect();
-    Ok(render(&splats(scene, &colours, 3), camera, &[0.0; 3])?.0.features)
+    Ok(render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?.0.features)
+}
+
+/// The scene's SH-DC colours as RGB, row-major per Gaussian.
+pub(crate) fn colours(scene: &GaussianScene) -> Vec<f32> {
+    scene.sh_dc.iter().flat_map(|c| c.map(inssplat_proto::gaussian::sh_dc_to_rgb)).collect()
 }
 
 /// A scene's instance embedding and semantic feature rendered into one view.

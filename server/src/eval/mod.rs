@@ -78,6 +78,8 @@ pub struct Report {
     pub known_depth: bool,
     /// Whether pixels were named without instance-grounded aggregation.
     pub no_aggregation: bool,
+    /// Adam steps of photometric pose refinement of each target camera (0: none).
+    pub target_pose_steps: usize,
     pub summaries: Vec<Summary>,
     /// Every scene's [`SceneScores::shape_examples`] (the plain view-count runs).
     #[serde(skip)]
@@ -180,6 +182,8 @@ pub struct EvalRequest {
     pub known_depth: bool,
     /// Pixels named from their own semantic features (see [`Settings`]).
     pub no_aggregation: bool,
+    /// Refine each target camera's pose against its photo (see [`Settings`]).
+    pub target_pose_steps: usize,
     /// Score the text queries under every rule of [`query_rules::grid`] too.
     pub query_rules: bool,
     /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
@@ -239,6 +243,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             known_poses: req.known_poses,
             known_depth: req.known_depth,
             no_aggregation: req.no_aggregation,
+            target_pose_steps: req.target_pose_steps,
             query_rules: &rules,
         };
         scenes
@@ -296,6 +301,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         known_poses: req.known_poses,
         known_depth: req.known_depth,
         no_aggregation: req.no_aggregation,
+        target_pose_steps: req.target_pose_steps,
         summaries,
         shape_examples: all.iter_mut().flat_map(|s| std::mem::take(&mut s.shape_examples)).collect(),
         robustness,
@@ -305,12 +311,19 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there; depth AbsRel after median scale; no test-time optimization of the Gaussians{}{}",
+             the clustered scene rendered there{}; depth AbsRel after median scale; no test-time optimization of the Gaussians{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
                 (false, true) => " with the TRUE context depth (--known-depth), not the predicted one",
                 (true, true) => " with the TRUE context cameras and depth (--known-poses --known-depth), not the predicted ones",
+            },
+            match req.target_pose_steps {
+                0 => String::new(),
+                n => format!(
+                    ", after TEST-TIME OPTIMIZATION of each target camera's pose against its photo (--target-pose-steps {n}: Adam on the pose, \
+                     the Gaussians frozen, coarse to fine; kept only where it lowers the colour error)"
+                ),
             },
             match (&req.pipeline.register, req.known_poses) {
                 (_, true) => "",

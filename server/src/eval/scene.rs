@@ -16,6 +16,7 @@ use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
+use inssplat_raster::target_pose::refine_pose;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
 use serde::Serialize;
@@ -59,6 +60,9 @@ pub struct SceneScores {
     pub depth_abs_rel_shell: Option<f64>,
     pub rotation_deg: Option<f64>,
     pub translation: Option<f64>,
+    /// Mean angle by which `--target-pose-steps` turned the target cameras (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_pose_turn_deg: Option<f64>,
     pub gaussians_in: usize,
     pub gaussians_kept: usize,
     pub instances_found: usize,
@@ -120,6 +124,10 @@ pub struct Settings<'a> {
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
     pub no_aggregation: bool,
+    /// Adam steps of test-time refinement of each target camera's pose against its photo, the
+    /// Gaussians frozen ([`inssplat_raster::target_pose`]; 0 scores at the mapped camera, the
+    /// protocol's default).
+    pub target_pose_steps: usize,
     /// Query rules scored beside the default one (`--query-rules`).
     pub query_rules: &'a [QueryRule],
 }
@@ -386,12 +394,17 @@ fn target_scores(
     let texts = labels.embed(&words).map_err(|e| err(&e))?;
     let params = &settings.pipeline.cluster;
     let (mut pred_labels, mut gt_labels, mut ious, mut segs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
+    let (mut psnrs, mut ssims, mut turns) = (Vec::new(), Vec::new(), Vec::new());
     for &t in targets {
         let frame = &scene.frames[t];
-        let camera = to_pred.map_camera(&frame.camera);
-        let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
         let truth = frame.planar_rgb();
+        let mut camera = to_pred.map_camera(&frame.camera);
+        if settings.target_pose_steps > 0 {
+            let refined = refine_pose(&rec.scene, &camera, &truth, settings.target_pose_steps).map_err(|e| err(&e))?;
+            turns.push(f64::from(2.0 * refined.camera.rotation.dot(camera.rotation).abs().min(1.0).acos().to_degrees()));
+            camera = refined.camera;
+        }
+        let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
@@ -410,6 +423,7 @@ fn target_scores(
     }
     s.psnr = mean(&psnrs);
     s.ssim = mean(&ssims);
+    s.target_pose_turn_deg = mean(&turns);
     if let Some(sem) = semantic_scores(&pred_labels, &gt_labels).map_err(|e| err(&e))? {
         s.labels.add(&pred_labels, &gt_labels);
         s.semantic_miou = Some(sem.miou);

@@ -1,0 +1,174 @@
+//! Test-time optimization of one camera's pose against a photo, the Gaussians frozen: what
+//! pose-free novel-view evaluations (InstantSplat, and InstanceSplat after it) do before they
+//! score a target view, so that the score measures the reconstruction rather than how well
+//! the target camera was mapped into the predicted frame. Adam on the world → camera
+//! quaternion and translation, through the rasterizer's pose gradient, minimizing the mean
+//! squared colour error; coarse to fine (both images blurred by a Gaussian of shrinking
+//! width), so a pose some degrees off still finds its way. The intrinsics stay as given.
+
+use glam::{Quat, Vec3};
+use inssplat_proto::{Camera, GaussianScene};
+
+use crate::label::masks::{MaskError, colours, splats};
+use crate::render::{render, render_backward};
+
+/// Blur widths (pixels) of the coarse-to-fine levels, each given an equal share of the steps.
+const LEVELS: [f32; 3] = [3.0, 1.5, 0.0];
+/// Adam's step on the quaternion's components (1e-3 turns the camera by about 0.11°).
+const LR_ROTATION: f32 = 2e-3;
+/// Adam's step on the translation, as a share of the median distance from the camera to
+/// the Gaussians (the predicted frame's scale is the depth's, not metres).
+const LR_TRANSLATION: f32 = 2e-3;
+const BETA1: f32 = 0.9;
+const BETA2: f32 = 0.999;
+
+/// What [`refine_pose`] did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseRefinement {
+    pub camera: Camera,
+    /// Mean squared colour error at the given pose and at the returned one (full resolution).
+    pub mse_before: f64,
+    pub mse_after: f64,
+}
+
+/// Refines `camera`'s pose over `steps` Adam steps so that `scene`'s colours seen from it
+/// match `photo` (planar `[3][H][W]` in 0..1, the camera's size). Returns the given pose when
+/// the refined one matches worse.
+pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps: usize) -> Result<PoseRefinement, MaskError> {
+    scene.validate()?;
+    let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+    if photo.len() != 3 * w * h {
+        return Err(MaskError::PhotoSize { expected: 3 * w * h, got: photo.len() });
+    }
+    let colours = colours(scene);
+    let splats = splats(scene, &colours, 3);
+    let mse = |cam: &Camera| -> Result<f64, MaskError> {
+        let (image, _) = render(&splats, cam, &[0.0; 3])?;
+        Ok(image.features.iter().zip(photo).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>() / photo.len() as f64)
+    };
+    let mse_before = mse(camera)?;
+    let lr_t = LR_TRANSLATION * median_distance(scene, camera);
+    let mut cam = *camera;
+    let mut adam = Adam::default();
+    let per_level = steps.div_ceil(LEVELS.len());
+    let mut step = 0;
+    for sigma in LEVELS {
+        let target = blur(photo, w, h, sigma);
+        for _ in 0..per_level.min(steps - step) {
+            let (image, state) = render(&splats, &cam, &[0.0; 3])?;
+            let rendered = blur(&image.features, w, h, sigma);
+            let n = rendered.len() as f32;
+            let residual: Vec<f32> = rendered.iter().zip(&target).map(|(a, b)| 2.0 * (a - b) / n).collect();
+            // The blur is symmetric (zero padding), so its adjoint is itself.
+            let d_features = blur(&residual, w, h, sigma);
+            let grads = render_backward(&splats, &cam, &state, &d_features, &vec![0.0; w * h], &vec![0.0; w * h]).camera;
+            let q = cam.rotation;
+            let mut params = [q.w, q.x, q.y, q.z, cam.translation.x, cam.translation.y, cam.translation.z];
+            let g = [grads.rotation[0], grads.rotation[1], grads.rotation[2], grads.rotation[3], grads.translation[0], grads.translation[1], grads.translation[2]];
+            let lrs = [LR_ROTATION, LR_ROTATION, LR_ROTATION, LR_ROTATION, lr_t, lr_t, lr_t];
+            adam.step(&mut params, &g, &lrs);
+            cam.rotation = Quat::from_xyzw(params[1], params[2], params[3], params[0]).normalize();
+            cam.translation = Vec3::new(params[4], params[5], params[6]);
+            step += 1;
+        }
+    }
+    let mse_after = mse(&cam)?;
+    Ok(match mse_after < mse_before {
+        true => PoseRefinement { camera: cam, mse_before, mse_after },
+        false => PoseRefinement { camera: *camera, mse_before, mse_after: mse_before },
+    })
+}
+
+/// Median distance from the camera centre to the Gaussians in front of it (1 without any).
+fn median_distance(scene: &GaussianScene, camera: &Camera) -> f32 {
+    let mut d: Vec<f32> = scene
+        .means
+        .iter()
+        .map(|m| camera.rotation * Vec3::from(*m) + camera.translation)
+        .filter(|p| p.z > 0.0)
+        .map(Vec3::length)
+        .collect();
+    if d.is_empty() {
+        return 1.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// Planar images blurred by a Gaussian of `sigma` pixels, separably, with zero padding (so
+/// the operator is symmetric); `sigma` 0 returns them as they are.
+fn blur(planes: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
+    if sigma <= 0.0 {
+        return planes.to_vec();
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let sum: f32 = kernel.iter().sum();
+    let kernel: Vec<f32> = kernel.iter().map(|k| k / sum).collect();
+    let tap = |src: &[f32], len: usize, at: usize, stride: usize, base: usize| -> f32 {
+        kernel
+            .iter()
+            .enumerate()
+            .filter_map(|(k, &wk)| {
+                let j = at as isize + k as isize - r;
+                (0..len as isize).contains(&j).then(|| wk * src[base + j as usize * stride])
+            })
+            .sum()
+    };
+    let mut rows = vec![0.0; planes.len()];
+    let mut out = vec![0.0; planes.len()];
+    for (c, plane) in planes.chunks(w * h).enumerate() {
+        let base = c * w * h;
+        for y in 0..h {
+            for x in 0..w {
+                rows[base + y * w + x] = tap(plane, w, x, 1, y * w);
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                out[base + y * w + x] = tap(&rows[base..base + w * h], h, y, w, x);
+            }
+        }
+    }
+    out
+}
+
+/// Adam's moments for the 7 pose parameters.
+#[derive(Default)]
+struct Adam {
+    t: i32,
+    m: [f32; 7],
+    v: [f32; 7],
+}
+
+impl Adam {
+    fn step(&mut self, params: &mut [f32; 7], grads: &[f32; 7], lrs: &[f32; 7]) {
+        self.t += 1;
+        let (c1, c2) = (1.0 - BETA1.powi(self.t), 1.0 - BETA2.powi(self.t));
+        for i in 0..7 {
+            self.m[i] = BETA1 * self.m[i] + (1.0 - BETA1) * grads[i];
+            self.v[i] = BETA2 * self.v[i] + (1.0 - BETA2) * grads[i] * grads[i];
+            params[i] -= lrs[i] * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + 1e-12);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_blur_is_symmetric_and_keeps_the_interior_mean() {
+        let (w, h) = (9, 7);
+        let a: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32).collect();
+        let b: Vec<f32> = (0..w * h).map(|i| ((i * 13) % 5) as f32).collect();
+        let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| p * q).sum::<f32>();
+        // ⟨Ba, b⟩ = ⟨a, Bb⟩: the backward may use the blur as its own adjoint.
+        let (ba, bb) = (blur(&a, w, h, 1.2), blur(&b, w, h, 1.2));
+        assert!((dot(&ba, &b) - dot(&a, &bb)).abs() < 1e-3 * dot(&a, &b).abs(), "{} vs {}", dot(&ba, &b), dot(&a, &bb));
+        let flat = blur(&vec![2.0; 64 * 64], 64, 64, 1.5);
+        assert!((flat[32 * 64 + 32] - 2.0).abs() < 1e-4, "interior {}", flat[32 * 64 + 32]);
+        assert!(flat[0] < 1.5, "the corner sees the zero padding: {}", flat[0]);
+        assert_eq!(blur(&a, w, h, 0.0), a);
+    }
+}
