@@ -5,14 +5,11 @@
 use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
+use inssplat_raster::metrics::turn_deg;
 use inssplat_raster::target_pose::refine_pose;
 use inssplat_raster::voxel::{VoxelParams, voxelize};
 
 use crate::post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras};
-
-fn angle_deg(a: Quat, b: Quat) -> f32 {
-    2.0 * a.dot(b).abs().min(1.0).acos().to_degrees()
-}
 
 #[test]
 fn a_displaced_target_camera_is_brought_back_by_its_photo() {
@@ -32,15 +29,14 @@ fn a_displaced_target_camera_is_brought_back_by_its_photo() {
     start.translation += Vec3::new(0.15, -0.1, 0.1);
 
     let refined = refine_pose(&scene, &start, &photo, 90).unwrap();
-    let (before, after) = (angle_deg(start.rotation, truth.rotation), angle_deg(refined.camera.rotation, truth.rotation));
-    let centre = |c: &Camera| -(c.rotation.inverse() * c.translation);
-    let (moved_before, moved_after) = (centre(&start).distance(centre(&truth)), centre(&refined.camera).distance(centre(&truth)));
+    let (before, after) = (turn_deg(&start, &truth), turn_deg(&refined.camera, &truth));
+    let (moved_before, moved_after) = (start.center().distance(truth.center()), refined.camera.center().distance(truth.center()));
     assert!(after < before / 3.0, "rotation error {before:.2}° → {after:.2}°");
     assert!(moved_after < moved_before, "centre off by {moved_before:.3} → {moved_after:.3}");
     assert!(refined.mse_after < 0.5 * refined.mse_before, "{refined:?}");
     // At the true pose there is nothing to gain: the pose stays close.
     let kept = refine_pose(&scene, &truth, &photo, 90).unwrap();
-    assert!(angle_deg(kept.camera.rotation, truth.rotation) < 0.5, "{kept:?}");
+    assert!(turn_deg(&kept.camera, &truth) < 0.5, "{kept:?}");
     assert!(kept.mse_after <= kept.mse_before);
     // A photo of the wrong size is named, not a panic.
     let err = refine_pose(&scene, &truth, &photo[..100], 5).unwrap_err();

@@ -124,6 +124,12 @@ pub fn angle_deg(rotation: DMat3) -> f64 {
     (2.0 * q.xyz().length().atan2(q.w.abs())).to_degrees()
 }
 
+/// Angle in degrees between the orientations of two cameras ([`angle_deg`] of the rotation
+/// that takes one to the other).
+pub fn turn_deg(a: &Camera, b: &Camera) -> f64 {
+    angle_deg(DMat3::from_quat((a.rotation * b.rotation.inverse()).as_dquat()))
+}
+
 /// Camera errors of `pred` against `gt` (same order, view 0 first) after
 /// [`pose_alignment`] with `scale`; `None` for no camera.
 pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<PoseScores>, MetricError> {

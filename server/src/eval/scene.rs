@@ -14,7 +14,7 @@ use inssplat_proto::dataset::Scene;
 use inssplat_raster::label::QueryRule;
 use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
-use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors};
+use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors, turn_deg};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
 use inssplat_raster::target_pose::refine_pose;
 use inssplat_proto::shape::LabelledDescriptor;
@@ -401,7 +401,7 @@ fn target_scores(
         let mut camera = to_pred.map_camera(&frame.camera);
         if settings.target_pose_steps > 0 {
             let refined = refine_pose(&rec.scene, &camera, &truth, settings.target_pose_steps).map_err(|e| err(&e))?;
-            turns.push(f64::from(2.0 * refined.camera.rotation.dot(camera.rotation).abs().min(1.0).acos().to_degrees()));
+            turns.push(turn_deg(&refined.camera, &camera));
             camera = refined.camera;
         }
         let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
