@@ -1,14 +1,11 @@
 //! The shape classifier: a small MLP from an instance's shape descriptor (its size, height
 //! above the floor and colour, [`DESCRIPTOR`]) to a probability over the training labels;
 //! a [`ShapeClassifier::semantic`] one also reads how close the instance's semantic
-//! prototype lies to each label's text ([`label_cosines`]), and an
-//! [`ShapeClassifier::appearance`] one what the instance looks like in the photos (an
-//! [`APPEARANCE`]-long vector).
+//! prototype lies to each label's text ([`label_cosines`]).
 //! The trainer fits it on synthesized rooms and stores it in the model file as JSON under
 //! [`crate::signature::META_SHAPE_CLASSIFIER`]; the server reads it back to name instances
 //! by what they look like in 3D as well as by their semantic features. Only the contract and
-//! the forward pass live here: computing descriptors is `inssplat_raster::label::shape`'s, and
-//! appearances `inssplat_raster::label::appearance`'s.
+//! the forward pass live here: computing descriptors is `inssplat_raster::label::shape`'s.
 
 use serde::{Deserialize, Serialize};
 
@@ -31,11 +28,6 @@ pub const DESCRIPTOR: [&str; 11] = [
 /// Entries of [`DESCRIPTOR`] that are lengths.
 pub const LENGTHS: usize = 5;
 
-/// Length of an instance's appearance vector: a gradient histogram (HOG) of its crop, its
-/// silhouette, a colour histogram and the colour's mean and spread, and where its mask lies
-/// in the photo (`inssplat_raster::label::appearance` says how each part is made).
-pub const APPEARANCE: usize = 616;
-
 /// An instance's descriptor and the label it should get: what the classifier is fitted on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LabelledDescriptor {
@@ -44,10 +36,6 @@ pub struct LabelledDescriptor {
     /// The instance's semantic prototype (text space) where it was recorded.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub prototype: Vec<f32>,
-    /// The instance's appearance in the photos ([`APPEARANCE`] entries) where it was
-    /// recorded; empty where no view showed enough of it.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub appearance: Vec<f32>,
 }
 
 /// One fully connected layer: `y = W·x + b`, `W` row-major `[outputs][inputs]`.
@@ -74,9 +62,6 @@ pub struct ShapeClassifier {
     /// instance's semantic prototype to `labels`' text embeddings.
     #[serde(default)]
     pub semantic: bool,
-    /// Whether the input ends with the instance's [`APPEARANCE`]-long appearance vector.
-    #[serde(default)]
-    pub appearance: bool,
 }
 
 /// The cosine of `prototype` to each of `texts` (0 where either is zero): the semantic part
@@ -115,10 +100,9 @@ impl ShapeClassifier {
         serde_json::to_string(self).expect("numbers and strings serialize")
     }
 
-    /// Entries of the input: the descriptor's, with [`Self::semantic`] one cosine a label,
-    /// and with [`Self::appearance`] the [`APPEARANCE`] vector.
+    /// Entries of the input: the descriptor's, and with [`Self::semantic`] one cosine a label.
     pub fn input_width(&self) -> usize {
-        DESCRIPTOR.len() + if self.semantic { self.labels.len() } else { 0 } + if self.appearance { APPEARANCE } else { 0 }
+        DESCRIPTOR.len() + if self.semantic { self.labels.len() } else { 0 }
     }
 
     /// Shapes agree from the input through every layer to the labels, and every number
@@ -156,19 +140,11 @@ impl ShapeClassifier {
 
     /// Probability of each label (in [`Self::labels`] order) for one descriptor and, for a
     /// [`Self::semantic`] classifier, the [`label_cosines`] of the instance's prototype to
-    /// [`Self::labels`] (one a label; ignored otherwise), and for an [`Self::appearance`]
-    /// one the instance's appearance (ignored otherwise; `None`, an instance no view shows
-    /// enough of, reads as the training examples' mean).
-    pub fn probabilities(&self, descriptor: &[f32; DESCRIPTOR.len()], cosines: &[f32], appearance: Option<&[f32]>) -> Vec<f32> {
+    /// [`Self::labels`] (one a label; ignored otherwise).
+    pub fn probabilities(&self, descriptor: &[f32; DESCRIPTOR.len()], cosines: &[f32]) -> Vec<f32> {
         let semantic: &[f32] = if self.semantic { cosines } else { &[] };
-        let d = DESCRIPTOR.len() + semantic.len();
-        let appearance: &[f32] = match (self.appearance, appearance) {
-            (false, _) => &[],
-            (true, Some(a)) => a,
-            (true, None) => &self.mean[d..],
-        };
-        assert_eq!(d + appearance.len(), self.input_width(), "one cosine a label, {APPEARANCE} appearance entries");
-        let input = descriptor.iter().chain(semantic).chain(appearance);
+        assert_eq!(semantic.len() + DESCRIPTOR.len(), self.input_width(), "one cosine a label");
+        let input = descriptor.iter().chain(semantic);
         let mut x: Vec<f32> = input.zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
         for (i, l) in self.layers.iter().enumerate() {
             let relu = i + 1 < self.layers.len();
@@ -206,7 +182,6 @@ mod tests {
             layers: vec![Dense { inputs: d, outputs: 2, weight, bias: vec![0.0, 0.0] }],
             provenance: String::new(),
             semantic: false,
-            appearance: false,
         }
     }
 
@@ -215,7 +190,7 @@ mod tests {
         let c = two_way();
         let mut x = [0.0; DESCRIPTOR.len()];
         x[0] = 2.0;
-        let p = c.probabilities(&x, &[], None);
+        let p = c.probabilities(&x, &[]);
         assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-6);
         assert!((p[0] - 1.0 / (1.0 + (-2.0f32).exp())).abs() < 1e-6, "{p:?}");
         let back = ShapeClassifier::from_json(&c.to_json()).unwrap();
@@ -240,40 +215,12 @@ mod tests {
         let texts = [vec![1.0, 0.0], vec![0.0, 3.0]];
         let cos = label_cosines(&[0.2, 2.0], &texts);
         assert!((cos[1] - 2.0 / 4.04f32.sqrt()).abs() < 1e-6 && (cos[0] - 0.2 / 4.04f32.sqrt()).abs() < 1e-6, "{cos:?}");
-        let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &cos, None);
+        let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &cos);
         assert!(p[1] > 0.95, "{p:?}");
         assert_eq!(label_cosines(&[0.0, 0.0], &texts), [0.0, 0.0]);
         // Stored as a plain classifier's input width, it is refused.
         let plain = ShapeClassifier { semantic: false, ..c };
         assert!(plain.validate().unwrap_err().to_string().contains("the input 11"));
-    }
-
-    #[test]
-    fn an_appearance_classifier_reads_the_appearance_and_a_missing_one_as_the_mean() {
-        // Logits: the appearance's first two entries, standardized about a mean of 0.5.
-        let d = DESCRIPTOR.len();
-        let w = d + APPEARANCE;
-        let mut weight = vec![0.0; 2 * w];
-        weight[d] = 4.0;
-        weight[w + d + 1] = 4.0;
-        let c = ShapeClassifier {
-            mean: [vec![0.0; d], vec![0.5; APPEARANCE]].concat(),
-            std: vec![1.0; w],
-            layers: vec![Dense { inputs: w, outputs: 2, weight, bias: vec![0.0, 0.0] }],
-            appearance: true,
-            ..two_way()
-        };
-        c.validate().unwrap();
-        let mut a = vec![0.5; APPEARANCE];
-        a[1] = 2.0;
-        let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &[], Some(&a));
-        assert!(p[1] > 0.99, "{p:?}");
-        let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &[], None);
-        assert!((p[0] - 0.5).abs() < 1e-6, "{p:?}");
-        let back = ShapeClassifier::from_json(&c.to_json()).unwrap();
-        assert_eq!(back, c);
-        let plain = ShapeClassifier { appearance: false, ..c };
-        assert!(plain.validate().is_err());
     }
 
     #[test]

@@ -217,7 +217,7 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 
 /// The table and the growth ratios, in markdown.
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
-    let stages = ["decode", "model", "register", "backproject", "voxelize", "cluster", "masks", "label"];
+    let stages = ["decode", "model", "register", "backproject", "voxelize", "cluster", "label", "masks"];
     let mut out = format!(
         "Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads; stages on the CPU; GPU: {}). \
          Input-view masks take each pixel's merged Gaussian's id; the render columns time id maps rendered at \

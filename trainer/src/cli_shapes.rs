@@ -42,7 +42,7 @@ pub struct FitShapesArgs {
     /// Full-batch epochs.
     #[arg(long, default_value_t = FitShapesConfig::default().epochs)]
     epochs: usize,
-    /// Width of the two hidden layers (0: none, a linear classifier).
+    /// Width of the two hidden layers.
     #[arg(long, default_value_t = FitShapesConfig::default().hidden)]
     hidden: usize,
     /// Post-hoc logit adjustment τ: each label's score is lowered by τ·ln of its share of
@@ -55,14 +55,6 @@ pub struct FitShapesArgs {
     /// INSSPLAT_LABEL_TABLE). Needs --examples and --held-out, which record the prototypes.
     #[arg(long, requires_all = ["examples", "held_out"])]
     semantic: bool,
-    /// Also read each instance's appearance in the photos (crop gradients, silhouette,
-    /// colours; `inssplat_raster::label::appearance`), which the example files record.
-    /// Needs --examples and --held-out; examples without an appearance are left out of the fit.
-    #[arg(long, requires_all = ["examples", "held_out"])]
-    appearance: bool,
-    /// Adam's L2 penalty on the weights.
-    #[arg(long, default_value_t = FitShapesConfig::default().weight_decay)]
-    weight_decay: f32,
     /// New model version for the written file (default: keep the old one).
     #[arg(long)]
     model_version: Option<String>,
@@ -78,9 +70,6 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
     if !(a.logit_adjust.is_finite() && a.logit_adjust >= 0.0) {
         return Err(anyhow!("--logit-adjust {}: must be a number ≥ 0", a.logit_adjust));
     }
-    if !(a.weight_decay.is_finite() && a.weight_decay >= 0.0) {
-        return Err(anyhow!("--weight-decay {}: must be a number ≥ 0", a.weight_decay));
-    }
     // Furniture is needed only for the rooms synthesized here, not with example files.
     let furniture = || crate::furniture(a.primitives_only, &a.furniture_dir);
     let train = match a.examples.as_slice() {
@@ -91,14 +80,8 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         Some(path) => read_examples(path, "--held-out")?,
         None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
-    let config = FitShapesConfig {
-        epochs: a.epochs,
-        hidden: a.hidden,
-        logit_adjust: a.logit_adjust,
-        appearance: a.appearance,
-        weight_decay: a.weight_decay,
-        ..FitShapesConfig::default()
-    };
+    let config =
+        FitShapesConfig { epochs: a.epochs, hidden: a.hidden, logit_adjust: a.logit_adjust, ..FitShapesConfig::default() };
     let texts = if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };
     let bar = bar(config.epochs as u64, "epochs");
     let (mut classifier, report) =
@@ -114,11 +97,9 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
         files => format!("the instances in {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" + ")),
     };
     classifier.provenance = format!(
-        "inssplat-train fit-shapes{}{}{}{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
+        "inssplat-train fit-shapes{}{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
         if a.semantic { " --semantic" } else { "" },
-        if a.appearance { " --appearance" } else { "" },
         if a.logit_adjust > 0.0 { format!(" --logit-adjust {}", a.logit_adjust) } else { String::new() },
-        if a.weight_decay > 0.0 { format!(" --weight-decay {}", a.weight_decay) } else { String::new() },
         source(&a.examples, format!("the objects of train rooms {}..{}", a.first_scene, a.first_scene + a.scenes)),
         train.len(),
         config.epochs,

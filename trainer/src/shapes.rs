@@ -5,8 +5,7 @@
 //! to them with cross-entropy, the lengths rescaled at random each epoch (the network's depth
 //! has a scale error of its own), optionally with the cosines of each instance's semantic
 //! prototype to the labels' texts as well (a semantic classifier, fitted on the pipeline's own
-//! instances) and their appearance in the photos (an appearance classifier, likewise); and
-//! [`attach`], which stores the result in a model file.
+//! instances); and [`attach`], which stores the result in a model file.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -14,13 +13,12 @@ use std::path::Path;
 use burn::module::Module;
 use burn::nn::loss::CrossEntropyLossConfig;
 use burn::nn::{Linear, LinearConfig};
-use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use glam::Vec3;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{APPEARANCE, DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines};
+use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines};
 use inssplat_text::LabelCache;
 use inssplat_proto::signature::{META_MODEL_VERSION, META_SHAPE_CLASSIFIER};
 use inssplat_raster::label::shape::{camera_up, descriptor, ground};
@@ -74,7 +72,7 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
         .iter()
         .filter_map(|(id, (p, c))| {
             let label = scene.instances.iter().find(|i| i.id == u32::from(*id))?.label.clone();
-            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new(), appearance: Vec::new() })
+            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new() })
         })
         .collect()
 }
@@ -93,25 +91,11 @@ pub struct FitShapesConfig {
     /// label trades accuracy on frequent labels for recall on rare ones (what mIoU and mAcc,
     /// means over classes, reward). 0 leaves the fit as it is.
     pub logit_adjust: f32,
-    /// Also read each example's appearance ([`ShapeClassifier::appearance`]); examples
-    /// recorded without one are left out of the fit.
-    pub appearance: bool,
-    /// Adam's L2 penalty on the weights (0: none).
-    pub weight_decay: f32,
 }
 
 impl Default for FitShapesConfig {
     fn default() -> Self {
-        Self {
-            hidden: 64,
-            epochs: 1500,
-            lr: 3e-3,
-            scale_jitter: 1.25,
-            seed: 7,
-            logit_adjust: 0.0,
-            appearance: false,
-            weight_decay: 0.0,
-        }
+        Self { hidden: 64, epochs: 1500, lr: 3e-3, scale_jitter: 1.25, seed: 7, logit_adjust: 0.0 }
     }
 }
 
@@ -149,9 +133,8 @@ fn label_texts(labels: &[String], cache: &LabelCache) -> Result<Vec<Vec<f32>>, S
 }
 
 /// The classifier's input for `e` (before standardizing): its descriptor, then with `texts`
-/// the cosines of its prototype to them, then with `appearance` its appearance. Err names
-/// the example that has no prototype or a wrong-sized appearance.
-fn example_input(e: &LabelledDescriptor, i: usize, texts: Option<&[Vec<f32>]>, appearance: bool) -> Result<Vec<f32>, String> {
+/// the cosines of its prototype to them. Err names the example that has no prototype.
+fn example_input(e: &LabelledDescriptor, i: usize, texts: Option<&[Vec<f32>]>) -> Result<Vec<f32>, String> {
     let mut x = e.descriptor.to_vec();
     if let Some(texts) = texts {
         if e.prototype.is_empty() {
@@ -162,24 +145,13 @@ fn example_input(e: &LabelledDescriptor, i: usize, texts: Option<&[Vec<f32>]>, a
         }
         x.extend(label_cosines(&e.prototype, texts));
     }
-    if appearance {
-        if e.appearance.len() != APPEARANCE {
-            return Err(format!(
-                "example {i} ({}) has {} appearance entries, not {APPEARANCE}: an appearance classifier fits on `inssplat eval --shape-examples` files of this version",
-                e.label,
-                e.appearance.len()
-            ));
-        }
-        x.extend(&e.appearance);
-    }
     Ok(x)
 }
 
 /// Fits the classifier to `train` (labels: every label in it, sorted); scores it on
 /// `held_out` (examples whose label `train` lacks count as wrong). With `semantic` (the
 /// label texts' source) it is a [`ShapeClassifier::semantic`] one, and every example needs
-/// its prototype. With `hidden` 0 it is linear (softmax regression). `on_epoch(epoch, loss)`
-/// reports progress.
+/// its prototype. `on_epoch(epoch, loss)` reports progress.
 pub fn fit(
     train: &[LabelledDescriptor],
     held_out: &[LabelledDescriptor],
@@ -187,16 +159,15 @@ pub fn fit(
     semantic: Option<&LabelCache>,
     on_epoch: &dyn Fn(usize, f32),
 ) -> Result<(ShapeClassifier, FitShapesReport), String> {
-    let train: Vec<&LabelledDescriptor> = train.iter().filter(|e| !config.appearance || !e.appearance.is_empty()).collect();
     if train.is_empty() {
-        return Err(format!("no training examples{}", if config.appearance { " with an appearance" } else { "" }));
+        return Err("no training examples".into());
     }
     let mut labels: Vec<String> = train.iter().map(|e| e.label.clone()).collect();
     labels.sort();
     labels.dedup();
     let texts = semantic.map(|cache| label_texts(&labels, cache)).transpose()?;
     let inputs: Vec<Vec<f32>> =
-        train.iter().enumerate().map(|(i, e)| example_input(e, i, texts.as_deref(), config.appearance)).collect::<Result<_, _>>()?;
+        train.iter().enumerate().map(|(i, e)| example_input(e, i, texts.as_deref())).collect::<Result<_, _>>()?;
     let d = inputs[0].len();
     let n = train.len() as f32;
     let mean: Vec<f32> = (0..d).map(|a| inputs.iter().map(|x| x[a]).sum::<f32>() / n).collect();
@@ -206,14 +177,9 @@ pub fn fit(
 
     let device = Device::flex().autodiff();
     device.seed(config.seed);
-    let widths = match config.hidden {
-        0 => vec![d, labels.len()],
-        h => vec![d, h, h, labels.len()],
-    };
+    let widths = [d, config.hidden, config.hidden, labels.len()];
     let mut mlp = Mlp { layers: widths.windows(2).map(|w| LinearConfig::new(w[0], w[1]).init(&device)).collect() };
-    let mut optim = AdamConfig::new()
-        .with_weight_decay((config.weight_decay > 0.0).then(|| WeightDecayConfig::new(config.weight_decay)))
-        .init();
+    let mut optim = AdamConfig::new().init();
     let ce = CrossEntropyLossConfig::new().init(&device);
     let y = Tensor::<1, Int>::from_data(TensorData::new(targets.clone(), [train.len()]), &device);
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
@@ -250,14 +216,13 @@ pub fn fit(
             Ok(Dense { inputs, outputs, weight, bias })
         })
         .collect::<Result<Vec<_>, String>>()?;
-    adjust_logits(layers.last_mut().expect("one layer or three"), &targets, config.logit_adjust);
+    adjust_logits(layers.last_mut().expect("three layers"), &targets, config.logit_adjust);
     let semantic = texts.is_some();
-    let classifier =
-        ShapeClassifier { labels, mean, std, layers, provenance: String::new(), semantic, appearance: config.appearance };
+    let classifier = ShapeClassifier { labels, mean, std, layers, provenance: String::new(), semantic };
     classifier.validate().map_err(|e| e.to_string())?;
     let texts = texts.unwrap_or_default();
     let report = FitShapesReport {
-        train_accuracy: accuracy(&classifier, train.iter().copied(), &texts)?.unwrap_or(0.0),
+        train_accuracy: accuracy(&classifier, train, &texts)?.unwrap_or(0.0),
         held_out_accuracy: accuracy(&classifier, held_out, &texts)?,
         final_loss,
     };
@@ -280,23 +245,16 @@ fn adjust_logits(last: &mut Dense, targets: &[i64], tau: f32) {
 
 /// Share of `examples` whose most probable label is theirs (`None` without examples);
 /// `texts` are the embeddings of a semantic classifier's labels (else unused). Err names an
-/// example a semantic classifier cannot read. An example without an appearance reads as an
-/// appearance classifier's mean, as the pipeline reads an instance no view shows enough of.
-pub fn accuracy<'a>(
-    c: &ShapeClassifier,
-    examples: impl IntoIterator<Item = &'a LabelledDescriptor>,
-    texts: &[Vec<f32>],
-) -> Result<Option<f64>, String> {
-    let (mut right, mut count) = (0, 0);
-    for (i, e) in examples.into_iter().enumerate() {
-        let cosines = example_input(e, i, c.semantic.then_some(texts), false)?.split_off(DESCRIPTOR.len());
-        let look = (!e.appearance.is_empty()).then_some(e.appearance.as_slice());
-        let p = c.probabilities(&e.descriptor, &cosines, look);
+/// example a semantic classifier cannot read.
+pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor], texts: &[Vec<f32>]) -> Result<Option<f64>, String> {
+    let mut right = 0;
+    for (i, e) in examples.iter().enumerate() {
+        let cosines = example_input(e, i, c.semantic.then_some(texts))?.split_off(DESCRIPTOR.len());
+        let p = c.probabilities(&e.descriptor, &cosines);
         let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]));
         right += usize::from(best.is_some_and(|b| c.labels[b] == e.label));
-        count += 1;
     }
-    Ok((count > 0).then(|| right as f64 / count as f64))
+    Ok((!examples.is_empty()).then(|| right as f64 / examples.len() as f64))
 }
 
 #[derive(Debug, thiserror::Error)]

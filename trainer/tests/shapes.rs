@@ -1,14 +1,12 @@
 //! The shape classifier on real synthesized rooms: descriptors measured from true depth stand
 //! on the floor the code finds, an MLP fitted on some rooms names the objects of others better
 //! than the most common label does (better again when it also reads the instances' semantic
-//! prototypes, or their appearance in the photos), logit adjustment moves only its last bias,
-//! `attach` stores it in a real exported model file, and `inssplat-train fit-shapes` names a
-//! bad flag and its value.
+//! prototypes), logit adjustment moves only its last bias, `attach` stores it in a real
+//! exported model file, and `inssplat-train fit-shapes` names a bad flag and its value.
 
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{APPEARANCE, DESCRIPTOR, LabelledDescriptor, ShapeClassifier};
-use inssplat_raster::label::appearance::{AppearanceView, instance_appearance};
+use inssplat_proto::shape::{DESCRIPTOR, LabelledDescriptor, ShapeClassifier};
 use inssplat_text::LabelCache;
 use inssplat_proto::signature as sig;
 use inssplat_trainer::export::onnx_pb::ModelProto;
@@ -33,37 +31,6 @@ fn examples(split: Split, rooms: std::ops::Range<u64>) -> Vec<LabelledDescriptor
         .flat_map(|i| {
             let scene = room(split, i);
             scene_examples(&scene, &draw_views(scene.frames.len(), i))
-        })
-        .collect()
-}
-
-/// Examples of the objects (the room shell aside) of `rooms` that the drawn views show, each
-/// with its appearance in their photos through its true masks and a zero descriptor: all a
-/// classifier can learn from them is in the appearance.
-fn appearance_only(split: Split, rooms: std::ops::Range<u64>) -> Vec<LabelledDescriptor> {
-    rooms
-        .flat_map(|i| {
-            let scene = room(split, i);
-            let views = draw_views(scene.frames.len(), i);
-            let photos: Vec<(Vec<f32>, Vec<u32>)> = views
-                .iter()
-                .map(|&v| {
-                    let f = &scene.frames[v];
-                    (f.planar_rgb(), f.instances.as_ref().unwrap().iter().map(|&id| u32::from(id)).collect())
-                })
-                .collect();
-            let (w, h) = (scene.frames[0].width() as usize, scene.frames[0].height() as usize);
-            let looks = instance_appearance(
-                &photos.iter().map(|(rgb, ids)| AppearanceView { planar_rgb: rgb, ids, width: w, height: h }).collect::<Vec<_>>(),
-            );
-            looks
-                .into_iter()
-                .filter_map(|(id, appearance)| {
-                    let label = scene.instances.iter().find(|i| i.id == id)?.label.clone();
-                    let object = !["wall", "floor", "ceiling"].contains(&label.as_str());
-                    object.then(|| LabelledDescriptor { label, descriptor: [0.0; DESCRIPTOR.len()], prototype: Vec::new(), appearance })
-                })
-                .collect::<Vec<_>>()
         })
         .collect()
 }
@@ -132,7 +99,7 @@ fn logit_adjustment_moves_only_the_last_bias_and_names_frequent_labels_less_ofte
     let argmax = |p: &[f32]| (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b])).unwrap();
     let (mut named_plain, mut named_adjusted) = (0, 0);
     for e in &held_out {
-        let (p, a) = (plain.probabilities(&e.descriptor, &[], None), adjusted.probabilities(&e.descriptor, &[], None));
+        let (p, a) = (plain.probabilities(&e.descriptor, &[]), adjusted.probabilities(&e.descriptor, &[]));
         assert!(a[top] <= p[top] + 1e-6, "{}: {} adjusted against {} plain", plain.labels[top], a[top], p[top]);
         named_plain += usize::from(argmax(&p) == top);
         named_adjusted += usize::from(argmax(&a) == top);
@@ -170,34 +137,6 @@ fn a_semantic_classifier_also_reads_the_prototypes_and_needs_them() {
     bare[3].prototype.clear();
     let err = fit(&train, &bare, &config, Some(&cache), &|_, _| {}).unwrap_err();
     assert!(err.contains("example 3") && err.contains("no prototype"), "{err}");
-}
-
-#[test]
-fn an_appearance_classifier_names_objects_by_their_look_alone() {
-    let (train, held_out) = (appearance_only(Split::Train, 0..40), appearance_only(Split::Val, 0..12));
-    let config = FitShapesConfig { epochs: 300, appearance: true, ..FitShapesConfig::default() };
-    let (c, report) = fit(&train, &held_out, &config, None, &|_, _| {}).unwrap();
-    assert!(c.appearance && !c.semantic);
-    assert_eq!(c.input_width(), DESCRIPTOR.len() + APPEARANCE);
-    let mut counts = std::collections::BTreeMap::<&str, usize>::new();
-    train.iter().for_each(|e| *counts.entry(&e.label).or_default() += 1);
-    let top = counts.into_iter().max_by_key(|(_, n)| *n).unwrap().0;
-    let common = held_out.iter().filter(|e| e.label == top).count() as f64 / held_out.len() as f64;
-    let acc = report.held_out_accuracy.unwrap();
-    assert!(acc > common + 0.2, "held-out accuracy {acc} from the appearance alone, {common} for the most common label");
-    assert_eq!(ShapeClassifier::from_json(&c.to_json()).unwrap(), c);
-    // Examples without an appearance are left out of the fit; one of the wrong size is named.
-    let quick = FitShapesConfig { epochs: 2, ..config.clone() };
-    let mut without = train.clone();
-    without.iter_mut().take(5).for_each(|e| e.appearance.clear());
-    assert!(fit(&without, &[], &quick, None, &|_, _| {}).is_ok());
-    without.iter_mut().for_each(|e| e.appearance.clear());
-    let err = fit(&without, &[], &quick, None, &|_, _| {}).unwrap_err();
-    assert!(err.contains("no training examples with an appearance"), "{err}");
-    let mut short = train.clone();
-    short[2].appearance.truncate(10);
-    let err = fit(&short, &[], &config, None, &|_, _| {}).unwrap_err();
-    assert!(err.contains("example 2") && err.contains("10 appearance entries"), "{err}");
 }
 
 #[test]

@@ -5,10 +5,8 @@
 //! [`QueryRule::min_score`] and lie within [`QueryRule::margin`] of the best score, so all
 //! instances of the queried kind come back and near-misses of another kind do not. Text
 //! embeddings come in as plain vectors: this crate does not know the text model. [`masks`]
-//! renders per-Gaussian ids into per-view id maps; [`shape`] and [`appearance`] describe each
-//! instance in 3D and in the photos for the shape classifier.
+//! renders per-Gaussian ids into per-view id maps.
 
-pub mod appearance;
 pub mod masks;
 pub mod shape;
 

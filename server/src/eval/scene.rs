@@ -326,8 +326,7 @@ const OBJECT_SHARE: f64 = 0.25;
 /// objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that hold an object
 /// and a piece of floor are named for the object, as a user would), else the label with the
 /// most. Instances without labelled pixels are left out. The prototype is the unfused one (as
-/// a semantic classifier reads it), whatever `--shape-weight` named the instances with; the
-/// appearance is the instance's in the context photos.
+/// a semantic classifier reads it), whatever `--shape-weight` named the instances with.
 fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
     let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
     for (found, truth) in pairs {
@@ -351,8 +350,7 @@ fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])
             }?;
             let prototype =
                 rec.unfused_prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
-            let appearance = rec.appearance.iter().find(|(a, _)| a == id).map(|(_, a)| a.clone()).unwrap_or_default();
-            Some(LabelledDescriptor { label, descriptor: *d, prototype, appearance })
+            Some(LabelledDescriptor { label, descriptor: *d, prototype })
         })
         .collect()
 }

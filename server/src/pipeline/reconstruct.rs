@@ -1,7 +1,6 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
-//! → cluster once in 3D → per-view instance maps → semantic prototypes, moved toward what the
-//! shape classifier makes of each instance's size, colour and look in the photos → text labels
-//! → per-view label maps. An
+//! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
+//! of each instance's size and colour → text labels → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
 //! Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in every
 //! view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's target
@@ -17,7 +16,6 @@ use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
-use inssplat_raster::label::appearance::{AppearanceView, instance_appearance};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::register::{Descriptors, RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
@@ -132,8 +130,6 @@ pub struct Reconstruction {
     pub unfused_prototypes: Vec<InstancePrototype>,
     /// Each instance's shape descriptor (ids with too few Gaussians left out).
     pub descriptors: Vec<(u32, [f32; DESCRIPTOR.len()])>,
-    /// Each instance's appearance in the input photos (ids no view shows enough of left out).
-    pub appearance: Vec<(u32, Vec<f32>)>,
     pub vocabulary: Vec<String>,
     /// Φ_sem of the network: weight `[384][d_s]` and bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
@@ -290,22 +286,14 @@ pub fn reconstruct_with(
             Ok::<_, ClusterError>(())
         })
         .map_err(|e| stage_err("cluster")(&e))?;
-    let id_maps: Vec<Vec<u32>> =
-        clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
     let scene = &mut voxelized.scene;
 
     let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
-    let (prototypes, unfused_prototypes, matches, descriptors, appearance) = clock.time("label", || -> Result<_, PipelineError> {
+    let (prototypes, unfused_prototypes, matches, descriptors) = clock.time("label", || -> Result<_, PipelineError> {
         let err = stage_err("label");
         let mut prototypes = semantic_prototypes(scene, &projection).map_err(|e| err(&e))?;
         let unfused = prototypes.clone();
         let (_, descriptors) = instance_descriptors(scene, &cameras);
-        let views: Vec<AppearanceView<'_>> = decoded
-            .iter()
-            .zip(&id_maps)
-            .map(|(d, ids)| AppearanceView { planar_rgb: &d.planar, ids, width: out.width, height: out.height })
-            .collect();
-        let appearance = instance_appearance(&views);
         if let Some(classifier) = model.shapes.as_ref().filter(|_| config.shape_weight > 0.0) {
             let names: Vec<&str> = classifier.labels.iter().map(String::as_str).collect();
             let texts = labels.embed(&names).map_err(|e| err(&e))?;
@@ -316,8 +304,7 @@ pub fn reconstruct_with(
                         true => label_cosines(&prototypes.iter().find(|p| p.id == *id)?.embedding, &texts),
                         false => Vec::new(),
                     };
-                    let look = appearance.iter().find(|(a, _)| a == id).map(|(_, a)| a.as_slice());
-                    Some((*id, classifier.probabilities(d, &cosines, look)))
+                    Some((*id, classifier.probabilities(d, &cosines)))
                 })
                 .collect();
             fuse(&mut prototypes, &probabilities, &texts, config.shape_weight);
@@ -325,7 +312,7 @@ pub fn reconstruct_with(
         let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
         let texts = labels.embed(&words).map_err(|e| err(&e))?;
         let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
-        Ok((prototypes, unfused, matches, descriptors, appearance))
+        Ok((prototypes, unfused, matches, descriptors))
     })?;
     let k = scene.instance_id.iter().copied().max().unwrap_or(0) as usize;
     let mut label_of_id = vec![None; k];
@@ -341,6 +328,8 @@ pub fn reconstruct_with(
     scene.meta.up_axis = Some("-y".into());
     let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
+    let id_maps: Vec<Vec<u32>> =
+        clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
     let merged_into: Vec<u32> = voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
     let gaussian_maps = per_pixel.to_pixels(&merged_into);
     let views = decoded
@@ -367,7 +356,6 @@ pub fn reconstruct_with(
         prototypes,
         unfused_prototypes,
         descriptors,
-        appearance,
         vocabulary: vocabulary.to_vec(),
         sem_proj_weight: out.sem_proj_weight.clone(),
         sem_proj_bias: out.sem_proj_bias.clone(),
