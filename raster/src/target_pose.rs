@@ -7,9 +7,10 @@
 //! images blurred), so a pose some degrees off still finds its way, and the coarse steps cost
 //! a fraction of a full one. The intrinsics stay as given.
 
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use inssplat_proto::{Camera, GaussianScene};
 
+use crate::adam::PoseAdam;
 use crate::label::masks::{MaskError, colours, splats};
 use crate::render::{render, render_backward};
 
@@ -23,8 +24,6 @@ const LR_ROTATION: f32 = 4e-3;
 /// Adam's step on the translation, as a share of the median distance from the camera to
 /// the Gaussians (the predicted frame's scale is the depth's, not metres).
 const LR_TRANSLATION: f32 = 4e-3;
-const BETA1: f32 = 0.9;
-const BETA2: f32 = 0.999;
 
 /// What [`refine_pose`] did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -53,7 +52,7 @@ pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps:
     let mse_before = mse(camera)?;
     let lr_t = LR_TRANSLATION * median_distance(scene, camera);
     let mut cam = *camera;
-    let mut adam = Adam::default();
+    let mut adam = PoseAdam::default();
     let per_level = steps.div_ceil(LEVELS.len());
     let mut step = 0;
     for (factor, sigma) in LEVELS {
@@ -70,13 +69,7 @@ pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps:
             // The blur is symmetric (zero padding), so its adjoint is itself.
             let d_features = blur(&residual, w, h, sigma);
             let grads = render_backward(&splats, &view, &state, &d_features, &zeros, &zeros).camera;
-            let q = cam.rotation;
-            let mut params = [q.w, q.x, q.y, q.z, cam.translation.x, cam.translation.y, cam.translation.z];
-            let g = [grads.rotation[0], grads.rotation[1], grads.rotation[2], grads.rotation[3], grads.translation[0], grads.translation[1], grads.translation[2]];
-            let lrs = [LR_ROTATION, LR_ROTATION, LR_ROTATION, LR_ROTATION, lr_t, lr_t, lr_t];
-            adam.step(&mut params, &g, &lrs);
-            cam.rotation = Quat::from_xyzw(params[1], params[2], params[3], params[0]).normalize();
-            cam.translation = Vec3::new(params[4], params[5], params[6]);
+            adam.step(&mut cam, &grads, LR_ROTATION, lr_t);
             step += 1;
         }
     }
@@ -107,7 +100,7 @@ fn downsample(planes: &[f32], w: usize, h: usize, factor: usize) -> Vec<f32> {
 }
 
 /// Median distance from the camera centre to the Gaussians in front of it (1 without any).
-fn median_distance(scene: &GaussianScene, camera: &Camera) -> f32 {
+pub(crate) fn median_distance(scene: &GaussianScene, camera: &Camera) -> f32 {
     let mut d: Vec<f32> = scene
         .means
         .iter()
@@ -158,26 +151,6 @@ fn blur(planes: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
         }
     }
     out
-}
-
-/// Adam's moments for the 7 pose parameters.
-#[derive(Default)]
-struct Adam {
-    t: i32,
-    m: [f32; 7],
-    v: [f32; 7],
-}
-
-impl Adam {
-    fn step(&mut self, params: &mut [f32; 7], grads: &[f32; 7], lrs: &[f32; 7]) {
-        self.t += 1;
-        let (c1, c2) = (1.0 - BETA1.powi(self.t), 1.0 - BETA2.powi(self.t));
-        for i in 0..7 {
-            self.m[i] = BETA1 * self.m[i] + (1.0 - BETA1) * grads[i];
-            self.v[i] = BETA2 * self.v[i] + (1.0 - BETA2) * grads[i] * grads[i];
-            params[i] -= lrs[i] * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + 1e-12);
-        }
-    }
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 
 mod post_pipeline;
 mod post_scene;
+mod refine;
 mod register_learned;
 mod render_forward;
 mod render_grad;

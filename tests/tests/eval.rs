@@ -66,6 +66,8 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(objects.min(shell) - 1e-9 <= all && all <= objects.max(shell) + 1e-9, "{scene}");
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
     assert!(scene.get("target_pose_turn_deg").is_none(), "no target pose refinement unless asked: {scene}");
+    assert!(scene.get("refine_context_psnr").is_none() && scene["stage_ms"].get("refine").is_none(), "no refinement unless asked: {scene}");
+    assert!(report["protocol"].as_str().unwrap().contains("no test-time optimization of the Gaussians"));
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
@@ -75,10 +77,11 @@ fn eval_reports_every_metric_per_view_count() {
     assert_eq!(report["cluster"], "3d");
 
     // With the true context cameras the alignment is exact, with the true depth so is the
-    // depth, and the report says so, as it says that the target cameras were refined ...
+    // depth, and the report says so, as it says that the target cameras were refined and the
+    // Gaussians fitted to the context photos (the given cameras kept) ...
     let out = inssplat(&[
         "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
-        "--target-pose-steps", "6", "--json",
+        "--target-pose-steps", "6", "--refine-steps", "12", "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -87,7 +90,12 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras and depth"));
     assert_eq!(report["target_pose_steps"], 6);
     assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of each target camera's pose"));
+    assert_eq!(report["refine_steps"], 12);
+    assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of the Gaussians"));
     let scene = &report["scenes"][0];
+    let fit = scene["refine_context_psnr"].as_array().unwrap_or_else(|| panic!("no refinement reported: {scene}"));
+    assert!(fit[1].as_f64().unwrap() > fit[0].as_f64().unwrap(), "the context views fit worse after refining: {scene}");
+    assert!(scene["stage_ms"]["refine"].as_f64().unwrap() > 0.0, "{scene}");
     let turn = scene["target_pose_turn_deg"].as_f64().unwrap_or_else(|| panic!("no turn reported: {scene}"));
     assert!((0.0..10.0).contains(&turn), "{scene}");
     assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");

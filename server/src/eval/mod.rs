@@ -80,6 +80,8 @@ pub struct Report {
     pub no_aggregation: bool,
     /// Adam steps of photometric pose refinement of each target camera (0: none).
     pub target_pose_steps: usize,
+    /// Adam steps of test-time refinement of the Gaussians and context cameras (0: none).
+    pub refine_steps: usize,
     pub summaries: Vec<Summary>,
     /// Every scene's [`SceneScores::shape_examples`] (the plain view-count runs).
     #[serde(skip)]
@@ -302,6 +304,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         known_depth: req.known_depth,
         no_aggregation: req.no_aggregation,
         target_pose_steps: req.target_pose_steps,
+        refine_steps: req.pipeline.refine_steps,
         summaries,
         shape_examples: all.iter_mut().flat_map(|s| std::mem::take(&mut s.shape_examples)).collect(),
         robustness,
@@ -311,7 +314,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}; depth AbsRel after median scale; no test-time optimization of the Gaussians{}{}",
+             the clustered scene rendered there{}; depth AbsRel (the network's) after median scale; {}{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -323,6 +326,13 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 n => format!(
                     ", after TEST-TIME OPTIMIZATION of each target camera's pose against its photo (--target-pose-steps {n}: Adam on the pose, \
                      the Gaussians frozen, coarse to fine; kept only where it lowers the colour error)"
+                ),
+            },
+            match req.pipeline.refine_steps {
+                0 => "no test-time optimization of the Gaussians".to_string(),
+                n => format!(
+                    "TEST-TIME OPTIMIZATION of the Gaussians and context cameras against the context photos after clustering and naming \
+                     (--refine-steps {n}: Adam, one view a step, the first camera fixed)"
                 ),
             },
             match (&req.pipeline.register, req.known_poses) {

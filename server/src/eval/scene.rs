@@ -63,6 +63,9 @@ pub struct SceneScores {
     /// Mean angle by which `--target-pose-steps` turned the target cameras (degrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_pose_turn_deg: Option<f64>,
+    /// PSNR of the input views rendered from the scene before and after `--refine-steps`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refine_context_psnr: Option<[f64; 2]>,
     pub gaussians_in: usize,
     pub gaussians_kept: usize,
     pub instances_found: usize,
@@ -228,6 +231,7 @@ pub fn evaluate_scene_keeping(
         instances_true: scene.instances.len(),
         seconds,
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
+        refine_context_psnr: rec.refinement.map(|r| [r.mse_before, r.mse_after].map(|mse| -10.0 * mse.max(1e-12).log10())),
         ..SceneScores::default()
     };
     let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;

@@ -1,6 +1,7 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
 //! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
-//! of each instance's size and colour → text labels → per-view instance and label maps. An
+//! of each instance's size and colour → text labels → (optionally) the Gaussians and cameras
+//! refined against the photos, ids and names kept → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
 //! Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in every
 //! view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's target
@@ -17,6 +18,7 @@ use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
+use inssplat_raster::refine::{RefineParams, RefineView, SceneRefinement, refine_scene};
 use inssplat_raster::register::{Descriptors, RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
@@ -78,6 +80,11 @@ pub struct PipelineConfig {
     /// semantic prototype before naming (0, or a model without a classifier, names by the
     /// semantic features alone).
     pub shape_weight: f32,
+    /// Adam steps of test-time refinement of the Gaussians and the input cameras (not
+    /// [`PipelineConfig::known_poses`]) against the input photos after the instances are
+    /// clustered and named, which it keeps (stage "refine", [`inssplat_raster::refine`]; 0, the
+    /// default, is the feed-forward pipeline).
+    pub refine_steps: usize,
 }
 
 impl Default for PipelineConfig {
@@ -90,6 +97,7 @@ impl Default for PipelineConfig {
             known_poses: None,
             known_depth: None,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
+            refine_steps: 0,
         }
     }
 }
@@ -138,6 +146,8 @@ pub struct Reconstruction {
     pub timings: Vec<StageTiming>,
     /// Where every view's focal length came from.
     pub focal: FocalSource,
+    /// What the test-time refinement did (`None` without one).
+    pub refinement: Option<SceneRefinement>,
 }
 
 /// Collects stage timings and tells an observer when each stage starts.
@@ -234,7 +244,7 @@ pub fn reconstruct_with(
     }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
     let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
-    let (cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
+    let (mut cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
         None => {
             let predicted = predicted_cameras(&out);
             match &config.register {
@@ -326,6 +336,20 @@ pub fn reconstruct_with(
         .collect();
     scene.meta.model_version = Some(model.model_version.clone());
     scene.meta.up_axis = Some("-y".into());
+    let refinement = match config.refine_steps {
+        0 => None,
+        steps => Some(
+            clock
+                .time("refine", || {
+                    let views: Vec<RefineView<'_>> =
+                        decoded.iter().map(|d| RefineView { photo: &d.planar, rect: d.letterbox.photo_rect() }).collect();
+                    // Cameras the caller gave are kept; registered ones are refined with the scene.
+                    let params = RefineParams { steps, cameras: config.known_poses.is_none() };
+                    refine_scene(scene, &mut cameras, &views, params)
+                })
+                .map_err(|e| stage_err("refine")(&e))?,
+        ),
+    };
     let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
     let id_maps: Vec<Vec<u32>> =
@@ -362,6 +386,7 @@ pub fn reconstruct_with(
         voxel: voxelized.report,
         timings: clock.timings,
         focal,
+        refinement,
     })
 }
 

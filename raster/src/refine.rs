@@ -1,0 +1,181 @@
+//! Test-time refinement of a reconstructed scene against its own input photos: Adam on every
+//! Gaussian's position, scale, rotation, opacity and colour, and on each input camera's pose
+//! but the first (the reference frame), through the rasterizer's hand-written backward,
+//! minimizing the mean squared colour error of one input view a step (views in turn, as 3DGS
+//! trains; the cameras stay as given where they are known). This is the joint optimization that InstantSplat runs after its feed-forward
+//! initialization, kept short: the network's depth places the Gaussians, the photos then
+//! correct what the depth got wrong where the views see it. Instance ids, embeddings and
+//! semantic features ride along with their Gaussians unchanged. Learning rates decay
+//! exponentially to a tenth over the run.
+
+use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
+use inssplat_proto::{Camera, GaussianScene};
+
+use crate::adam::{Adam, PoseAdam};
+use crate::label::masks::MaskError;
+use crate::render::{Splats, render, render_backward};
+use crate::target_pose::median_distance;
+
+/// Adam's step on the positions, as a share of the median distance from the first camera to
+/// the Gaussians (the predicted frame's scale is the depth's, not metres).
+const LR_MEAN: f32 = 1e-3;
+/// Adam's step on the log-scales.
+const LR_LOG_SCALE: f32 = 1e-2;
+/// Adam's step on the quaternions' components.
+const LR_ROTATION: f32 = 5e-3;
+/// Adam's step on the logit opacities.
+const LR_OPACITY: f32 = 5e-2;
+/// Adam's step on the RGB colours.
+const LR_COLOUR: f32 = 1e-2;
+/// Adam's step on the cameras' quaternion components (1e-3 turns a camera by about 0.11°).
+const LR_POSE_ROTATION: f32 = 1e-3;
+/// Adam's step on the cameras' translations, as a share of the median distance.
+const LR_POSE_TRANSLATION: f32 = 1e-3;
+/// The rates at the last step, as a share of those at the first.
+const FINAL_LR_SHARE: f32 = 0.1;
+
+/// One input view: its photo, planar `[3][H][W]` in 0..1 at its camera's size, and the
+/// pixels of it that show the photo (`[x0, y0, x1, y1)`; letterbox bars outside are not
+/// compared).
+#[derive(Debug, Clone, Copy)]
+pub struct RefineView<'a> {
+    pub photo: &'a [f32],
+    pub rect: [u32; 4],
+}
+
+/// What [`refine_scene`] did: the input views' mean squared colour error (inside their
+/// rects, averaged over views) before and after.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneRefinement {
+    pub mse_before: f64,
+    pub mse_after: f64,
+}
+
+/// What [`refine_scene`] optimizes, and for how long.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RefineParams {
+    /// Adam steps, one view each.
+    pub steps: usize,
+    /// Refine the cameras' poses too (all but the first); `false` keeps them, as for cameras
+    /// the user gave.
+    pub cameras: bool,
+}
+
+/// Refines `scene` (and `cameras`, one per view, where `params` says so; the first stays
+/// fixed) against `views`. The scene's quaternions come back normalized and its colours as
+/// SH DC.
+pub fn refine_scene(
+    scene: &mut GaussianScene,
+    cameras: &mut [Camera],
+    views: &[RefineView<'_>],
+    params: RefineParams,
+) -> Result<SceneRefinement, MaskError> {
+    let steps = params.steps;
+    scene.validate()?;
+    assert_eq!(cameras.len(), views.len(), "one camera per view");
+    for (camera, view) in cameras.iter().zip(views) {
+        let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
+        if view.photo.len() != 3 * w * h {
+            return Err(MaskError::PhotoSize { expected: 3 * w * h, got: view.photo.len() });
+        }
+    }
+    let mut colours: Vec<f32> = scene.sh_dc.iter().flat_map(|c| c.map(sh_dc_to_rgb)).collect();
+    let mse_before = mean_error(scene, &colours, cameras, views)?;
+    if steps == 0 || views.is_empty() || scene.is_empty() {
+        return Ok(SceneRefinement { mse_before, mse_after: mse_before });
+    }
+    let n = scene.len();
+    let distance = median_distance(scene, &cameras[0]);
+    let mut adam = Groups {
+        means: Adam::new(3 * n),
+        log_scales: Adam::new(3 * n),
+        rotations: Adam::new(4 * n),
+        opacity: Adam::new(n),
+        colours: Adam::new(3 * n),
+        poses: vec![PoseAdam::default(); cameras.len()],
+    };
+    for step in 0..steps {
+        let decay = FINAL_LR_SHARE.powf(step as f32 / steps.saturating_sub(1).max(1) as f32);
+        let v = step % views.len();
+        let (camera, view) = (cameras[v], views[v]);
+        let splats = splats(scene, &colours);
+        let (image, state) = render(&splats, &camera, &[0.0; 3])?;
+        let d_features = residual(&image.features, view, &camera);
+        let pixels = image.alpha.len();
+        let zeros = vec![0.0; pixels];
+        let g = render_backward(&splats, &camera, &state, &d_features, &zeros, &zeros);
+        adam.means.step(scene.means.as_flattened_mut(), g.means.as_flattened(), &[decay * LR_MEAN * distance]);
+        adam.log_scales.step(scene.log_scales.as_flattened_mut(), g.log_scales.as_flattened(), &[decay * LR_LOG_SCALE]);
+        adam.rotations.step(scene.rotations.as_flattened_mut(), g.rotations.as_flattened(), &[decay * LR_ROTATION]);
+        adam.opacity.step(&mut scene.logit_opacity, &g.logit_opacity, &[decay * LR_OPACITY]);
+        adam.colours.step(&mut colours, &g.features, &[decay * LR_COLOUR]);
+        if params.cameras && v > 0 {
+            adam.poses[v].step(&mut cameras[v], &g.camera, decay * LR_POSE_ROTATION, decay * LR_POSE_TRANSLATION * distance);
+        }
+    }
+    for q in &mut scene.rotations {
+        let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
+        if norm > 0.0 {
+            *q = q.map(|c| c / norm);
+        }
+    }
+    for (sh, rgb) in scene.sh_dc.iter_mut().zip(colours.chunks_exact(3)) {
+        *sh = [0, 1, 2].map(|c| rgb_to_sh_dc(rgb[c]));
+    }
+    let mse_after = mean_error(scene, &colours, cameras, views)?;
+    Ok(SceneRefinement { mse_before, mse_after })
+}
+
+/// The Adam moments of each parameter group.
+struct Groups {
+    means: Adam,
+    log_scales: Adam,
+    rotations: Adam,
+    opacity: Adam,
+    colours: Adam,
+    poses: Vec<PoseAdam>,
+}
+
+fn splats<'a>(scene: &'a GaussianScene, colours: &'a [f32]) -> Splats<'a> {
+    Splats {
+        means: &scene.means,
+        log_scales: &scene.log_scales,
+        rotations: &scene.rotations,
+        logit_opacity: &scene.logit_opacity,
+        features: colours,
+        channels: 3,
+    }
+}
+
+/// The gradient of the mean squared error inside `view.rect` w.r.t. the rendered planes.
+fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera) -> Vec<f32> {
+    let w = camera.intrinsics.width as usize;
+    let [x0, y0, x1, y1] = view.rect.map(|c| c as usize);
+    let count = (3 * (x1.saturating_sub(x0)) * (y1.saturating_sub(y0))).max(1) as f32;
+    let plane = rendered.len() / 3;
+    rendered
+        .iter()
+        .zip(view.photo)
+        .enumerate()
+        .map(|(i, (a, b))| {
+            let (x, y) = (i % plane % w, i % plane / w);
+            match (x0..x1).contains(&x) && (y0..y1).contains(&y) {
+                true => 2.0 * (a - b) / count,
+                false => 0.0,
+            }
+        })
+        .collect()
+}
+
+/// Mean over the views of the mean squared colour error inside each view's rect.
+fn mean_error(scene: &GaussianScene, colours: &[f32], cameras: &[Camera], views: &[RefineView<'_>]) -> Result<f64, MaskError> {
+    let splats = splats(scene, colours);
+    let mut total = 0.0;
+    for (camera, view) in cameras.iter().zip(views) {
+        let (image, _) = render(&splats, camera, &[0.0; 3])?;
+        let gradient = residual(&image.features, *view, camera);
+        // Each entry of the residual is 2(a − b)/count, so Σ (a − b)² / count = Σ g·(a − b) / 2.
+        total += gradient.iter().zip(&image.features).zip(view.photo).map(|((g, a), b)| f64::from(g * (a - b)) / 2.0).sum::<f64>();
+    }
+    Ok(total / views.len().max(1) as f64)
+}
