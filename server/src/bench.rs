@@ -67,27 +67,34 @@ fn inputs(scene: &Scene, views: usize) -> anyhow::Result<Vec<InputImage>> {
     Ok(context_images(scene, &frames, None))
 }
 
-/// Runs the pipeline `runs` times (after one warm-up) at each count in `views`, and times
+/// What [`bench`] times: the view counts, the timed runs of each, the label vocabulary and
+/// the pipeline's settings.
+pub struct BenchPlan<'a> {
+    pub views: &'a [usize],
+    pub runs: usize,
+    pub vocabulary: &'a [String],
+    pub config: &'a PipelineConfig,
+}
+
+/// Runs the pipeline `plan.runs` times (after one warm-up) at each of `plan.views`, and times
 /// rendering id maps at the input cameras on the CPU and on `gpu` when given.
 pub fn bench(
     model: &mut Model,
     labels: &LabelCache,
     scene: &Scene,
-    views: &[usize],
-    runs: usize,
-    vocabulary: &[String],
+    plan: &BenchPlan<'_>,
     gpu: Option<&GpuRenderer>,
 ) -> anyhow::Result<Vec<BenchRow>> {
-    let config = PipelineConfig::default();
+    let BenchPlan { views, runs, vocabulary, config } = *plan;
     views
         .iter()
         .map(|&v| {
             let images = inputs(scene, v)?;
-            reconstruct(model, labels, &images, vocabulary, &config)?;
+            reconstruct(model, labels, &images, vocabulary, config)?;
             let mut per_stage: BTreeMap<String, Vec<f64>> = BTreeMap::new();
             let (mut totals, mut last) = (Vec::new(), None);
             for _ in 0..runs.max(1) {
-                let rec = reconstruct(model, labels, &images, vocabulary, &config)?;
+                let rec = reconstruct(model, labels, &images, vocabulary, config)?;
                 totals.push(rec.timings.iter().map(|t| t.ms).sum());
                 for t in &rec.timings {
                     per_stage.entry(t.stage.clone()).or_default().push(t.ms);
@@ -217,7 +224,13 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 
 /// The table and the growth ratios, in markdown.
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
-    let stages = ["decode", "model", "register", "backproject", "voxelize", "cluster", "label", "masks"];
+    // The refine stage only runs when asked for (`--refine-steps`).
+    let refined = rows.iter().any(|r| r.stage_ms.contains_key("refine"));
+    let stages: Vec<&str> = ["decode", "model", "register", "backproject", "voxelize", "cluster", "label"]
+        .into_iter()
+        .chain(refined.then_some("refine"))
+        .chain(["masks"])
+        .collect();
     let mut out = format!(
         "Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads; stages on the CPU; GPU: {}). \
          Input-view masks take each pixel's merged Gaussian's id; the render columns time id maps rendered at \
@@ -225,7 +238,7 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
         rows.first().map_or(0, |r| r.runs),
         gpu.unwrap_or("no adapter")
     );
-    for s in stages {
+    for s in &stages {
         out += &format!(" {s} |");
     }
     out += " total | post / model | Gaussians in | kept | instances | 3D: cluster + masks | 2D: per-view render + cluster | render on CPU | render on GPU |\n|---|";
@@ -233,8 +246,8 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
     out += "\n";
     for r in rows {
         out += &format!("| {} |", r.views);
-        for s in stages {
-            out += &format!(" {:.0} |", r.stage_ms.get(s).copied().unwrap_or(f64::NAN));
+        for s in &stages {
+            out += &format!(" {:.0} |", r.stage_ms.get(*s).copied().unwrap_or(f64::NAN));
         }
         let model = r.stage_ms.get("model").copied().unwrap_or(f64::NAN);
         let three_d = r.stage_ms.get("cluster").copied().unwrap_or(0.0) + r.stage_ms.get("masks").copied().unwrap_or(0.0);
@@ -253,8 +266,8 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
     let find = |v: usize| rows.iter().find(|r| r.views == v);
     if let (Some(a), Some(b)) = (find(8), find(16)) {
         out += "\nGrowth from 8 to 16 views (time ratio):";
-        for s in stages {
-            if let (Some(x), Some(y)) = (a.stage_ms.get(s), b.stage_ms.get(s)) {
+        for s in &stages {
+            if let (Some(x), Some(y)) = (a.stage_ms.get(*s), b.stage_ms.get(*s)) {
                 out += &format!(" {s} {:.2}×,", y / x);
             }
         }

@@ -104,6 +104,10 @@ enum Command {
         /// each one's medians and the ratios (this one over --model) instead of the stages.
         #[arg(long)]
         against: Option<PathBuf>,
+        /// Time the pipeline with this many steps of test-time refinement (stage `refine`, as
+        /// `reconstruct --refine-steps`; 0, the default, times the feed-forward pipeline).
+        #[arg(long, default_value_t = 0, value_name = "STEPS", conflicts_with = "against")]
+        refine_steps: usize,
         /// Print JSON instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -341,7 +345,7 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Command::Bench { data, views, runs, model, against, json, threads } => {
+        Command::Bench { data, views, runs, model, against, refine_steps, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -362,7 +366,10 @@ fn main() -> anyhow::Result<()> {
                 return Ok(());
             }
             let gpu = GpuRenderer::new().ok();
-            let rows = bench::bench(&mut model, &labels, &scene, &views, runs, &vocab::vocabulary(None)?, gpu.as_ref())?;
+            let config = PipelineConfig { refine_steps, ..PipelineConfig::default() };
+            let vocabulary = vocab::vocabulary(None)?;
+            let plan = bench::BenchPlan { views: &views, runs, vocabulary: &vocabulary, config: &config };
+            let rows = bench::bench(&mut model, &labels, &scene, &plan, gpu.as_ref())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&rows)?);
             } else {

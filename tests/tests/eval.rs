@@ -4,7 +4,8 @@
 //! names each true label got), that the JSON and markdown files are written, and that bad
 //! arguments are named errors; `--shape-examples` records the prototypes as the features give
 //! them, before the shipped shape classifier moves them. Also
-//! `inssplat bench`: every stage timed per view count, Gaussians in = views × pixels.
+//! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
+//! Gaussians in = views × pixels.
 
 use inssplat_e2e::inssplat;
 use inssplat_proto::shape::LabelledDescriptor;
@@ -190,6 +191,11 @@ fn bench_times_every_stage_per_view_count() {
     let table = inssplat(&["bench", "--data", s(&scene), "--views", "8,16", "--runs", "1", "--model", s(&model)]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
+    assert!(!text.contains("refine"), "no refine stage unless asked: {text}");
+    // With test-time refinement the stage is timed and gets its column.
+    let table = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--refine-steps", "4"]);
+    let text = String::from_utf8_lossy(&table.stdout);
+    assert!(table.status.success() && text.contains("| label | refine | masks |"), "{text}");
 }
 
 /// `bench --against`: the tiny model and its int8 file (`inssplat-train quantize`'s
