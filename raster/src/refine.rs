@@ -2,11 +2,11 @@
 //! Gaussian's position, scale, rotation, opacity and colour, and on each input camera's pose
 //! but the first (the reference frame), through the rasterizer's hand-written backward,
 //! minimizing the mean squared colour error of one input view a step (views in turn, as 3DGS
-//! trains; the cameras stay as given where they are known). This is the joint optimization that InstantSplat runs after its feed-forward
-//! initialization, kept short: the network's depth places the Gaussians, the photos then
-//! correct what the depth got wrong where the views see it. Instance ids, embeddings and
-//! semantic features ride along with their Gaussians unchanged. Learning rates decay
-//! exponentially to a tenth over the run.
+//! trains; the cameras stay as given where they are known). This is the joint optimization
+//! that InstantSplat runs after its feed-forward initialization, kept short: the network's
+//! depth places the Gaussians, the photos then correct what the depth got wrong where the
+//! views see it. Instance ids, embeddings and semantic features ride along with their
+//! Gaussians unchanged. Learning rates decay exponentially to a tenth over the run.
 
 use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
 use inssplat_proto::{Camera, GaussianScene};
@@ -64,6 +64,9 @@ pub struct RefineParams {
 /// Refines `scene` (and `cameras`, one per view, where `params` says so; the first stays
 /// fixed) against `views`. The scene's quaternions come back normalized and its colours as
 /// SH DC.
+///
+/// # Panics
+/// If `cameras` and `views` differ in length.
 pub fn refine_scene(
     scene: &mut GaussianScene,
     cameras: &mut [Camera],
