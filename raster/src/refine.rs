@@ -8,12 +8,12 @@
 //! views see it. Instance ids, embeddings and semantic features ride along with their
 //! Gaussians unchanged. Learning rates decay exponentially to a tenth over the run.
 
-use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
+use inssplat_proto::gaussian::rgb_to_sh_dc;
 use inssplat_proto::{Camera, GaussianScene};
 
 use crate::adam::{Adam, PoseAdam};
-use crate::label::masks::MaskError;
-use crate::render::{Splats, render, render_backward};
+use crate::label::masks::{MaskError, colours, splats};
+use crate::render::{render, render_backward};
 use crate::target_pose::median_distance;
 
 /// Adam's step on the positions, as a share of the median distance from the first camera to
@@ -82,7 +82,7 @@ pub fn refine_scene(
             return Err(MaskError::PhotoSize { expected: 3 * w * h, got: view.photo.len() });
         }
     }
-    let mut colours: Vec<f32> = scene.sh_dc.iter().flat_map(|c| c.map(sh_dc_to_rgb)).collect();
+    let mut colours = colours(scene);
     let mse_before = mean_error(scene, &colours, cameras, views)?;
     if steps == 0 || views.is_empty() || scene.is_empty() {
         return Ok(SceneRefinement { mse_before, mse_after: mse_before });
@@ -101,7 +101,7 @@ pub fn refine_scene(
         let decay = FINAL_LR_SHARE.powf(step as f32 / steps.saturating_sub(1).max(1) as f32);
         let v = step % views.len();
         let (camera, view) = (cameras[v], views[v]);
-        let splats = splats(scene, &colours);
+        let splats = splats(scene, &colours, 3);
         let (image, state) = render(&splats, &camera, &[0.0; 3])?;
         let d_features = residual(&image.features, view, &camera);
         let pixels = image.alpha.len();
@@ -139,17 +139,6 @@ struct Groups {
     poses: Vec<PoseAdam>,
 }
 
-fn splats<'a>(scene: &'a GaussianScene, colours: &'a [f32]) -> Splats<'a> {
-    Splats {
-        means: &scene.means,
-        log_scales: &scene.log_scales,
-        rotations: &scene.rotations,
-        logit_opacity: &scene.logit_opacity,
-        features: colours,
-        channels: 3,
-    }
-}
-
 /// The gradient of the mean squared error inside `view.rect` w.r.t. the rendered planes.
 fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera) -> Vec<f32> {
     let w = camera.intrinsics.width as usize;
@@ -172,7 +161,7 @@ fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera) -> Vec<f32>
 
 /// Mean over the views of the mean squared colour error inside each view's rect.
 fn mean_error(scene: &GaussianScene, colours: &[f32], cameras: &[Camera], views: &[RefineView<'_>]) -> Result<f64, MaskError> {
-    let splats = splats(scene, colours);
+    let splats = splats(scene, colours, 3);
     let mut total = 0.0;
     for (camera, view) in cameras.iter().zip(views) {
         let (image, _) = render(&splats, camera, &[0.0; 3])?;
