@@ -99,6 +99,19 @@ pub struct ReconstructResponse {
     /// Per-pixel Gaussians in, Gaussians kept after voxelization.
     pub gaussians_in: usize,
     pub gaussians_kept: usize,
+    /// What the test-time refinement against the photos did (absent when it did not run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refinement: Option<RefinementOut>,
+}
+
+/// The test-time refinement of a reconstruction against its own photos: its Adam steps and
+/// the input views' PSNR (dB, inside the photos, averaged over views) before and after.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct RefinementOut {
+    pub steps: usize,
+    pub input_psnr_before: f64,
+    pub input_psnr_after: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -43,12 +43,21 @@ pub struct RefineView<'a> {
     pub rect: [u32; 4],
 }
 
-/// What [`refine_scene`] did: the input views' mean squared colour error (inside their
-/// rects, averaged over views) before and after.
+/// What [`refine_scene`] did: the Adam steps it took and the input views' mean squared colour
+/// error (inside their rects, averaged over views) before and after.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneRefinement {
+    pub steps: usize,
     pub mse_before: f64,
     pub mse_after: f64,
+}
+
+impl SceneRefinement {
+    /// The input views' fit before and after as PSNR (dB, of the mean squared error; colours
+    /// in 0..1).
+    pub fn psnr(&self) -> [f64; 2] {
+        [self.mse_before, self.mse_after].map(|mse| -10.0 * mse.max(1e-12).log10())
+    }
 }
 
 /// What [`refine_scene`] optimizes, and for how long.
@@ -85,7 +94,7 @@ pub fn refine_scene(
     let mut colours = colours(scene);
     let mse_before = mean_error(scene, &colours, cameras, views)?;
     if steps == 0 || views.is_empty() || scene.is_empty() {
-        return Ok(SceneRefinement { mse_before, mse_after: mse_before });
+        return Ok(SceneRefinement { steps: 0, mse_before, mse_after: mse_before });
     }
     let n = scene.len();
     let distance = median_distance(scene, &cameras[0]);
@@ -126,7 +135,7 @@ pub fn refine_scene(
         *sh = [0, 1, 2].map(|c| rgb_to_sh_dc(rgb[c]));
     }
     let mse_after = mean_error(scene, &colours, cameras, views)?;
-    Ok(SceneRefinement { mse_before, mse_after })
+    Ok(SceneRefinement { steps, mse_before, mse_after })
 }
 
 /// The Adam moments of each parameter group.

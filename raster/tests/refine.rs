@@ -50,6 +50,8 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     let done = refine_scene(&mut scene, &mut cameras, &inputs, RefineParams { steps: 160, cameras: true }).unwrap();
 
     assert!(done.mse_after < 0.3 * done.mse_before, "input views {done:?}");
+    assert_eq!(done.steps, 160);
+    assert!(done.psnr()[1] > done.psnr()[0] + 5.0, "{:?}", done.psnr());
     let novel_after = mse(&render_colour(&scene, &novel).unwrap(), &novel_photo);
     assert!(novel_after < 0.6 * novel_before, "novel view {novel_before:.4} → {novel_after:.4}");
     let turned_after = turn_deg(&cameras[3], &truth[3]);
@@ -66,7 +68,7 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     // No steps: nothing changes. A photo of the wrong size is named, not a panic.
     let (before, cams) = (scene.clone(), cameras.clone());
     let same = refine_scene(&mut scene, &mut cameras, &inputs, RefineParams { steps: 0, cameras: true }).unwrap();
-    assert_eq!((same.mse_before, &scene, &cameras), (same.mse_after, &before, &cams));
+    assert_eq!((same.steps, same.mse_before, &scene, &cameras), (0, same.mse_after, &before, &cams));
     let short = [RefineView { photo: &photos[0][..50], rect: [0, 0, size, size] }];
     let err = refine_scene(&mut scene, &mut cameras[..1], &short, RefineParams { steps: 5, cameras: true }).unwrap_err();
     assert!(err.to_string().contains("the photo has 50 values"), "{err}");

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use image::{Rgb, RgbImage};
-use inssplat_proto::api::{CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse};
+use inssplat_proto::api::{CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 use serde::{Deserialize, Serialize};
@@ -207,6 +207,10 @@ pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
         timings: rec.timings.clone(),
         gaussians_in: rec.voxel.gaussians_in,
         gaussians_kept: rec.voxel.gaussians_out,
+        refinement: rec.refinement.map(|r| {
+            let [input_psnr_before, input_psnr_after] = r.psnr();
+            RefinementOut { steps: r.steps, input_psnr_before, input_psnr_after }
+        }),
     }
 }
 
@@ -223,6 +227,12 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
         text.push_str(&format!("  #{:<3} {:<20} score {:.2}  {} Gaussians\n", i.id, i.label, i.score, i.gaussians));
     }
     text.push_str(&describe_cameras(&s.cameras));
+    if let Some(r) = &s.refinement {
+        text.push_str(&format!(
+            "refined against the photos for {} steps: input views {:.2} → {:.2} dB PSNR\n",
+            r.steps, r.input_psnr_before, r.input_psnr_after
+        ));
+    }
     let total: f64 = s.timings.iter().map(|t| t.ms).sum();
     let stages: Vec<String> = s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));

@@ -47,7 +47,13 @@ fn internal(e: impl std::fmt::Display) -> TaskError {
 
 /// Work for a model worker; each answers through its `reply`.
 pub enum Task {
-    Reconstruct { images: Vec<InputImage>, vocabulary: Vec<String>, reply: oneshot::Sender<Result<ReconstructResponse, TaskError>> },
+    /// Reconstruct `images`, refining for `refine_steps` (`None`: the server's setting).
+    Reconstruct {
+        images: Vec<InputImage>,
+        vocabulary: Vec<String>,
+        refine_steps: Option<usize>,
+        reply: oneshot::Sender<Result<ReconstructResponse, TaskError>>,
+    },
     /// Query the stored scene in `dir` (mask PNG paths in the answer are under `dir`).
     Query { dir: PathBuf, text: String, reply: oneshot::Sender<Result<QueryResponse, TaskError>> },
 }
@@ -283,8 +289,9 @@ impl Worker {
 
     fn run_task(&mut self, task: Task) {
         match task {
-            Task::Reconstruct { images, vocabulary, reply } => {
-                let result = catch(|| self.reconstruct(&images, &vocabulary));
+            Task::Reconstruct { images, vocabulary, refine_steps, reply } => {
+                let config = PipelineConfig { refine_steps: refine_steps.unwrap_or(self.pipeline.refine_steps), ..self.pipeline.clone() };
+                let result = catch(|| self.reconstruct(&images, &vocabulary, &config));
                 let _ = reply.send(result);
             }
             Task::Query { dir, text, reply } => {
@@ -297,8 +304,8 @@ impl Worker {
         }
     }
 
-    fn reconstruct(&mut self, images: &[InputImage], vocabulary: &[String]) -> Result<ReconstructResponse, TaskError> {
-        let rec = reconstruct(&mut self.model, &self.labels, images, vocabulary, &self.pipeline).map_err(|e| match e {
+    fn reconstruct(&mut self, images: &[InputImage], vocabulary: &[String], config: &PipelineConfig) -> Result<ReconstructResponse, TaskError> {
+        let rec = reconstruct(&mut self.model, &self.labels, images, vocabulary, config).map_err(|e| match e {
             PipelineError::ViewCount(_) | PipelineError::Decode(_) | PipelineError::EmptyVocabulary => TaskError::Invalid(e.to_string()),
             other => internal(other),
         })?;

@@ -32,6 +32,7 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!(rec.scene_id.len(), 32);
     assert_eq!(rec.cameras.len(), 4);
     assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
+    assert!(rec.refinement.is_none() && rec.timings.iter().all(|t| t.stage != "refine"), "refined unasked: {:?}", rec.timings);
     assert!(rec.instances.iter().all(|i| ["chair", "table", "lamp", "wall", "floor", "unknown"].contains(&i.label.as_str())), "{:?}", rec.instances);
 
     let base = format!("/v1/scenes/{}", rec.scene_id);
@@ -86,6 +87,18 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
         assert!(doc["paths"][path].is_object(), "{path} missing from the OpenAPI document");
     }
     assert!(server.get("/docs").text().contains("/openapi.json"));
+
+    // A request may ask for test-time refinement; the answer says how the photos' fit moved.
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(2).map(|p| ("images", Some("v.png"), p.as_slice())).collect();
+    parts.push(("refine_steps", None, b"15"));
+    let (ct, body) = multipart(&parts);
+    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 200, "{}", r.text());
+    let refined: ReconstructResponse = r.json();
+    let fit = refined.refinement.expect("refinement asked for");
+    assert_eq!(fit.steps, 15);
+    assert!(fit.input_psnr_after > fit.input_psnr_before, "{fit:?}");
+    assert!(refined.timings.iter().any(|t| t.stage == "refine" && t.ms > 0.0), "{:?}", refined.timings);
 }
 
 /// Follows a job's events until it ends; returns the states seen and the final status.
@@ -133,6 +146,18 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
         assert_eq!(ply.status, 200);
     }
     assert_eq!(server.get(&format!("/v1/jobs/{}", job.job_id)).json::<JobStatus>(), status);
+    assert!(status.scenes[0].metrics.as_ref().unwrap()["refine_context_psnr"].is_null(), "refined unasked");
+
+    // The same archive as a multipart part, with refinement: the scores say how the fit moved.
+    let tar_bytes = std::fs::read(&tar).unwrap();
+    let (ct, body) = multipart(&[("archive", Some("scenes.tar"), &tar_bytes), ("refine_steps", None, b"6")]);
+    let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 202, "{}", r.text());
+    let (_, refined) = follow(&server, &r.json::<JobAccepted>().job_id);
+    for s in &refined.scenes {
+        let psnr = &s.metrics.as_ref().expect("ground truth gives metrics")["refine_context_psnr"];
+        assert!(psnr[1].as_f64().unwrap() > psnr[0].as_f64().unwrap(), "{}: {psnr}", s.name);
+    }
 
     // Photo sets as multipart, one of them unusable: that scene fails, the job still ends done.
     let photos = scene_photos(&gt[0]);
@@ -166,7 +191,7 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     assert!(ran <= 1, "at most the scene running at cancel time finishes: {later:?}");
     assert!(later.scenes.iter().filter(|s| s.state == JobState::Cancelled).count() >= 11);
     let metrics = server.get("/metrics").text();
-    assert!(metrics.contains("inssplat_jobs{state=\"done\"} 2") && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"), "{metrics}");
+    assert!(metrics.contains("inssplat_jobs{state=\"done\"} 3") && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"), "{metrics}");
 
     let code = server.terminate(Duration::from_secs(30));
     assert!(code.success(), "SIGTERM ends the service cleanly: {code:?}\n{}", server.log_text());

@@ -20,7 +20,7 @@ use inssplat_proto::api::{ErrorBody, JobAccepted, JobState, JobStatus};
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
-use super::upload::{Part, read_parts, vocabulary};
+use super::upload::{Part, read_parts, refine_steps, vocabulary};
 use super::{ApiError, AppState};
 use crate::jobs::intake::{self, ArchiveKind, IntakeError, Photo};
 use crate::jobs::{JobStore, NewJob};
@@ -37,6 +37,9 @@ pub struct JobForm {
     archive: Option<Vec<u8>>,
     /// Label vocabulary for the photo-set scenes (labels separated by commas or new lines).
     vocab: Option<String>,
+    /// Steps of test-time refinement of every scene against its photos, 0–1000 (default: the
+    /// server's `--refine-steps`).
+    refine_steps: Option<usize>,
 }
 
 /// Most form parts in a job upload.
@@ -46,6 +49,13 @@ const MAX_PARTS: usize = intake::MAX_SCENES * 16 + 2;
 enum Upload {
     Sets(Vec<(String, Vec<Photo>)>),
     Archive(Bytes),
+}
+
+/// The settings a multipart job upload may send beside its scenes.
+#[derive(Default)]
+struct Options {
+    vocabulary: Option<Vec<String>>,
+    refine_steps: Option<usize>,
 }
 
 fn job_id(id: Result<Path<String>, PathRejection>) -> Result<String, ApiError> {
@@ -62,13 +72,14 @@ async fn with_store<T: Send + 'static>(
     tokio::task::spawn_blocking(move || f(store.as_ref())).await.map_err(ApiError::internal)?.map_err(|e| ApiError::internal(format!("job store: {e:#}")))
 }
 
-fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Option<Vec<String>>), ApiError> {
+fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Options), ApiError> {
     let mut sets: Vec<(String, Vec<Photo>)> = Vec::new();
     let mut archive = None;
-    let mut vocab = None;
+    let mut options = Options::default();
     for part in parts {
         match part.name.as_str() {
-            "vocab" => vocab = Some(vocabulary(&part)?),
+            "vocab" => options.vocabulary = Some(vocabulary(&part)?),
+            "refine_steps" => options.refine_steps = Some(refine_steps(&part)?),
             "archive" => archive = Some(part.bytes),
             name if intake::valid_scene_name(name) => {
                 let photo = Photo { file_name: part.file_name.unwrap_or_else(|| name.to_string()), bytes: part.bytes.to_vec() };
@@ -79,7 +90,7 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Option<Vec<String>>), Ap
             }
             other => {
                 return Err(ApiError::Validation(format!(
-                    "form field `{}`: a scene name is 1-64 of A-Z a-z 0-9 _ . - (or send `archive` / `vocab`)",
+                    "form field `{}`: a scene name is 1-64 of A-Z a-z 0-9 _ . - (or send `archive` / `vocab` / `refine_steps`)",
                     other.escape_debug()
                 )));
             }
@@ -87,8 +98,8 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Option<Vec<String>>), Ap
     }
     match archive {
         Some(_) if !sets.is_empty() => Err(ApiError::Validation("send either photo sets or an `archive`, not both".into())),
-        Some(bytes) => Ok((Upload::Archive(bytes), vocab)),
-        None => Ok((Upload::Sets(sets), vocab)),
+        Some(bytes) => Ok((Upload::Archive(bytes), options)),
+        None => Ok((Upload::Sets(sets), options)),
     }
 }
 
@@ -105,11 +116,11 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Option<Vec<String>>), Ap
         (status = 422, description = "No scenes, a bad scene, or a bad archive", body = ErrorBody)))]
 pub async fn submit(State(state): State<Arc<AppState>>, req: Request) -> Result<Response, ApiError> {
     let content_type = req.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).unwrap_or("").to_ascii_lowercase();
-    let (upload, vocab) = if content_type.starts_with("multipart/form-data") {
+    let (upload, options) = if content_type.starts_with("multipart/form-data") {
         let multipart = Multipart::from_request(req, &()).await?;
         sets_from_parts(read_parts(multipart, MAX_PARTS).await?)?
     } else if ["application/x-tar", "application/tar", "application/zip", "application/octet-stream"].iter().any(|t| content_type.starts_with(t)) {
-        (Upload::Archive(Bytes::from_request(req, &()).await?), None)
+        (Upload::Archive(Bytes::from_request(req, &()).await?), Options::default())
     } else {
         return Err(ApiError::UnsupportedMediaType(format!(
             "content type `{}`: send multipart/form-data, application/x-tar or application/zip",
@@ -130,7 +141,7 @@ pub async fn submit(State(state): State<Arc<AppState>>, req: Request) -> Result<
                     intake::unpack_archive(&bytes, kind, &dest, max_unpacked)?
                 }
             };
-            Ok(NewJob { id, scenes, vocabulary: vocab })
+            Ok(NewJob { id, scenes, vocabulary: options.vocabulary, refine_steps: options.refine_steps })
         })
         .await
         .map_err(ApiError::internal)?

@@ -75,7 +75,8 @@ pub struct ServeArgs {
     pub vocab: Option<String>,
     /// Refine every scene's Gaussians and cameras against its photos for this many Adam steps
     /// (test-time optimization, one view a step, about 50 ms a step at 8 views on two cores;
-    /// 0, the default, answers with the feed-forward reconstruction).
+    /// 0, the default, answers with the feed-forward reconstruction). A request or job may set
+    /// its own with a `refine_steps` form field.
     #[arg(long, env = "INSSPLAT_REFINE_STEPS", default_value_t = 0, value_name = "STEPS")]
     pub refine_steps: usize,
     /// Require `Authorization: Bearer <key>` on /v1 routes (the key is never logged).

@@ -1,5 +1,6 @@
 //! Reading multipart bodies: every part with its field name, file name and bytes (the body
-//! limit applies while reading), and the label vocabulary a request may send as a text part.
+//! limit applies while reading), and the text parts a request may send: the label vocabulary
+//! and the steps of test-time refinement.
 
 use axum::body::Bytes;
 use axum::extract::Multipart;
@@ -8,6 +9,9 @@ use super::ApiError;
 
 const MAX_LABELS: usize = 1000;
 const MAX_LABEL_CHARS: usize = 100;
+/// Most steps of test-time refinement a request may ask for (about 50 s at 8 views on two
+/// cores, inside the default request timeout).
+pub const MAX_REFINE_STEPS: usize = 1000;
 
 /// One part of a multipart body.
 pub struct Part {
@@ -42,4 +46,15 @@ pub fn vocabulary(part: &Part) -> Result<Vec<String>, ApiError> {
         return Err(ApiError::Validation(format!("`vocab`: at most {MAX_LABELS} labels of at most {MAX_LABEL_CHARS} characters")));
     }
     Ok(labels)
+}
+
+/// The steps of a `refine_steps` part: a whole number from 0 to [`MAX_REFINE_STEPS`].
+pub fn refine_steps(part: &Part) -> Result<usize, ApiError> {
+    let text = String::from_utf8_lossy(&part.bytes);
+    text.trim().parse::<usize>().ok().filter(|&n| n <= MAX_REFINE_STEPS).ok_or_else(|| {
+        ApiError::Validation(format!(
+            "`refine_steps` is `{}`: send a whole number of steps from 0 (none) to {MAX_REFINE_STEPS}",
+            text.chars().take(40).collect::<String>().escape_debug()
+        ))
+    })
 }

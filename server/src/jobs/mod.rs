@@ -13,12 +13,14 @@ use std::path::PathBuf;
 
 use inssplat_proto::api::{JobState, JobStatus};
 
-/// A job as submitted: its id, scenes (name, input folder) and optional label vocabulary.
+/// A job as submitted: its id, scenes (name, input folder), and optional label vocabulary and
+/// steps of test-time refinement (`None`: the server's).
 #[derive(Debug, Clone)]
 pub struct NewJob {
     pub id: String,
     pub scenes: Vec<(String, PathBuf)>,
     pub vocabulary: Option<Vec<String>>,
+    pub refine_steps: Option<usize>,
 }
 
 /// One scene claimed by a worker (already committed as `running`).
@@ -31,6 +33,7 @@ pub struct SceneTask {
     /// Where the result goes; the same on every attempt, so a re-run replaces, never adds.
     pub scene_id: String,
     pub vocabulary: Option<Vec<String>>,
+    pub refine_steps: Option<usize>,
 }
 
 /// How a scene ended.

@@ -20,8 +20,9 @@ use crate::pipeline::reconstruct::{PipelineConfig, reconstruct};
 use crate::runtime::Model;
 use crate::{inputs, vocab};
 
-/// Runs `task`, writing its reconstruction to `out`; returns the stage timings and the
-/// evaluation metrics when the scene carried ground truth.
+/// Runs `task` (with the job's refinement steps where it set them, else `config`'s), writing
+/// its reconstruction to `out`; returns the stage timings and the evaluation metrics when the
+/// scene carried ground truth.
 pub fn run_scene(
     model: &mut Model,
     labels: &LabelCache,
@@ -29,6 +30,7 @@ pub fn run_scene(
     task: &SceneTask,
     out: &Path,
 ) -> anyhow::Result<(Vec<StageTiming>, Option<serde_json::Value>)> {
+    let config = &PipelineConfig { refine_steps: task.refine_steps.unwrap_or(config.refine_steps), ..config.clone() };
     let split = task.input.join("transforms.json").is_file().then(|| Scene::load(&task.input)).transpose()?;
     let (rec, names, metrics) = match split.filter(|s| s.eval.is_some()) {
         Some(scene) => {

@@ -1,6 +1,6 @@
 //! The SQLite job store: one file in the data directory, WAL journal, `synchronous=FULL` so a
 //! commit survives a killed process (and a power cut). Two tables: `jobs` (id, vocabulary,
-//! cancelled) and `job_scenes` (state, scene id, error, metrics per scene). A job's own state
+//! refinement steps, cancelled) and `job_scenes` (state, scene id, error, metrics per scene). A job's own state
 //! is derived from its scenes' on every read, so the two can never disagree.
 
 use std::path::{Path, PathBuf};
@@ -17,6 +17,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     seq INTEGER PRIMARY KEY AUTOINCREMENT,
     id TEXT NOT NULL UNIQUE,
     vocabulary TEXT,
+    refine_steps INTEGER,
     cancelled INTEGER NOT NULL DEFAULT 0,
     created_at INTEGER NOT NULL
 );
@@ -70,6 +71,7 @@ impl SqliteStore {
         conn.pragma_update(None, "foreign_keys", true)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         conn.execute_batch(SCHEMA).with_context(|| format!("{}: cannot create the job tables", path.display()))?;
+        add_missing_columns(&conn).with_context(|| format!("{}: cannot add the job tables' new columns", path.display()))?;
         Ok(Self { conn: Mutex::new(conn) })
     }
 
@@ -81,6 +83,17 @@ impl SqliteStore {
         tx.commit()?;
         Ok(out)
     }
+}
+
+/// Brings a store made by an older version up to [`SCHEMA`]: `jobs.refine_steps` came later
+/// (its jobs keep the server's setting).
+fn add_missing_columns(conn: &Connection) -> rusqlite::Result<()> {
+    let mut stmt = conn.prepare("SELECT name FROM pragma_table_info('jobs')")?;
+    let columns = stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
+    if !columns.iter().any(|c| c == "refine_steps") {
+        conn.execute_batch("ALTER TABLE jobs ADD COLUMN refine_steps INTEGER")?;
+    }
+    Ok(())
 }
 
 fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobStatus>> {
@@ -116,9 +129,13 @@ fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobSt
 impl JobStore for SqliteStore {
     fn create(&self, job: &NewJob) -> anyhow::Result<()> {
         let vocabulary = job.vocabulary.as_ref().map(serde_json::to_string).transpose()?;
+        let refine_steps = job.refine_steps.map(|n| n as i64);
         let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
         self.write(|tx| {
-            tx.execute("INSERT INTO jobs (id, vocabulary, created_at) VALUES (?1, ?2, ?3)", params![job.id, vocabulary, now])?;
+            tx.execute(
+                "INSERT INTO jobs (id, vocabulary, refine_steps, created_at) VALUES (?1, ?2, ?3, ?4)",
+                params![job.id, vocabulary, refine_steps, now],
+            )?;
             for (i, (name, input)) in job.scenes.iter().enumerate() {
                 tx.execute(
                     "INSERT INTO job_scenes (job_id, idx, name, input, state) VALUES (?1, ?2, ?3, ?4, 'queued')",
@@ -138,7 +155,7 @@ impl JobStore for SqliteStore {
         self.write(|tx| {
             let row = tx
                 .query_row(
-                    "SELECT s.job_id, s.idx, s.name, s.input, s.scene_id, j.vocabulary FROM job_scenes s JOIN jobs j ON j.id = s.job_id
+                    "SELECT s.job_id, s.idx, s.name, s.input, s.scene_id, j.vocabulary, j.refine_steps FROM job_scenes s JOIN jobs j ON j.id = s.job_id
                      WHERE s.state = 'queued' AND j.cancelled = 0 ORDER BY j.seq, s.idx LIMIT 1",
                     [],
                     |r| {
@@ -149,11 +166,12 @@ impl JobStore for SqliteStore {
                             r.get::<_, String>(3)?,
                             r.get::<_, Option<String>>(4)?,
                             r.get::<_, Option<String>>(5)?,
+                            r.get::<_, Option<i64>>(6)?,
                         ))
                     },
                 )
                 .optional()?;
-            let Some((job_id, index, name, input, scene_id, vocabulary)) = row else { return Ok(None) };
+            let Some((job_id, index, name, input, scene_id, vocabulary, refine_steps)) = row else { return Ok(None) };
             let scene_id = scene_id.unwrap_or_else(|| crate::scene_store::SceneId::new().to_string());
             tx.execute(
                 "UPDATE job_scenes SET state = 'running', scene_id = ?3, attempts = attempts + 1 WHERE job_id = ?1 AND idx = ?2",
@@ -166,6 +184,7 @@ impl JobStore for SqliteStore {
                 input: PathBuf::from(input),
                 scene_id,
                 vocabulary: vocabulary.and_then(|v| serde_json::from_str(&v).ok()),
+                refine_steps: refine_steps.map(|n| n as usize),
             }))
         })
     }
@@ -218,7 +237,7 @@ mod tests {
     use super::*;
 
     fn job(id: &str, scenes: usize) -> NewJob {
-        NewJob { id: id.into(), scenes: (0..scenes).map(|i| (format!("s{i}"), PathBuf::from(format!("/in/{i}")))).collect(), vocabulary: None }
+        NewJob { id: id.into(), scenes: (0..scenes).map(|i| (format!("s{i}"), PathBuf::from(format!("/in/{i}")))).collect(), vocabulary: None, refine_steps: None }
     }
 
     #[test]
@@ -244,6 +263,29 @@ mod tests {
         assert_eq!((s.state, s.done, s.total), (JobState::Done, 2, 2));
         assert_eq!(s.scenes[0].metrics.as_ref().unwrap()["psnr"], 20.0);
         assert_eq!(s.scenes[1].error.as_deref(), Some("bad photo"));
+    }
+
+    #[test]
+    fn a_store_from_before_refine_steps_opens_and_each_job_keeps_its_steps() {
+        let dir = tempfile::tempdir().unwrap();
+        let db = dir.path().join("jobs.sqlite");
+        let old_schema = SCHEMA.replace("    refine_steps INTEGER,\n", "");
+        assert_ne!(old_schema, SCHEMA);
+        let old = Connection::open(&db).unwrap();
+        old.execute_batch(&old_schema).unwrap();
+        old.execute("INSERT INTO jobs (id, vocabulary, created_at) VALUES ('old', NULL, 0)", []).unwrap();
+        old.execute("INSERT INTO job_scenes (job_id, idx, name, input, state) VALUES ('old', 0, 's0', '/in/0', 'queued')", []).unwrap();
+        drop(old);
+
+        let store = SqliteStore::open(&db).unwrap();
+        store.create(&NewJob { refine_steps: Some(40), ..job("new", 1) }).unwrap();
+        let first = store.claim().unwrap().unwrap();
+        assert_eq!((first.job_id.as_str(), first.refine_steps), ("old", None));
+        store.finish(&first, &SceneOutcome::Done { metrics: None }).unwrap();
+        let second = store.claim().unwrap().unwrap();
+        assert_eq!((second.job_id.as_str(), second.refine_steps), ("new", Some(40)));
+        drop(store);
+        SqliteStore::open(&db).expect("opens again once the column is there");
     }
 
     #[test]
