@@ -50,6 +50,7 @@ $("#upload").addEventListener("submit", async (e) => {
   const form = new FormData();
   for (const photo of photos) form.append("images", photo, photo.name);
   if ($("#vocab").value.trim()) form.append("vocab", $("#vocab").value);
+  if ($("#refine-steps").value.trim()) form.append("refine_steps", $("#refine-steps").value.trim());
   const progress = $("#progress progress");
   progress.hidden = false;
   progress.removeAttribute("value");
@@ -91,7 +92,11 @@ async function showScene(result) {
   listInstances(result.instances);
   $("#summary").textContent =
     `${result.gaussians_kept} Gaussians (of ${result.gaussians_in}), ${result.cameras.length} views, ` +
-    result.timings.map((t) => `${t.stage} ${t.ms.toFixed(0)} ms`).join(", ");
+    result.timings.map((t) => `${t.stage} ${t.ms.toFixed(0)} ms`).join(", ") +
+    (result.refinement
+      ? `; refined for ${result.refinement.steps} steps: input views ` +
+        `${result.refinement.input_psnr_before.toFixed(2)} → ${result.refinement.input_psnr_after.toFixed(2)} dB PSNR`
+      : "");
   $("#query-result").textContent = "";
   paint();
 }

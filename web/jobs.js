@@ -34,15 +34,11 @@ $("#archive").addEventListener("change", refreshForm);
 
 $("#submit").addEventListener("click", async () => {
   const archive = $("#archive").files[0];
-  let body;
-  let headers = {};
-  if (archive) {
-    body = archive;
-    headers = { "Content-Type": archive.name.endsWith(".zip") ? "application/zip" : "application/x-tar" };
-  } else {
-    body = new FormData();
-    for (const [name, files] of sets) for (const f of files) body.append(name, f, f.name);
-  }
+  const body = new FormData();
+  const headers = {};
+  if (archive) body.append("archive", archive, archive.name);
+  else for (const [name, files] of sets) for (const f of files) body.append(name, f, f.name);
+  if ($("#refine-steps").value.trim()) body.append("refine_steps", $("#refine-steps").value.trim());
   const key = localStorage.getItem("inssplat-api-key");
   if (key) headers.Authorization = `Bearer ${key}`;
   $("#submit-status").textContent = "Submitting…";

@@ -76,11 +76,14 @@ try {
 
   await page.goto(url);
   await page.locator("#photos").setInputFiles(photos);
+  await page.locator("#refine-steps").fill("10");
   await page.locator("#run").click();
   await page.waitForSelector("body[data-state=ready], body[data-state=error]", { timeout: 180_000 });
   const progress = await page.locator("#progress").innerText();
   if ((await page.locator("body").getAttribute("data-state")) === "error") throw new Error(`the page failed: ${progress}; ${errors.join("; ")}`);
   lap("reconstructed");
+  const summary = await page.locator("#summary").innerText();
+  if (!/refined for 10 steps: input views [\d.]+ → [\d.]+ dB PSNR/.test(summary)) throw new Error(`the summary does not report the refinement asked for: ${summary}`);
 
   const scene = await settle(page, helper, (c) => c.drawn > c.pixels / 5, 60);
   writeFileSync(join(out, "scene.png"), scene.shot);
@@ -106,6 +109,7 @@ try {
   await other.locator("#set-name").fill("room");
   await other.locator("#set-photos").setInputFiles(photos);
   await other.locator("#add-set button").click();
+  await other.locator("#refine-steps").fill("5");
   await other.locator("#submit").click();
   const jobState = other.locator("article .state");
   await other.waitForFunction(() => /^(done|failed|cancelled) /.test(document.querySelector("article .state")?.textContent), null, { timeout: 120_000 });
