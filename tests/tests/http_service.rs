@@ -15,6 +15,16 @@ fn shipped_model() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx")
 }
 
+/// `POST /v1/reconstruct` of `photos` with one more text field; the answer must be 200.
+fn reconstruct(server: &Server, photos: &[Vec<u8>], (field, value): (&str, &[u8])) -> ReconstructResponse {
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().map(|p| ("images", Some("v.png"), p.as_slice())).collect();
+    parts.push((field, None, value));
+    let (ct, body) = multipart(&parts);
+    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 200, "{}", r.text());
+    r.json()
+}
+
 #[test]
 fn reconstructs_serves_artefacts_and_answers_queries() {
     let dir = tempfile::tempdir().unwrap();
@@ -23,12 +33,7 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     let server = Server::start(&model, &dir.path().join("data"), &[]);
 
     let photos = scene_photos(&scene);
-    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(4).map(|p| ("images", Some("v.png"), p.as_slice())).collect();
-    parts.push(("vocab", None, b"chair, table\nlamp,wall,floor"));
-    let (ct, body) = multipart(&parts);
-    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
-    assert_eq!(r.status, 200, "{}", r.text());
-    let rec: ReconstructResponse = r.json();
+    let rec = reconstruct(&server, &photos[..4], ("vocab", b"chair, table\nlamp,wall,floor"));
     assert_eq!(rec.scene_id.len(), 32);
     assert_eq!(rec.cameras.len(), 4);
     assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
@@ -89,12 +94,7 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert!(server.get("/docs").text().contains("/openapi.json"));
 
     // A request may ask for test-time refinement; the answer says how the photos' fit moved.
-    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(2).map(|p| ("images", Some("v.png"), p.as_slice())).collect();
-    parts.push(("refine_steps", None, b"15"));
-    let (ct, body) = multipart(&parts);
-    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
-    assert_eq!(r.status, 200, "{}", r.text());
-    let refined: ReconstructResponse = r.json();
+    let refined = reconstruct(&server, &photos[..2], ("refine_steps", b"15"));
     let fit = refined.refinement.expect("refinement asked for");
     assert_eq!(fit.steps, 15);
     assert!(fit.input_psnr_after > fit.input_psnr_before, "{fit:?}");
