@@ -91,6 +91,9 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     for path in ["/v1/reconstruct", "/v1/scenes/{id}/query", "/v1/jobs", "/v1/jobs/{id}/events", "/ready"] {
         assert!(doc["paths"][path].is_object(), "{path} missing from the OpenAPI document");
     }
+    for form in ["ReconstructForm", "JobForm"] {
+        assert_eq!(doc["components"]["schemas"][form]["properties"]["refine_steps"]["maximum"], 1000, "{form}");
+    }
     assert!(server.get("/docs").text().contains("/openapi.json"));
 
     // A request may ask for test-time refinement; the answer says how the photos' fit moved.

@@ -39,6 +39,7 @@ pub struct JobForm {
     vocab: Option<String>,
     /// Steps of test-time refinement of every scene against its photos, 0–1000 (default: the
     /// server's `--refine-steps`).
+    #[schema(minimum = 0, maximum = 1000)]
     refine_steps: Option<usize>,
 }
 

@@ -31,6 +31,7 @@ pub struct ReconstructForm {
     /// Steps of test-time refinement of the Gaussians and cameras against the photos, 0–1000
     /// (about 50 ms a step at 8 views on two cores; default: the server's `--refine-steps`).
     /// The answer's `refinement` gives the input views' PSNR before and after.
+    #[schema(minimum = 0, maximum = 1000)]
     refine_steps: Option<usize>,
 }
 
