@@ -290,7 +290,7 @@ impl Worker {
     fn run_task(&mut self, task: Task) {
         match task {
             Task::Reconstruct { images, vocabulary, refine_steps, reply } => {
-                let config = PipelineConfig { refine_steps: refine_steps.unwrap_or(self.pipeline.refine_steps), ..self.pipeline.clone() };
+                let config = self.pipeline.with_refine_steps(refine_steps);
                 let result = catch(|| self.reconstruct(&images, &vocabulary, &config));
                 let _ = reply.send(result);
             }

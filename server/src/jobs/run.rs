@@ -30,7 +30,7 @@ pub fn run_scene(
     task: &SceneTask,
     out: &Path,
 ) -> anyhow::Result<(Vec<StageTiming>, Option<serde_json::Value>)> {
-    let config = &PipelineConfig { refine_steps: task.refine_steps.unwrap_or(config.refine_steps), ..config.clone() };
+    let config = &config.with_refine_steps(task.refine_steps);
     let split = task.input.join("transforms.json").is_file().then(|| Scene::load(&task.input)).transpose()?;
     let (rec, names, metrics) = match split.filter(|s| s.eval.is_some()) {
         Some(scene) => {

@@ -1,7 +1,7 @@
 //! The SQLite job store: one file in the data directory, WAL journal, `synchronous=FULL` so a
 //! commit survives a killed process (and a power cut). Two tables: `jobs` (id, vocabulary,
-//! refinement steps, cancelled) and `job_scenes` (state, scene id, error, metrics per scene). A job's own state
-//! is derived from its scenes' on every read, so the two can never disagree.
+//! refinement steps, cancelled) and `job_scenes` (state, scene id, error, metrics per scene).
+//! A job's own state is derived from its scenes' on every read, so the two can never disagree.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

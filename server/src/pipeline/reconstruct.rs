@@ -102,6 +102,13 @@ impl Default for PipelineConfig {
     }
 }
 
+impl PipelineConfig {
+    /// This configuration with a request's or job's own refinement steps, where it set them.
+    pub fn with_refine_steps(&self, steps: Option<usize>) -> Self {
+        Self { refine_steps: steps.unwrap_or(self.refine_steps), ..self.clone() }
+    }
+}
+
 /// One input photo.
 pub struct InputImage {
     pub name: String,
