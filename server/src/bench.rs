@@ -163,6 +163,9 @@ pub struct CompareRow {
     pub total_ratio: f64,
 }
 
+/// One turn of [`compare`]: each model's `[network ms, whole request ms]`.
+type Turn = ([f64; 2], [f64; 2]);
+
 /// Runs the pipeline with `models[0]` and `models[1]` in turns, `runs` times each (after one
 /// warm-up each), at each count in `views`.
 pub fn compare(
@@ -190,7 +193,7 @@ pub fn compare(
             for _ in 0..runs.max(1) {
                 pairs.push((time(a, &images)?, time(b, &images)?));
             }
-            let of = |f: &dyn Fn(&([f64; 2], [f64; 2])) -> f64| median(pairs.iter().map(f).collect());
+            let of = |f: &dyn Fn(&Turn) -> f64| median(pairs.iter().map(f).collect());
             Ok(CompareRow {
                 views: v,
                 runs: pairs.len(),

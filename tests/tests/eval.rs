@@ -1,8 +1,9 @@
 //! `inssplat eval` end to end: a tiny exported network (random weights), one procedural
 //! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
 //! every metric of the protocol is reported within its range for each view count (and the
-//! names each true label got), that the JSON and markdown files are written, and that bad
-//! arguments are named errors; `--shape-examples` records the prototypes as the features give
+//! names each true label got), that the JSON and markdown files are written, that bad
+//! arguments are named errors, and that a run whose stderr is no terminal logs a line per
+//! finished run; `--shape-examples` records the prototypes as the features give
 //! them, before the shipped shape classifier moves them. Also
 //! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
@@ -22,6 +23,13 @@ fn eval_reports_every_metric_per_view_count() {
     let out_dir = dir.path().join("eval");
     let out = inssplat(&["eval", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // Stderr is a pipe here, so progress comes as one line per finished run, the JSON alone
+    // on stdout.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let progress: Vec<&str> = stderr.lines().filter(|l| l.starts_with("eval ")).collect();
+    assert_eq!(progress.len(), 2, "{stderr}");
+    assert!(progress[0].starts_with("eval 1/2 after ") && progress[0].ends_with(&format!("2 views, {}", data.join("scene_000000").display())), "{stderr}");
+    assert!(progress[1].starts_with("eval 2/2 after ") && progress[1].contains(", about 0s left: 4 views, "), "{stderr}");
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     let summaries = report["summaries"].as_array().unwrap();
     assert_eq!(summaries.iter().map(|s| s["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);

@@ -70,7 +70,7 @@ impl Parts {
 /// New ids follow the largest id. Returns how many instances were added.
 pub fn split_disconnected(means: &[[f32; 3]], ids: &mut [u32], cell: f32, params: &SplitParams) -> usize {
     assert_eq!(means.len(), ids.len(), "one id per point");
-    if !(cell > 0.0) {
+    if cell.is_nan() || cell <= 0.0 {
         return 0;
     }
     // The first point of every (id, cell); every point joins it, and it joins the firsts of

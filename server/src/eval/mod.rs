@@ -6,6 +6,7 @@
 pub mod ceiling;
 pub mod confusion;
 pub mod perturb;
+mod progress;
 pub mod query_rules;
 pub mod scene;
 pub mod sweep;
@@ -15,7 +16,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::dataset::Scene;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
@@ -25,6 +25,7 @@ use crate::pipeline::reconstruct::PipelineConfig;
 use crate::runtime::Model;
 pub use perturb::{PerturbKind, Perturbation};
 use perturb::most_repeated;
+use progress::Progress;
 use scene::{SceneScores, Settings, evaluate_scene};
 pub use views::ClusterMode;
 
@@ -192,6 +193,7 @@ pub struct EvalRequest {
     pub perturb: Vec<PerturbKind>,
     /// Where failure previews go (with `perturb`).
     pub out: Option<PathBuf>,
+    /// Report progress on stderr ([`progress::Progress`]); off for the runs a sweep nests.
     pub progress: bool,
 }
 
@@ -233,8 +235,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         .flat_map(|&kind| kind.strengths().iter().map(move |&strength| Perturbation { kind, strength }))
         .collect();
     let runs = scenes.len() * (req.views.len() + image_sweeps.len());
-    let bar = if req.progress { ProgressBar::new(runs as u64) } else { ProgressBar::hidden() };
-    bar.set_style(ProgressStyle::with_template("{spinner} eval {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
+    let bar = Progress::new("eval", runs as u64, req.progress);
     let rules = if req.query_rules { query_rules::grid() } else { Vec::new() };
     let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
         let settings = Settings {
@@ -253,7 +254,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             .map(|scene| {
                 bar.set_message(format!("{views} views{}, {}", perturbation.map_or(String::new(), |p| format!(", {:?} {}", p.kind, p.strength)), scene.dir.display()));
                 let s = evaluate_scene(model, labels, scene, views, &settings)?;
-                bar.inc(1);
+                bar.inc();
                 Ok(s)
             })
             .collect()
@@ -389,8 +390,7 @@ fn worst_scenes(
 /// marks the Pareto fronts and draws the chart into `out`.
 pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &EvalRequest, out: &Path) -> Result<Vec<sweep::SweepPoint>> {
     let grid = sweep::grid(&req.views);
-    let bar = if req.progress { ProgressBar::new(grid.len() as u64) } else { ProgressBar::hidden() };
-    bar.set_style(ProgressStyle::with_template("{spinner} sweep {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}").expect("template"));
+    let bar = Progress::new("sweep", grid.len() as u64, req.progress);
     let mut points = Vec::with_capacity(grid.len());
     for knobs in grid {
         bar.set_message(knobs.label());
@@ -408,7 +408,7 @@ pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: 
             pareto_instance: false,
             pareto_psnr: false,
         });
-        bar.inc(1);
+        bar.inc();
     }
     bar.finish_and_clear();
     sweep::mark_pareto(&mut points);
