@@ -4,23 +4,17 @@
 //! is and about how long it has left. Standard output stays the report's alone.
 
 use std::io::IsTerminal;
-use std::sync::Mutex;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// Progress over `len` runs of one kind (`what`: "eval", "sweep").
+/// Progress over `len` runs of one kind (`what`: "eval", "sweep"). The bar keeps the count,
+/// the time and the run now going, drawn or hidden; `lines` says whether each finished run
+/// is also written out as a line.
 pub struct Progress {
     bar: ProgressBar,
-    lines: Option<Lines>,
-}
-
-/// The plain-line form: what is being counted, how many, since when, and the run now going.
-struct Lines {
     what: &'static str,
-    len: u64,
-    start: Instant,
-    state: Mutex<(u64, String)>,
+    lines: bool,
 }
 
 impl Progress {
@@ -28,29 +22,24 @@ impl Progress {
     pub fn new(what: &'static str, len: u64, shown: bool) -> Self {
         let terminal = std::io::stderr().is_terminal();
         let bar = if shown && terminal { ProgressBar::new(len) } else { ProgressBar::hidden() };
+        bar.set_length(len);
         let template = format!("{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}] {{wide_msg}}");
         bar.set_style(ProgressStyle::with_template(&template).expect("template"));
-        let lines = (shown && !terminal).then(|| Lines { what, len, start: Instant::now(), state: Mutex::new((0, String::new())) });
-        Self { bar, lines }
+        Self { bar, what, lines: shown && !terminal }
     }
 
     /// Names the run now going.
     pub fn set_message(&self, message: String) {
-        if let Some(lines) = &self.lines {
-            lines.state.lock().expect("progress lock").1.clone_from(&message);
-        }
         self.bar.set_message(message);
     }
 
     /// Counts the named run as done (a line: `eval 3/40 after 1m 52s, about 35m 0s left: …`).
     pub fn inc(&self) {
         self.bar.inc(1);
-        if let Some(lines) = &self.lines {
-            let mut state = lines.state.lock().expect("progress lock");
-            state.0 += 1;
-            let elapsed = lines.start.elapsed();
-            let left = elapsed.mul_f64(lines.len.saturating_sub(state.0) as f64 / state.0 as f64);
-            eprintln!("{} {}/{} after {}, about {} left: {}", lines.what, state.0, lines.len, minutes(elapsed), minutes(left), state.1);
+        if self.lines {
+            let (done, len, elapsed) = (self.bar.position(), self.bar.length().unwrap_or(0), self.bar.elapsed());
+            let left = elapsed.mul_f64(len.saturating_sub(done) as f64 / done as f64);
+            eprintln!("{} {done}/{len} after {}, about {} left: {}", self.what, minutes(elapsed), minutes(left), self.bar.message());
         }
     }
 
