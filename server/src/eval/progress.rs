@@ -6,7 +6,7 @@
 use std::io::IsTerminal;
 use std::time::Duration;
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 /// Progress over `len` runs of one kind (`what`: "eval", "sweep"). The bar keeps the count,
 /// the time and the run now going, drawn or hidden; `lines` says whether each finished run
@@ -21,8 +21,8 @@ impl Progress {
     /// A bar on a terminal, lines elsewhere; nothing at all when `shown` is false.
     pub fn new(what: &'static str, len: u64, shown: bool) -> Self {
         let terminal = std::io::stderr().is_terminal();
-        let bar = if shown && terminal { ProgressBar::new(len) } else { ProgressBar::hidden() };
-        bar.set_length(len);
+        let target = if shown && terminal { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+        let bar = ProgressBar::with_draw_target(Some(len), target);
         let template = format!("{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}] {{wide_msg}}");
         bar.set_style(ProgressStyle::with_template(&template).expect("template"));
         Self { bar, what, lines: shown && !terminal }
