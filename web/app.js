@@ -95,7 +95,8 @@ async function showScene(result) {
     result.timings.map((t) => `${t.stage} ${t.ms.toFixed(0)} ms`).join(", ") +
     (result.refinement
       ? `; refined for ${result.refinement.steps} steps: input views ` +
-        `${result.refinement.input_psnr_before.toFixed(2)} → ${result.refinement.input_psnr_after.toFixed(2)} dB PSNR`
+        `${result.refinement.input_psnr_before.toFixed(2)} → ${result.refinement.input_psnr_after.toFixed(2)} dB PSNR, ` +
+        `photos' gains ${result.refinement.photo_gains.map((g) => g.toFixed(2)).join(" ")}`
       : "");
   $("#query-result").textContent = "";
   paint();

@@ -104,14 +104,18 @@ pub struct ReconstructResponse {
     pub refinement: Option<RefinementOut>,
 }
 
-/// The test-time refinement of a reconstruction against its own photos: its Adam steps and
-/// the input views' PSNR (dB, inside the photos, averaged over views) before and after.
+/// The test-time refinement of a reconstruction against its own photos: its Adam steps, the
+/// input views' PSNR (dB, inside the photos, averaged over views; the Gaussians as they
+/// render) before and after, and each photo's brightness gain that the fit found.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RefinementOut {
     pub steps: usize,
     pub input_psnr_before: f64,
     pub input_psnr_after: f64,
+    /// One per input photo, in their order: how much brighter than the Gaussians' colours the
+    /// photo came out (its camera's auto exposure); their logs average zero.
+    pub photo_gains: Vec<f32>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

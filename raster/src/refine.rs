@@ -5,8 +5,11 @@
 //! trains; the cameras stay as given where they are known). This is the joint optimization
 //! that InstantSplat runs after its feed-forward initialization, kept short: the network's
 //! depth places the Gaussians, the photos then correct what the depth got wrong where the
-//! views see it. Instance ids, embeddings and semantic features ride along with their
-//! Gaussians unchanged. Learning rates decay exponentially to a tenth over the run.
+//! views see it. Each photo also gets a brightness gain of its own (its camera's auto
+//! exposure; the gains' logs kept at mean zero), so that the Gaussians take the photos' common
+//! colour instead of a blend of differently exposed ones. Instance ids, embeddings and
+//! semantic features ride along with their Gaussians unchanged. Learning rates decay
+//! exponentially to a tenth over the run.
 
 use inssplat_proto::gaussian::rgb_to_sh_dc;
 use inssplat_proto::{Camera, GaussianScene};
@@ -31,6 +34,8 @@ const LR_COLOUR: f32 = 1e-2;
 const LR_POSE_ROTATION: f32 = 1e-3;
 /// Adam's step on the cameras' translations, as a share of the median distance.
 const LR_POSE_TRANSLATION: f32 = 1e-3;
+/// Adam's step on each photo's log brightness gain.
+const LR_EXPOSURE: f32 = 2e-2;
 /// The rates at the last step, as a share of those at the first.
 const FINAL_LR_SHARE: f32 = 0.1;
 
@@ -43,13 +48,15 @@ pub struct RefineView<'a> {
     pub rect: [u32; 4],
 }
 
-/// What [`refine_scene`] did: the Adam steps it took and the input views' mean squared colour
-/// error (inside their rects, averaged over views) before and after.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// What [`refine_scene`] did: the Adam steps it took, the input views' mean squared colour
+/// error (inside their rects, averaged over views; the scene as it renders, without the
+/// gains) before and after, and each photo's brightness gain that the fit found.
+#[derive(Debug, Clone, PartialEq)]
 pub struct SceneRefinement {
     pub steps: usize,
     pub mse_before: f64,
     pub mse_after: f64,
+    pub gains: Vec<f32>,
 }
 
 impl SceneRefinement {
@@ -94,7 +101,7 @@ pub fn refine_scene(
     let mut colours = colours(scene);
     let mse_before = mean_error(scene, &colours, cameras, views)?;
     if steps == 0 || views.is_empty() || scene.is_empty() {
-        return Ok(SceneRefinement { steps: 0, mse_before, mse_after: mse_before });
+        return Ok(SceneRefinement { steps: 0, mse_before, mse_after: mse_before, gains: vec![1.0; views.len()] });
     }
     let n = scene.len();
     let distance = median_distance(scene, &cameras[0]);
@@ -105,14 +112,19 @@ pub fn refine_scene(
         opacity: Adam::new(n),
         colours: Adam::new(3 * n),
         poses: vec![PoseAdam::default(); cameras.len()],
+        exposure: vec![Adam::new(1); views.len()],
     };
+    let mut log_gains = vec![0.0f32; views.len()];
     for step in 0..steps {
         let decay = FINAL_LR_SHARE.powf(step as f32 / steps.saturating_sub(1).max(1) as f32);
         let v = step % views.len();
         let (camera, view) = (cameras[v], views[v]);
         let splats = splats(scene, &colours, 3);
         let (image, state) = render(&splats, &camera, &[0.0; 3])?;
-        let d_features = residual(&image.features, view, &camera);
+        let gain = log_gains[v].exp();
+        let d_gained = residual(&image.features, view, &camera, gain);
+        let d_gain: f32 = d_gained.iter().zip(&image.features).map(|(d, a)| d * gain * a).sum();
+        let d_features: Vec<f32> = d_gained.iter().map(|d| d * gain).collect();
         let pixels = image.alpha.len();
         let zeros = vec![0.0; pixels];
         let g = render_backward(&splats, &camera, &state, &d_features, &zeros, &zeros);
@@ -124,6 +136,9 @@ pub fn refine_scene(
         if params.cameras && v > 0 {
             adam.poses[v].step(&mut cameras[v], &g.camera, decay * LR_POSE_ROTATION, decay * LR_POSE_TRANSLATION * distance);
         }
+        adam.exposure[v].step(&mut log_gains[v..=v], &[d_gain], &[decay * LR_EXPOSURE]);
+        let mean = log_gains.iter().sum::<f32>() / log_gains.len() as f32;
+        log_gains.iter_mut().for_each(|e| *e -= mean);
     }
     for q in &mut scene.rotations {
         let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
@@ -135,7 +150,7 @@ pub fn refine_scene(
         *sh = [0, 1, 2].map(|c| rgb_to_sh_dc(rgb[c]));
     }
     let mse_after = mean_error(scene, &colours, cameras, views)?;
-    Ok(SceneRefinement { steps, mse_before, mse_after })
+    Ok(SceneRefinement { steps, mse_before, mse_after, gains: log_gains.iter().map(|e| e.exp()).collect() })
 }
 
 /// The Adam moments of each parameter group.
@@ -146,10 +161,13 @@ struct Groups {
     opacity: Adam,
     colours: Adam,
     poses: Vec<PoseAdam>,
+    /// One per photo, for its log gain.
+    exposure: Vec<Adam>,
 }
 
-/// The gradient of the mean squared error inside `view.rect` w.r.t. the rendered planes.
-fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera) -> Vec<f32> {
+/// The gradient of the mean squared error inside `view.rect` w.r.t. the rendered planes
+/// times `gain`.
+fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera, gain: f32) -> Vec<f32> {
     let w = camera.intrinsics.width as usize;
     let [x0, y0, x1, y1] = view.rect.map(|c| c as usize);
     let count = (3 * (x1.saturating_sub(x0)) * (y1.saturating_sub(y0))).max(1) as f32;
@@ -161,7 +179,7 @@ fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera) -> Vec<f32>
         .map(|(i, (a, b))| {
             let (x, y) = (i % plane % w, i % plane / w);
             match (x0..x1).contains(&x) && (y0..y1).contains(&y) {
-                true => 2.0 * (a - b) / count,
+                true => 2.0 * (gain * a - b) / count,
                 false => 0.0,
             }
         })
@@ -174,7 +192,7 @@ fn mean_error(scene: &GaussianScene, colours: &[f32], cameras: &[Camera], views:
     let mut total = 0.0;
     for (camera, view) in cameras.iter().zip(views) {
         let (image, _) = render(&splats, camera, &[0.0; 3])?;
-        let gradient = residual(&image.features, *view, camera);
+        let gradient = residual(&image.features, *view, camera, 1.0);
         // Each entry of the residual is 2(a − b)/count, so Σ (a − b)² / count = Σ g·(a − b) / 2.
         total += gradient.iter().zip(&image.features).zip(view.photo).map(|((g, a), b)| f64::from(g * (a - b)) / 2.0).sum::<f64>();
     }

@@ -1,7 +1,8 @@
 //! Test-time refinement of a scene against its input photos (`inssplat_raster::refine`) on the
 //! analytic room reconstructed from ideal outputs, with its Gaussians displaced, its colours
 //! dimmed and one input camera turned: the input views' error falls, a view that no input saw
-//! improves too, the turned camera turns back, and the reference camera stays where it was.
+//! improves too, the turned camera turns back, and the reference camera stays where it was;
+//! a photo shot brighter than the others gets a gain of its own.
 
 use glam::{Quat, Vec3};
 use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
@@ -72,4 +73,28 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     let short = [RefineView { photo: &photos[0][..50], rect: [0, 0, size, size] }];
     let err = refine_scene(&mut scene, &mut cameras[..1], &short, RefineParams { steps: 5, cameras: true }).unwrap_err();
     assert!(err.to_string().contains("the photo has 50 values"), "{err}");
+}
+
+#[test]
+fn a_photo_shot_brighter_gets_its_own_gain_and_the_others_stay_alike() {
+    let size = 64;
+    let cameras = ring_cameras(8, size);
+    let room = render_scene(&cameras);
+    let planes = ideal_outputs(&room, 0.05, 5);
+    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
+    let mut scene = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
+    // Photo 5 with 12% more light: its auto exposure chose differently.
+    let mut photos: Vec<Vec<f32>> = room.frames.iter().map(|f| f.planar_rgb()).collect();
+    photos[5].iter_mut().for_each(|v| *v = (*v * 1.12).min(1.0));
+    let inputs: Vec<RefineView<'_>> = photos.iter().map(|p| RefineView { photo: p, rect: [0, 0, size, size] }).collect();
+    let mut kept = cameras.clone();
+    let done = refine_scene(&mut scene, &mut kept, &inputs, RefineParams { steps: 160, cameras: false }).unwrap();
+
+    let others: Vec<f32> = done.gains.iter().enumerate().filter(|&(v, _)| v != 5).map(|(_, g)| *g).collect();
+    let mean_other = others.iter().map(|g| g.ln()).sum::<f32>() / others.len() as f32;
+    let relative = (done.gains[5].ln() - mean_other).exp();
+    assert!((1.08..1.16).contains(&relative), "photo 5's gain over the others' {relative:.3} ({:?})", done.gains);
+    assert!(others.iter().all(|g| (g.ln() - mean_other).abs() < 0.02), "the alike photos' gains {:?}", done.gains);
+    let log_mean = done.gains.iter().map(|g| g.ln()).sum::<f32>() / done.gains.len() as f32;
+    assert!(log_mean.abs() < 1e-4, "the gains' logs average {log_mean}");
 }

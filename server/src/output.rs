@@ -207,9 +207,9 @@ pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
         timings: rec.timings.clone(),
         gaussians_in: rec.voxel.gaussians_in,
         gaussians_kept: rec.voxel.gaussians_out,
-        refinement: rec.refinement.map(|r| {
+        refinement: rec.refinement.as_ref().map(|r| {
             let [input_psnr_before, input_psnr_after] = r.psnr();
-            RefinementOut { steps: r.steps, input_psnr_before, input_psnr_after }
+            RefinementOut { steps: r.steps, input_psnr_before, input_psnr_after, photo_gains: r.gains.clone() }
         }),
     }
 }
@@ -229,8 +229,11 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
     text.push_str(&describe_cameras(&s.cameras));
     if let Some(r) = &s.refinement {
         text.push_str(&format!(
-            "refined against the photos for {} steps: input views {:.2} → {:.2} dB PSNR\n",
-            r.steps, r.input_psnr_before, r.input_psnr_after
+            "refined against the photos for {} steps: input views {:.2} → {:.2} dB PSNR; photos' gains {}\n",
+            r.steps,
+            r.input_psnr_before,
+            r.input_psnr_after,
+            r.photo_gains.iter().map(|g| format!("{g:.2}")).collect::<Vec<_>>().join(" ")
         ));
     }
     let total: f64 = s.timings.iter().map(|t| t.ms).sum();

@@ -101,6 +101,8 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     let fit = refined.refinement.expect("refinement asked for");
     assert_eq!(fit.steps, 15);
     assert!(fit.input_psnr_after > fit.input_psnr_before, "{fit:?}");
+    assert_eq!(fit.photo_gains.len(), 2, "{fit:?}");
+    assert!(fit.photo_gains.iter().all(|g| (0.5..2.0).contains(g)), "{fit:?}");
     assert!(refined.timings.iter().any(|t| t.stage == "refine" && t.ms > 0.0), "{:?}", refined.timings);
 }
 

@@ -210,9 +210,9 @@ fn the_prefetcher_hands_out_the_samplers_samples_in_order_from_several_threads()
         seed: 11,
         labels: label_cache().unwrap(),
     };
-    let mut prefetch = Prefetcher::start(sampler.clone(), 3, 13, 4, 3);
+    let prefetch = Prefetcher::start(sampler.clone(), 3, 13, 4, 3);
     let mut seen = Vec::new();
-    while let Some((index, sample)) = prefetch.next() {
+    for (index, sample) in prefetch {
         let (got, want) = (sample.unwrap(), sampler.sample(index).unwrap());
         assert_eq!((&got.scene, got.inputs, &got.cameras), (&want.scene, want.inputs, &want.cameras), "sample {index}");
         assert!(got.images == want.images && got.depth == want.depth && got.ids == want.ids, "sample {index}: other pixels");

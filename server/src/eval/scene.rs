@@ -231,7 +231,7 @@ pub fn evaluate_scene_keeping(
         instances_true: scene.instances.len(),
         seconds,
         stage_ms: rec.timings.iter().map(|t| (t.stage.clone(), t.ms)).collect(),
-        refine_context_psnr: rec.refinement.map(|r| r.psnr()),
+        refine_context_psnr: rec.refinement.as_ref().map(|r| r.psnr()),
         ..SceneScores::default()
     };
     let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;

@@ -299,10 +299,14 @@ impl Prefetcher {
         }
         Self { sampler, receivers, workers: handles, next: start }
     }
+}
+
+impl Iterator for Prefetcher {
+    type Item = (u64, Result<Sample, SampleError>);
 
     /// The next sample with its index; `None` once `end` is reached (the thread that would own
     /// sample `end` has finished and closed its channel).
-    pub fn next(&mut self) -> Option<(u64, Result<Sample, SampleError>)> {
+    fn next(&mut self) -> Option<Self::Item> {
         let owner = (self.sampler.scene_index(self.next) % self.receivers.len() as u64) as usize;
         let item = self.receivers[owner].recv().ok()?;
         debug_assert_eq!(item.0, self.next, "a data thread skipped a sample");
