@@ -6,7 +6,8 @@
 
 use glam::{Quat, Vec3};
 use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
-use inssplat_proto::{Camera, Intrinsics};
+use inssplat_proto::dataset::Scene;
+use inssplat_proto::{Camera, GaussianScene, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::turn_deg;
@@ -15,6 +16,17 @@ use inssplat_raster::voxel::{VoxelParams, voxelize};
 
 use crate::post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras};
 
+/// The analytic room on a ring of 8 cameras of `size` pixels, and the scene reconstructed
+/// from its ideal outputs with ±`noise` on their codes.
+pub fn ring_reconstruction(size: u32, noise: f32, seed: u64) -> (Vec<Camera>, Scene, GaussianScene) {
+    let cameras = ring_cameras(8, size);
+    let room = render_scene(&cameras);
+    let planes = ideal_outputs(&room, noise, seed);
+    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
+    let scene = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
+    (cameras, room, scene)
+}
+
 fn mse(a: &[f32], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(x, y)| f64::from(x.clamp(0.0, 1.0) - y).powi(2)).sum::<f64>() / a.len() as f64
 }
@@ -22,11 +34,7 @@ fn mse(a: &[f32], b: &[f32]) -> f64 {
 #[test]
 fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     let size = 64;
-    let truth = ring_cameras(8, size);
-    let room = render_scene(&truth);
-    let planes = ideal_outputs(&room, 0.05, 5);
-    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&truth).map(|(p, camera)| p.outputs(camera)).collect();
-    let exact = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
+    let (truth, room, exact) = ring_reconstruction(size, 0.05, 5);
     // Every Gaussian off its surface by up to 0.08 (the room is about 4 across) and 30% dimmer.
     let mut displaced = exact.clone();
     for (i, m) in displaced.means.iter_mut().enumerate() {
@@ -78,11 +86,7 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
 #[test]
 fn a_photo_shot_brighter_gets_its_own_gain_and_the_others_stay_alike() {
     let size = 64;
-    let cameras = ring_cameras(8, size);
-    let room = render_scene(&cameras);
-    let planes = ideal_outputs(&room, 0.05, 5);
-    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
-    let mut scene = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
+    let (cameras, room, mut scene) = ring_reconstruction(size, 0.05, 5);
     // Photo 5 with 12% more light: its auto exposure chose differently.
     let mut photos: Vec<Vec<f32>> = room.frames.iter().map(|f| f.planar_rgb()).collect();
     photos[5].iter_mut().for_each(|v| *v = (*v * 1.12).min(1.0));

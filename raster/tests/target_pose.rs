@@ -4,21 +4,16 @@
 
 use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
-use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::metrics::turn_deg;
 use inssplat_raster::target_pose::refine_pose;
-use inssplat_raster::voxel::{VoxelParams, voxelize};
 
-use crate::post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras};
+use crate::post_scene::render_scene;
+use crate::refine::ring_reconstruction;
 
 #[test]
 fn a_displaced_target_camera_is_brought_back_by_its_photo() {
     let size = 96;
-    let cameras = ring_cameras(8, size);
-    let room = render_scene(&cameras);
-    let planes = ideal_outputs(&room, 0.1, 3);
-    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
-    let scene = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
+    let (_, _, scene) = ring_reconstruction(size, 0.1, 3);
 
     // A view between two ring cameras, lower down.
     let k = Intrinsics::from_fov_y(size, size, 34f32.to_radians());
