@@ -122,9 +122,10 @@ pub fn refine_scene(
         let splats = splats(scene, &colours, 3);
         let (image, state) = render(&splats, &camera, &[0.0; 3])?;
         let gain = log_gains[v].exp();
-        let d_gained = residual(&image.features, view, &camera, gain);
-        let d_gain: f32 = d_gained.iter().zip(&image.features).map(|(d, a)| d * gain * a).sum();
-        let d_features: Vec<f32> = d_gained.iter().map(|d| d * gain).collect();
+        // The residual is the gradient w.r.t. the gained render; times the gain, w.r.t. the render.
+        let mut d_features = residual(&image.features, view, &camera, gain);
+        let d_gain: f32 = d_features.iter().zip(&image.features).map(|(d, a)| d * gain * a).sum();
+        d_features.iter_mut().for_each(|d| *d *= gain);
         let pixels = image.alpha.len();
         let zeros = vec![0.0; pixels];
         let g = render_backward(&splats, &camera, &state, &d_features, &zeros, &zeros);
