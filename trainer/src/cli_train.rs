@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, quantize_file};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, pool_keys_file, quantize_file};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
@@ -26,8 +26,8 @@ pub struct TrainArgs {
     data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
     /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
-    /// schedule; the network shape flags are then ignored, but for --image-skips and
-    /// --point-map-weight.
+    /// schedule; the network shape flags are then ignored, but for --image-skips,
+    /// --global-kv-pool and --point-map-weight.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
@@ -102,6 +102,12 @@ pub struct TrainArgs {
     /// with no effect on the output.
     #[arg(long)]
     image_skips: Option<usize>,
+    /// The global layers read keys and values averaged over squares of this many patches a
+    /// side (every token still queries; the global attention costs its square less; 1, like
+    /// leaving it out, reads every token). With --init-from, the source's weights are read
+    /// through it (the pooling has no weights); left out, the source's own pooling stays.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    global_kv_pool: Option<u16>,
     /// w_rgb, the weight of L_rgb in the total (the paper's 1).
     #[arg(long, default_value_t = 1.0)]
     rgb_weight: f64,
@@ -254,6 +260,7 @@ impl TrainArgs {
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips)
+            .with_global_kv_pool(self.global_kv_pool.map(usize::from).filter(|&p| p > 1))
             .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
             .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)));
         let loss = LossConfig::new()
@@ -407,6 +414,31 @@ pub struct QuantizeArgs {
     /// Model version recorded in the metadata (default: the input's with `+int8`).
     #[arg(long)]
     model_version: Option<String>,
+}
+
+#[derive(clap::Args)]
+pub struct PoolKeysArgs {
+    /// The ONNX file to read (as `inssplat-train export`, `fit-shapes` or `quantize` wrote it).
+    #[arg(long)]
+    model: PathBuf,
+    /// The ONNX file to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Patches a side of the squares whose keys and values the global layers average (1:
+    /// every token, as trained before pooling existed).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    pool: u16,
+    /// Model version recorded in the metadata (default: the input's with `+kvP`).
+    #[arg(long)]
+    model_version: Option<String>,
+}
+
+pub fn run_pool_keys(args: PoolKeysArgs) -> Result<()> {
+    let pool = Some(usize::from(args.pool)).filter(|&p| p > 1);
+    let meta = pool_keys_file(&args.model, &args.out, pool, args.model_version.as_deref())
+        .with_context(|| format!("--model {} --pool {}", args.model.display(), args.pool))?;
+    println!("wrote {} ({}, global keys and values pooled {p}×{p})", args.out.display(), meta.model_version, p = args.pool);
+    Ok(())
 }
 
 pub fn run_quantize(args: QuantizeArgs) -> Result<()> {

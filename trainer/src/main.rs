@@ -34,6 +34,9 @@ enum Command {
     /// Write an exported model with int8 weights in its linear layers (ONNX Runtime's dynamic
     /// quantization: a smaller file and a faster CPU forward), its metadata kept.
     Quantize(cli_train::QuantizeArgs),
+    /// Write an exported model whose global layers read keys and values averaged over squares
+    /// of patches (the same weights, a cheaper global attention), its metadata kept.
+    PoolKeys(cli_train::PoolKeysArgs),
     /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
     /// context views (true cameras), then score instance mIoU on its target views.
     FitScene(cli_fit::FitArgs),
@@ -165,6 +168,7 @@ fn main() -> Result<()> {
         Command::Validate(args) => cli_train::run_validate(args),
         Command::Export(args) => cli_train::run_export(args),
         Command::Quantize(args) => cli_train::run_quantize(args),
+        Command::PoolKeys(args) => cli_train::run_pool_keys(args),
         Command::FitScene(args) => cli_fit::run_fit(args),
         Command::FitShapes(args) => cli_shapes::run_fit_shapes(args),
         Command::LabelTable { out } => {

@@ -357,7 +357,8 @@ fn an_onnx_file_without_a_weight_or_not_onnx_is_refused_by_name() {
     assert!(err.contains("junk.onnx") && err.contains("not an ONNX model"), "{err}");
 }
 
-/// `--init-from model.onnx`: a fine-tune starts from an exported file's weights and records it.
+/// `--init-from model.onnx --global-kv-pool 2`: a fine-tune starts from an exported file's
+/// weights, records it, and trains them through the pooled global attention.
 #[test]
 fn a_fine_tune_starts_from_an_exported_onnx_file() {
     use inssplat_trainer::loss::LossConfig;
@@ -369,7 +370,7 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let source = network(&Device::flex());
     let onnx = dir.path().join("start.onnx");
     export_onnx(&source, &onnx, &ExportMeta { model_version: "start".into(), train_steps: 41, weights: Weights::F32 }).expect("export");
-    let config = TrainConfig::new(ModelConfig::new(), LossConfig::new()).with_steps(2).with_warmup(1).with_max_views(3).with_first_scene(5);
+    let config = TrainConfig::new(ModelConfig::new().with_global_kv_pool(Some(2)), LossConfig::new()).with_steps(2).with_warmup(1).with_max_views(3).with_first_scene(5);
     let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let run = dir.path().join("run");
@@ -377,7 +378,7 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let state = checkpoint::read_state(&summary.checkpoint.expect("a checkpoint")).expect("state");
     let from = state.init_from.expect("init_from recorded");
     assert_eq!((from.checkpoint.as_path(), from.step, state.step), (onnx.as_path(), 41, 2));
-    assert_eq!(state.config.model, *source.config(), "the file's shape, not the default one");
+    assert_eq!(state.config.model, source.config().clone().with_global_kv_pool(Some(2)), "the file's shape, not the default one, read through the pooling asked for");
 }
 
 /// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W` on a network
@@ -476,4 +477,54 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
     let err = String::from_utf8_lossy(&missing.stderr);
     assert!(!missing.status.success() && err.contains("/nonexistent/m.onnx"), "{err}");
     assert!(!dir.path().join("never.onnx").exists());
+}
+
+/// `inssplat-train pool-keys --pool 2`: the rewritten file keeps the weights and the input's
+/// other metadata, records the pooling in its configuration, runs in ONNX Runtime exactly as
+/// the pooled burn network does at 2 and 5 views (so the ReduceMean pooling of the export is
+/// the trainer's), differs from the unpooled network, and reads back; `--pool 3`, which does
+/// not divide the 4 patches a side, is refused by name.
+#[test]
+fn pool_keys_rewrites_a_file_whose_pooled_global_attention_matches_burn() {
+    use inssplat_trainer::export::onnx_pb::StringStringEntryProto;
+    use prost::Message;
+    let device = Device::flex();
+    let net = network(&device);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plain = dir.path().join("plain.onnx");
+    let mut model = to_model_proto(&net, &ExportMeta { model_version: "plain".into(), train_steps: 9, weights: Weights::F32 }).expect("export");
+    model.metadata_props.push(StringStringEntryProto { key: Some("inssplat.extra".into()), value: Some("kept".into()) });
+    std::fs::write(&plain, model.encode_to_vec()).expect("write");
+    let run = |pool: &str, out: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
+            .args(["pool-keys", "--pool", pool, "--model"])
+            .arg(&plain)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .expect("run inssplat-train")
+    };
+    let pooled_file = dir.path().join("kv2.onnx");
+    let out = run("2", &pooled_file);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+
+    let pooled = net.clone().with_global_kv_pool(Some(2)).expect("2 divides 4");
+    let mut session = session_of(&std::fs::read(&pooled_file).expect("the pooled file"));
+    for views in [2, 5] {
+        check_views(views, &pooled, &mut session, &device, Tol::Exact);
+    }
+    let metadata = session.metadata().expect("metadata");
+    assert_eq!(metadata.custom("inssplat.extra").as_deref(), Some("kept"));
+    assert_eq!(metadata.custom(sig::META_MODEL_VERSION).as_deref(), Some("plain+kv2"));
+    let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let (a, b) = (net.forward(images.clone()).expect("forward"), pooled.forward(images).expect("forward"));
+    assert_ne!(to_vec(a.depth), to_vec(b.depth), "pooling changes what the global layers read");
+    let (back, meta) = inssplat_trainer::export::import_onnx(&pooled_file, &device).expect("read back");
+    assert_eq!((back.config().global_kv_pool, meta.train_steps), (Some(2), 9));
+
+    let refused = dir.path().join("kv3.onnx");
+    let out = run("3", &refused);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("global_kv_pool 3") && err.contains("plain.onnx"), "{err}");
+    assert!(!refused.exists());
 }

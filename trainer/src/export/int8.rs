@@ -16,36 +16,21 @@
 use std::path::Path;
 
 use burn::prelude::*;
-use prost::Message;
 
 use super::graph::{Graph, attr_int};
-use super::import::{import_model, read_model};
 use super::onnx_pb::{DATA_TYPE_FLOAT, DATA_TYPE_INT8, TensorProto};
-use super::{ExportError, ExportMeta, ImportError, Weights, to_model_proto};
-
-/// Why a file could not be quantized.
-#[derive(Debug, thiserror::Error)]
-pub enum QuantizeError {
-    #[error(transparent)]
-    Import(#[from] ImportError),
-    #[error(transparent)]
-    Export(#[from] ExportError),
-}
+use super::rewrite::{RewriteError, rewrite_file};
+use super::{ExportError, ExportMeta, Weights};
 
 /// Writes the network of the ONNX file `input` to `output` with int8 linear weights, keeping
 /// every metadata entry of `input` the exporter does not write itself (the shape classifier),
 /// and `version` as its model version (by default the input's with `+int8`, so that reports
 /// tell the two apart). Returns what `output` says about itself.
-pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Result<ExportMeta, QuantizeError> {
-    let original = read_model(input)?;
-    let (net, meta) = import_model(input, &original, &Device::flex())?;
-    let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
-    let meta = ExportMeta { weights: Weights::Int8, model_version, ..meta };
-    let mut model = to_model_proto(&net, &meta)?;
-    let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
-    model.metadata_props.extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
-    std::fs::write(output, model.encode_to_vec()).map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
-    Ok(meta)
+pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Result<ExportMeta, RewriteError> {
+    rewrite_file(input, output, |net, meta| {
+        let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
+        Ok((net, ExportMeta { weights: Weights::Int8, model_version, ..meta }))
+    })
 }
 
 /// Largest |quantized weight|.

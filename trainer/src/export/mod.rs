@@ -18,6 +18,7 @@ mod import;
 mod int8;
 mod net;
 pub mod onnx_pb;
+mod rewrite;
 
 use std::path::Path;
 
@@ -27,7 +28,8 @@ use prost::Message;
 use crate::model::InsSplatNet;
 use graph::Graph;
 pub use import::{ImportError, import_onnx};
-pub use int8::{QuantizeError, quantize_file};
+pub use int8::quantize_file;
+pub use rewrite::{RewriteError, pool_keys_file};
 use onnx_pb::{
     DATA_TYPE_FLOAT, GraphProto, ModelProto, OperatorSetIdProto, StringStringEntryProto,
     TensorShapeProto, TypeProto, ValueInfoProto, tensor_shape_proto::Dimension,

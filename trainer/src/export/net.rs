@@ -2,7 +2,7 @@
 //! its `forward`, emitting ONNX nodes with the module weights as initializers. Every op is
 //! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
 //! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
-//! Shape, Expand, Exp, Softplus, Sigmoid, Identity; in an int8 file also DynamicQuantizeLinear,
+//! Shape, Expand, Exp, Softplus, Sigmoid, Identity, and ReduceMean for pooled keys; in an int8 file also DynamicQuantizeLinear,
 //! MatMulInteger and Cast). The view count stays symbolic: shapes
 //! are given with 0 (copy) and -1 (infer), and the only data-dependent size, the number of
 //! non-reference views, comes from a Shape node.
@@ -98,8 +98,23 @@ fn conv_transpose(
     Ok(g.op("ConvTranspose", &[x, &w, &b], attrs))
 }
 
-/// One transformer layer on `x`: `[batch, seq, dim]` (batch and seq may be symbolic).
-fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize) -> Result<String, ExportError> {
+/// `KeyPooling::apply` on `t`, `[1, heads, views·(1 + grid²), head_dim]` (views symbolic),
+/// for a network with [`ModelConfig::global_kv_pool`] `pool`.
+fn pool_keys(g: &mut Graph, t: &str, heads: i64, hd: i64, grid: i64, pool: i64) -> String {
+    let q = grid / pool;
+    let t = g.reshape(t, &[heads, -1, 1 + grid * grid, hd]);
+    let camera = g.slice(&t, &[0], &[1], &[2]);
+    let patches = g.slice(&t, &[1], &[END], &[2]);
+    let patches = g.reshape(&patches, &[heads, -1, q, pool, q, pool, hd]);
+    let pooled = g.op("ReduceMean", &[&patches], vec![attr_ints("axes", &[3, 5]), attr_int("keepdims", 0)]);
+    let pooled = g.reshape(&pooled, &[heads, -1, q * q, hd]);
+    let joined = g.op("Concat", &[&camera, &pooled], vec![attr_int("axis", 2)]);
+    g.reshape(&joined, &[1, heads, -1, hd])
+}
+
+/// One transformer layer on `x`: `[batch, seq, dim]` (batch and seq may be symbolic); a
+/// global layer of a network with [`ModelConfig::global_kv_pool`] passes `(grid, pool)`.
+fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize, pooling: Option<(usize, usize)>) -> Result<String, ExportError> {
     let heads = m.heads as i64;
     let hd = (dim / m.heads) as i64;
     let h = layer_norm(g, &format!("{hint}.norm1"), &m.norm1, x)?;
@@ -111,6 +126,13 @@ fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize) -> Result<St
     let q = g.op("Squeeze", &[&parts[0], &axis0], vec![]);
     let k = g.op("Squeeze", &[&parts[1], &axis0], vec![]);
     let v = g.op("Squeeze", &[&parts[2], &axis0], vec![]);
+    let (k, v) = match pooling {
+        Some((grid, pool)) => {
+            let pool = |g: &mut Graph, t: &str| pool_keys(g, t, heads, hd, grid as i64, pool as i64);
+            (pool(g, &k), pool(g, &v))
+        }
+        None => (k, v),
+    };
     let scale = g.scalar(1.0 / (hd as f32).sqrt());
     let q = g.op("Mul", &[&q, &scale], vec![]);
     let kt = g.transpose(&k, &[0, 1, 3, 2]);
@@ -308,10 +330,10 @@ pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     for (i, b) in net.blocks.iter().enumerate() {
         let hint = format!("blocks.{i}");
         if i % 2 == 0 {
-            x = block(g, &hint, b, &x, c.dim)?;
+            x = block(g, &hint, b, &x, c.dim, None)?;
         } else {
             let flat = g.reshape(&x, &[1, -1, d]);
-            let y = block(g, &hint, b, &flat, c.dim)?;
+            let y = block(g, &hint, b, &flat, c.dim, c.global_kv_pool.map(|p| (c.grid(), p)))?;
             x = g.reshape(&y, &[-1, s, d]);
             levels.push(g.slice(&x, &[1], &[END], &[1]));
         }

@@ -2,7 +2,8 @@
 //! both residual. The same layer type serves frame attention (each view attends to its own
 //! tokens, batch = views) and global attention (all views' tokens as one sequence, batch 1);
 //! the caller chooses by how it shapes the token tensor. Query, key and value come from one
-//! fused projection so the largest matmuls stay large.
+//! fused projection so the largest matmuls stay large. A global layer may read its keys and
+//! values pooled over the patch grid ([`KeyPooling`]).
 
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
@@ -45,12 +46,13 @@ impl Block {
 
     /// `x`: `[batch, seq, dim]` → same shape; attention runs within each batch entry.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        self.forward_with_keys(x).0
+        self.forward_with_keys(x, None).0
     }
 
-    /// [`Self::forward`], with the layer's queries and keys, `[batch, heads, seq, head_dim]`
-    /// each (what a loss on the attention itself reads).
-    pub fn forward_with_keys(&self, x: Tensor<3>) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
+    /// [`Self::forward`], reading the keys and values through `pooling` when given, with the
+    /// layer's queries and (unpooled) keys, `[batch, heads, seq, head_dim]` each (what a loss
+    /// on the attention itself reads).
+    pub fn forward_with_keys(&self, x: Tensor<3>, pooling: Option<KeyPooling>) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
         let [b, l, d] = x.dims();
         let hd = d / self.heads;
         let qkv = self
@@ -68,7 +70,11 @@ impl Block {
             scale: Some(1.0 / (hd as f64).sqrt()),
             ..Default::default()
         };
-        let ctx = attention(q.clone(), k.clone(), v, None, None, options)
+        let (keys, values) = match pooling {
+            Some(p) => (p.apply(k.clone()), p.apply(v)),
+            None => (k.clone(), v),
+        };
+        let ctx = attention(q.clone(), keys, values, None, None, options)
             .swap_dims(1, 2)
             .reshape([b, l, d]);
         let x = x + self.proj.forward(ctx);
@@ -76,5 +82,54 @@ impl Block {
             .fc2
             .forward(gelu(self.fc1.forward(self.norm2.forward(x.clone()))));
         (x + h, q, k)
+    }
+}
+
+/// How a global layer pools its keys and values: the sequence holds `views` views of one
+/// camera token and `grid`² patch tokens each (row-major); each view keeps its camera token
+/// and averages its patches' keys (and values) over `pool` × `pool` squares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KeyPooling {
+    pub views: usize,
+    pub grid: usize,
+    pub pool: usize,
+}
+
+impl KeyPooling {
+    /// `[1, heads, views·(1 + grid²), head_dim]` → `[1, heads, views·(1 + (grid/pool)²), head_dim]`.
+    pub fn apply(&self, t: Tensor<4>) -> Tensor<4> {
+        let [_, heads, _, hd] = t.dims();
+        let (n, g, p) = (self.views, self.grid, self.pool);
+        let q = g / p;
+        let t = t.reshape([heads, n, 1 + g * g, hd]);
+        let camera = t.clone().narrow(2, 0, 1);
+        let pooled = t
+            .narrow(2, 1, g * g)
+            .reshape([heads * n, q, p, q, p, hd])
+            .mean_dim(2)
+            .mean_dim(4)
+            .reshape([heads, n, q * q, hd]);
+        Tensor::cat(vec![camera, pooled], 2).reshape([1, heads, n * (1 + q * q), hd])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two views of a camera token and a 4×4 grid, one head of width 1 holding each token's
+    /// index: pooled 2×2, each view keeps its camera token and the means of its four squares.
+    #[test]
+    fn key_pooling_keeps_camera_tokens_and_averages_squares() {
+        let device = Device::flex();
+        let values: Vec<f32> = (0..34).map(|i| i as f32).collect();
+        let t = Tensor::<1>::from_floats(values.as_slice(), &device).reshape([1, 1, 34, 1]);
+        let pooled = KeyPooling { views: 2, grid: 4, pool: 2 }.apply(t);
+        assert_eq!(pooled.dims(), [1, 1, 10, 1]);
+        let got: Vec<f32> = pooled.into_data().to_vec().expect("f32");
+        // View 0: camera 0, patches 1..=16 row-major; its top-left square is 1, 2, 5, 6.
+        let square = |first: f32| (4.0 * first + 1.0 + 4.0 + 5.0) / 4.0;
+        let view = |cam: f32| vec![cam, square(cam + 1.0), square(cam + 3.0), square(cam + 9.0), square(cam + 11.0)];
+        assert_eq!(got, [view(0.0), view(17.0)].concat());
     }
 }

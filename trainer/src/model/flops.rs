@@ -16,7 +16,8 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
         f += if i % 2 == 0 {
             4 * n * s * s * d
         } else {
-            4 * (n * s) * (n * s) * d
+            let keys = c.global_kv_pool.map_or(s, |p| tokens / (p * p) as u64 + 1);
+            4 * (n * s) * (n * keys) * d
         };
     }
     f += 2 * n * (d * d + d * 9);

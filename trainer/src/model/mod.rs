@@ -20,7 +20,7 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use inssplat_proto::signature::TEXT_DIM;
 
-pub use block::{Block, LN_EPS};
+pub use block::{Block, KeyPooling, LN_EPS};
 pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
     DESCRIPTOR_HIDDEN, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
@@ -80,6 +80,13 @@ pub struct ModelConfig {
     /// ([`crate::loss::descriptor_loss`]), which registration matches between the views;
     /// `None` (also what files saved before it existed read as): no such head.
     pub descriptor_head: Option<usize>,
+    /// Side of the square of patch tokens whose keys and values the global layers average
+    /// into one (the spatial-reduction attention of PVT, without its learned reduction):
+    /// every token still asks its query, but of each view it reads the camera token and
+    /// (grid / p)² pooled patch keys, so the global attention costs p² times less. The
+    /// frame layers read every token. `None` (also what files saved before it existed read
+    /// as): every token.
+    pub global_kv_pool: Option<usize>,
 }
 
 impl ModelConfig {
@@ -136,6 +143,11 @@ impl ModelConfig {
             || self.descriptor_head == Some(0)
         {
             return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips, point_head and descriptor_head must be positive".into());
+        }
+        if let Some(p) = self.global_kv_pool
+            && (p < 2 || !self.grid().is_multiple_of(p))
+        {
+            return bad(format!("global_kv_pool {p} must be ≥ 2 and divide the {} patches a side", self.grid()));
         }
         Ok(())
     }
@@ -227,6 +239,15 @@ impl InsSplatNet {
         &self.config
     }
 
+    /// The same weights with the global layers' keys and values pooled `pool` × `pool`
+    /// ([`ModelConfig::global_kv_pool`]; `None`: every token).
+    pub fn with_global_kv_pool(mut self, pool: Option<usize>) -> Result<Self, ModelError> {
+        let config = self.config.clone().with_global_kv_pool(pool);
+        config.validate()?;
+        self.config = config;
+        Ok(self)
+    }
+
     /// Φ_sem as the signature lays it out: weight `[384, d_s]` and bias `[384]`
     /// (text-space feature = W·L + b).
     pub fn sem_proj(&self) -> (Tensor<2>, Tensor<1>) {
@@ -285,11 +306,12 @@ impl InsSplatNet {
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
         let mut keys = None;
+        let pooling = c.global_kv_pool.map(|pool| KeyPooling { views: n, grid: c.grid(), pool });
         for (i, block) in self.blocks.iter().enumerate() {
             if i % 2 == 0 {
                 x = block.forward(x);
             } else {
-                let (y, q, k) = block.forward_with_keys(x.reshape([1, n * s, d]));
+                let (y, q, k) = block.forward_with_keys(x.reshape([1, n * s, d]), pooling);
                 x = y.reshape([n, s, d]);
                 levels.push(x.clone().slice([0..n, 1..s]));
                 keys = Some((q, k));

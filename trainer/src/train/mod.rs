@@ -245,7 +245,8 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 /// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
 /// shape is the source's; `config.model` is replaced by it, except that an image encoder or a
-/// point-map head asked for by `config.model` is added to a source without one (see [`grow`]).
+/// point-map head asked for by `config.model` is added to a source without one (see [`grow`]),
+/// and that a key pooling it asks for replaces the source's.
 pub fn fine_tune(
     run: &Path,
     mut config: TrainConfig,
@@ -282,6 +283,9 @@ pub fn fine_tune(
             }
             _ => {}
         }
+    }
+    if config.model.global_kv_pool.is_some() {
+        shape.global_kv_pool = config.model.global_kv_pool;
     }
     let net = if shape == *net.config() { net } else { grow(&net, shape, config.seed, &device)? };
     config.model = net.config().clone();
