@@ -413,6 +413,23 @@ fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_
     check_views(2, &back, &mut session, &device, Tol::Exact);
 }
 
+/// `net` exported to `dir/plain.onnx` (version "plain", 9 steps) with one metadata entry the
+/// exporter does not write, `inssplat.extra` = "kept", which a rewrite must keep.
+fn plain_file(net: &InsSplatNet, dir: &std::path::Path) -> std::path::PathBuf {
+    use inssplat_trainer::export::onnx_pb::StringStringEntryProto;
+    use prost::Message;
+    let path = dir.join("plain.onnx");
+    let mut model = to_model_proto(net, &ExportMeta { model_version: "plain".into(), train_steps: 9, weights: Weights::F32 }).expect("export");
+    model.metadata_props.push(StringStringEntryProto { key: Some("inssplat.extra".into()), value: Some("kept".into()) });
+    std::fs::write(&path, model.encode_to_vec()).expect("write");
+    path
+}
+
+/// Runs the `inssplat-train` binary with `args`.
+fn trainer(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train")).args(args).output().expect("run inssplat-train")
+}
+
 /// `inssplat-train quantize`: the int8 file holds one `MatMulInteger` a linear layer and no
 /// float weight for any of them, is smaller, keeps the input's other metadata, runs in ONNX
 /// Runtime close to the network (but not exactly: it is quantized), and reads back into a
@@ -420,23 +437,14 @@ fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_
 /// file again (`import_onnx` checks that).
 #[test]
 fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_back() {
-    use inssplat_trainer::export::onnx_pb::{ModelProto, StringStringEntryProto};
+    use inssplat_trainer::export::onnx_pb::ModelProto;
     use prost::Message;
     let device = Device::flex();
     let net = network(&device);
     let dir = tempfile::tempdir().expect("temp dir");
-    let plain = dir.path().join("plain.onnx");
-    let mut model = to_model_proto(&net, &ExportMeta { model_version: "plain".into(), train_steps: 9, weights: Weights::F32 }).expect("export");
-    model.metadata_props.push(StringStringEntryProto { key: Some("inssplat.extra".into()), value: Some("kept".into()) });
-    std::fs::write(&plain, model.encode_to_vec()).expect("write");
+    let plain = plain_file(&net, dir.path());
     let int8 = dir.path().join("int8.onnx");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
-        .args(["quantize", "--model"])
-        .arg(&plain)
-        .arg("--out")
-        .arg(&int8)
-        .output()
-        .expect("run inssplat-train");
+    let out = trainer(&["quantize".as_ref(), "--model".as_ref(), plain.as_os_str(), "--out".as_ref(), int8.as_os_str()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let bytes = std::fs::read(&int8).expect("the int8 file");
     assert!(bytes.len() < std::fs::metadata(&plain).expect("plain").len() as usize, "int8 weights take less space");
@@ -469,14 +477,11 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
     assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 0.5 * step * 1.001), "dequantized within half a step");
     assert!(a != b, "the read-back weights are the quantized ones");
 
-    let missing = std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
-        .args(["quantize", "--model", "/nonexistent/m.onnx", "--out"])
-        .arg(dir.path().join("never.onnx"))
-        .output()
-        .expect("run inssplat-train");
+    let never = dir.path().join("never.onnx");
+    let missing = trainer(&["quantize".as_ref(), "--model".as_ref(), "/nonexistent/m.onnx".as_ref(), "--out".as_ref(), never.as_os_str()]);
     let err = String::from_utf8_lossy(&missing.stderr);
     assert!(!missing.status.success() && err.contains("/nonexistent/m.onnx"), "{err}");
-    assert!(!dir.path().join("never.onnx").exists());
+    assert!(!never.exists());
 }
 
 /// `inssplat-train pool-keys --pool 2`: the rewritten file keeps the weights and the input's
@@ -486,23 +491,12 @@ fn quantize_writes_int8_linear_weights_that_run_close_to_the_network_and_read_ba
 /// not divide the 4 patches a side, is refused by name.
 #[test]
 fn pool_keys_rewrites_a_file_whose_pooled_global_attention_matches_burn() {
-    use inssplat_trainer::export::onnx_pb::StringStringEntryProto;
-    use prost::Message;
     let device = Device::flex();
     let net = network(&device);
     let dir = tempfile::tempdir().expect("temp dir");
-    let plain = dir.path().join("plain.onnx");
-    let mut model = to_model_proto(&net, &ExportMeta { model_version: "plain".into(), train_steps: 9, weights: Weights::F32 }).expect("export");
-    model.metadata_props.push(StringStringEntryProto { key: Some("inssplat.extra".into()), value: Some("kept".into()) });
-    std::fs::write(&plain, model.encode_to_vec()).expect("write");
+    let plain = plain_file(&net, dir.path());
     let run = |pool: &str, out: &std::path::Path| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train"))
-            .args(["pool-keys", "--pool", pool, "--model"])
-            .arg(&plain)
-            .arg("--out")
-            .arg(out)
-            .output()
-            .expect("run inssplat-train")
+        trainer(&["pool-keys".as_ref(), "--pool".as_ref(), pool.as_ref(), "--model".as_ref(), plain.as_os_str(), "--out".as_ref(), out.as_os_str()])
     };
     let pooled_file = dir.path().join("kv2.onnx");
     let out = run("2", &pooled_file);
