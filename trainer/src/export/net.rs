@@ -2,8 +2,8 @@
 //! its `forward`, emitting ONNX nodes with the module weights as initializers. Every op is
 //! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
 //! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
-//! Shape, Expand, Exp, Softplus, Sigmoid, Identity, and ReduceMean for pooled keys; in an int8 file also DynamicQuantizeLinear,
-//! MatMulInteger and Cast). The view count stays symbolic: shapes
+//! Shape, Expand, Exp, Softplus, Sigmoid, Identity; ReduceMean for pooled keys; in an int8
+//! file also DynamicQuantizeLinear, MatMulInteger and Cast). The view count stays symbolic: shapes
 //! are given with 0 (copy) and -1 (infer), and the only data-dependent size, the number of
 //! non-reference views, comes from a Shape node.
 
