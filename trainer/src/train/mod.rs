@@ -284,10 +284,11 @@ pub fn fine_tune(
             _ => {}
         }
     }
-    if config.model.global_kv_pool.is_some() {
-        shape.global_kv_pool = config.model.global_kv_pool;
-    }
     let net = if shape == *net.config() { net } else { grow(&net, shape, config.seed, &device)? };
+    let net = match config.model.global_kv_pool {
+        Some(pool) => net.with_global_kv_pool(Some(pool)).map_err(|e| TrainError::Config(e.to_string()))?,
+        None => net,
+    };
     config.model = net.config().clone();
     config.validate()?;
     let optim = optimizer(&config);
