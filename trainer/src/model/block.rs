@@ -126,7 +126,7 @@ mod tests {
         let t = Tensor::<1>::from_floats(values.as_slice(), &device).reshape([1, 1, 34, 1]);
         let pooled = KeyPooling { views: 2, grid: 4, pool: 2 }.apply(t);
         assert_eq!(pooled.dims(), [1, 1, 10, 1]);
-        let got: Vec<f32> = pooled.into_data().to_vec().expect("f32");
+        let got = pooled.into_data().try_to_vec::<f32>().expect("f32");
         // View 0: camera 0, patches 1..=16 row-major; its top-left square is 1, 2, 5, 6.
         let square = |first: f32| (4.0 * first + 1.0 + 4.0 + 5.0) / 4.0;
         let view = |cam: f32| vec![cam, square(cam + 1.0), square(cam + 3.0), square(cam + 9.0), square(cam + 11.0)];
