@@ -7,5 +7,6 @@ mod refine;
 mod register_learned;
 mod render_forward;
 mod render_grad;
+mod ring_room;
 mod support;
 mod target_pose;

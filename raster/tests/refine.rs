@@ -6,26 +6,13 @@
 
 use glam::{Quat, Vec3};
 use inssplat_proto::gaussian::{rgb_to_sh_dc, sh_dc_to_rgb};
-use inssplat_proto::dataset::Scene;
-use inssplat_proto::{Camera, GaussianScene, Intrinsics};
-use inssplat_raster::backproject::{ViewOutputs, backproject};
+use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::label::masks::render_colour;
 use inssplat_raster::metrics::turn_deg;
 use inssplat_raster::refine::{RefineParams, RefineView, refine_scene};
-use inssplat_raster::voxel::{VoxelParams, voxelize};
 
-use crate::post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras};
-
-/// The analytic room on a ring of 8 cameras of `size` pixels, and the scene reconstructed
-/// from its ideal outputs with ±`noise` on their codes.
-pub fn ring_reconstruction(size: u32, noise: f32, seed: u64) -> (Vec<Camera>, Scene, GaussianScene) {
-    let cameras = ring_cameras(8, size);
-    let room = render_scene(&cameras);
-    let planes = ideal_outputs(&room, noise, seed);
-    let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&cameras).map(|(p, camera)| p.outputs(camera)).collect();
-    let scene = voxelize(&backproject(&views, SEM_DIM).unwrap().scene, &VoxelParams::default()).unwrap().scene;
-    (cameras, room, scene)
-}
+use crate::post_scene::render_scene;
+use crate::ring_room::ring_reconstruction;
 
 fn mse(a: &[f32], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(x, y)| f64::from(x.clamp(0.0, 1.0) - y).powi(2)).sum::<f64>() / a.len() as f64

@@ -8,7 +8,7 @@ use inssplat_raster::metrics::turn_deg;
 use inssplat_raster::target_pose::refine_pose;
 
 use crate::post_scene::render_scene;
-use crate::refine::ring_reconstruction;
+use crate::ring_room::ring_reconstruction;
 
 #[test]
 fn a_displaced_target_camera_is_brought_back_by_its_photo() {
