@@ -344,8 +344,10 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
                 structure: if args.shell_background { Structure::Background } else { Structure::Instances },
             },
         };
-        let config = args.config();
+        let mut config = args.config();
         if let Some(from) = &args.init_from {
+            // As asked, 1 included: on a source that pools, 1 reads every token again.
+            config.model.global_kv_pool = args.global_kv_pool.map(usize::from);
             eprintln!("new run in {} from the weights of {}: {} steps, {}", args.out.display(), from.display(), config.steps, describe(&data));
             train::fine_tune(&args.out, config, data, from, &session).with_context(|| format!("--init-from {}", from.display()))?
         } else {

@@ -358,7 +358,8 @@ fn an_onnx_file_without_a_weight_or_not_onnx_is_refused_by_name() {
 }
 
 /// `--init-from model.onnx --global-kv-pool 2`: a fine-tune starts from an exported file's
-/// weights, records it, and trains them through the pooled global attention.
+/// weights, records it, and trains them through the pooled global attention; from a file that
+/// pools, the pooling stays unless `--global-kv-pool 1` asks for every token.
 #[test]
 fn a_fine_tune_starts_from_an_exported_onnx_file() {
     use inssplat_trainer::loss::LossConfig;
@@ -379,6 +380,20 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let from = state.init_from.expect("init_from recorded");
     assert_eq!((from.checkpoint.as_path(), from.step, state.step), (onnx.as_path(), 41, 2));
     assert_eq!(state.config.model, source.config().clone().with_global_kv_pool(Some(2)), "the file's shape, not the default one, read through the pooling asked for");
+
+    // From a file that pools (as the shipped model does): left out, the pooling stays; 1 reads
+    // every token again.
+    let pooled = dir.path().join("pooled.onnx");
+    let pooled_net = source.clone().with_global_kv_pool(Some(2)).expect("2 divides 4");
+    export_onnx(&pooled_net, &pooled, &ExportMeta { model_version: "pooled".into(), train_steps: 7, weights: Weights::F32 }).expect("export");
+    for (asked, kept) in [(None, Some(2)), (Some(1), None)] {
+        let config = TrainConfig::new(ModelConfig::new().with_global_kv_pool(asked), LossConfig::new()).with_steps(1).with_warmup(1).with_max_views(2).with_first_scene(5);
+        let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
+        let run = dir.path().join(format!("run_{asked:?}"));
+        let summary = train::fine_tune(&run, config, data, &pooled, &session).expect("fine-tune from a pooled file");
+        let state = checkpoint::read_state(&summary.checkpoint.expect("a checkpoint")).expect("state");
+        assert_eq!(state.config.model.global_kv_pool, kept, "asked {asked:?}");
+    }
 }
 
 /// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W` on a network

@@ -246,7 +246,8 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
 /// shape is the source's; `config.model` is replaced by it, except that an image encoder or a
 /// point-map head asked for by `config.model` is added to a source without one (see [`grow`]),
-/// and that a key pooling it asks for replaces the source's.
+/// and that a key pooling it asks for replaces the source's (`Some(1)`: every token, for a
+/// source that pools; `None` keeps the source's).
 pub fn fine_tune(
     run: &Path,
     mut config: TrainConfig,
@@ -286,7 +287,7 @@ pub fn fine_tune(
     }
     let net = if shape == *net.config() { net } else { grow(&net, shape, config.seed, &device)? };
     let net = match config.model.global_kv_pool {
-        Some(pool) => net.with_global_kv_pool(Some(pool)).map_err(|e| TrainError::Config(e.to_string()))?,
+        Some(pool) => net.with_global_kv_pool((pool > 1).then_some(pool)).map_err(|e| TrainError::Config(e.to_string()))?,
         None => net,
     };
     config.model = net.config().clone();
