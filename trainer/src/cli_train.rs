@@ -103,9 +103,10 @@ pub struct TrainArgs {
     #[arg(long)]
     image_skips: Option<usize>,
     /// The global layers read keys and values averaged over squares of this many patches a
-    /// side (every token still queries; the global attention costs its square less; 1, like
-    /// leaving it out, reads every token). With --init-from, the source's weights are read
-    /// through it (the pooling has no weights); left out, the source's own pooling stays.
+    /// side (every token still queries; the global attention costs its square less; 1 reads
+    /// every token, as leaving it out does for a new network). With --init-from, the source's
+    /// weights are read through it (the pooling has no weights; 1 undoes a source's pooling);
+    /// left out, the source's own pooling stays.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     global_kv_pool: Option<u16>,
     /// w_rgb, the weight of L_rgb in the total (the paper's 1).
@@ -260,7 +261,8 @@ impl TrainArgs {
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips)
-            .with_global_kv_pool(self.global_kv_pool.map(usize::from).filter(|&p| p > 1))
+            // A new network pools or not; --init-from passes 1 on to undo a source's pooling.
+            .with_global_kv_pool(self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()))
             .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
             .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)));
         let loss = LossConfig::new()
@@ -344,10 +346,8 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
                 structure: if args.shell_background { Structure::Background } else { Structure::Instances },
             },
         };
-        let mut config = args.config();
+        let config = args.config();
         if let Some(from) = &args.init_from {
-            // As asked, 1 included: on a source that pools, 1 reads every token again.
-            config.model.global_kv_pool = args.global_kv_pool.map(usize::from);
             eprintln!("new run in {} from the weights of {}: {} steps, {}", args.out.display(), from.display(), config.steps, describe(&data));
             train::fine_tune(&args.out, config, data, from, &session).with_context(|| format!("--init-from {}", from.display()))?
         } else {

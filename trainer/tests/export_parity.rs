@@ -375,7 +375,7 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let run = dir.path().join("run");
-    let summary = train::fine_tune(&run, config, data, &onnx, &session).expect("fine-tune from ONNX");
+    let summary = train::fine_tune(&run, config, data.clone(), &onnx, &session).expect("fine-tune from ONNX");
     let state = checkpoint::read_state(&summary.checkpoint.expect("a checkpoint")).expect("state");
     let from = state.init_from.expect("init_from recorded");
     assert_eq!((from.checkpoint.as_path(), from.step, state.step), (onnx.as_path(), 41, 2));
@@ -388,9 +388,8 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     export_onnx(&pooled_net, &pooled, &ExportMeta { model_version: "pooled".into(), train_steps: 7, weights: Weights::F32 }).expect("export");
     for (asked, kept) in [(None, Some(2)), (Some(1), None)] {
         let config = TrainConfig::new(ModelConfig::new().with_global_kv_pool(asked), LossConfig::new()).with_steps(1).with_warmup(1).with_max_views(2).with_first_scene(5);
-        let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
         let run = dir.path().join(format!("run_{asked:?}"));
-        let summary = train::fine_tune(&run, config, data, &pooled, &session).expect("fine-tune from a pooled file");
+        let summary = train::fine_tune(&run, config, data.clone(), &pooled, &session).expect("fine-tune from a pooled file");
         let state = checkpoint::read_state(&summary.checkpoint.expect("a checkpoint")).expect("state");
         assert_eq!(state.config.model.global_kv_pool, kept, "asked {asked:?}");
     }
