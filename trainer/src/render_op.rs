@@ -129,19 +129,29 @@ struct Saved {
     splats: HostSplats,
     camera: Camera,
     state: ForwardState,
+    meter: Option<BackwardMeter>,
 }
 
 #[derive(Debug)]
 struct RenderBackward;
 
-/// Nanoseconds spent in [`RenderBackward`] since [`take_backward_time`] last read them.
-static BACKWARD_NS: AtomicU64 = AtomicU64::new(0);
+/// Sums the time the CPU rasterizer's backward (`render_backward` alone: no read-back of the
+/// output gradient, no upload) spends on the renders of [`render_metered`] that share it,
+/// on whatever thread their backward runs; the training log's `render_backward_s`. Each
+/// objective owns one, so trainings that run side by side in one process (tests, several
+/// samples a step) never read each other's time.
+#[derive(Debug, Clone, Default)]
+pub struct BackwardMeter(Arc<AtomicU64>);
 
-/// Time spent in the CPU rasterizer's backward (`render_backward` alone: no read-back of the
-/// output gradient, no upload) since the last call, summed over threads; the training log's
-/// `render_backward_s`.
-pub fn take_backward_time() -> Duration {
-    Duration::from_nanos(BACKWARD_NS.swap(0, Ordering::Relaxed))
+impl BackwardMeter {
+    /// The time summed so far.
+    pub fn elapsed(&self) -> Duration {
+        Duration::from_nanos(self.0.load(Ordering::Relaxed))
+    }
+
+    fn add(&self, d: Duration) {
+        self.0.fetch_add(d.as_nanos() as u64, Ordering::Relaxed);
+    }
 }
 
 impl<B: Backend> Backward<B, 1> for RenderBackward
@@ -164,7 +174,9 @@ where
             let (d_depth, d_alpha) = rest.split_at(pixels);
             let start = Instant::now();
             let g = render_backward(&saved.splats.splats(), &saved.camera, &saved.state, d_features, d_depth, d_alpha);
-            BACKWARD_NS.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            if let Some(meter) = &saved.meter {
+                meter.add(start.elapsed());
+            }
             let c = saved.splats.channels;
             let n = g.means.len();
             let mut packed = Vec::with_capacity(n * (GEOMETRY_COLUMNS + c));
@@ -189,6 +201,27 @@ pub fn render(
     camera: &Camera,
     background: &[f32],
     options: &RenderOptions,
+) -> Result<Rendered, RenderOpError> {
+    render_with_meter(splats, camera, background, options, None)
+}
+
+/// [`render`], with the time its backward takes in the rasterizer added to `meter`.
+pub fn render_metered(
+    splats: SplatTensors,
+    camera: &Camera,
+    background: &[f32],
+    options: &RenderOptions,
+    meter: &BackwardMeter,
+) -> Result<Rendered, RenderOpError> {
+    render_with_meter(splats, camera, background, options, Some(meter.clone()))
+}
+
+fn render_with_meter(
+    splats: SplatTensors,
+    camera: &Camera,
+    background: &[f32],
+    options: &RenderOptions,
+    meter: Option<BackwardMeter>,
 ) -> Result<Rendered, RenderOpError> {
     let [n, _] = splats.means.dims();
     let [_, c] = splats.features.dims();
@@ -215,7 +248,7 @@ pub fn render(
     out.extend_from_slice(&image.depth);
     out.extend_from_slice(&image.alpha);
     let out = TensorData::new(out, [c + 2, h, w]);
-    let saved = Saved { splats: host, camera: *camera, state };
+    let saved = Saved { splats: host, camera: *camera, state, meter };
     let output = match device.gradient_checkpointing_strategy() {
         None => Tensor::from_data(out, &device),
         Some(strategy) => tracked_on_backend(packed, out, saved, strategy)?,

@@ -18,13 +18,15 @@ use crate::loss::LossConfig;
 use crate::model::InsSplatNet;
 
 /// The mean gradient of a step's samples, their mean loss values and where the time went
-/// (the mean over samples of each sample's own time).
+/// (the mean over samples of each sample's own time; the rasterizer's backward summed over
+/// them).
 pub struct StepGradients {
     pub grads: GradientsParams,
     pub values: LossValues,
     pub forward: Duration,
     pub render: Duration,
     pub backward: Duration,
+    pub render_backward: Duration,
 }
 
 /// A sample that failed: its position in the step and why.
@@ -66,6 +68,7 @@ pub fn gradients(
                 acc.values = acc.values + part.values;
                 (acc.forward, acc.render, acc.backward) =
                     (acc.forward + part.forward, acc.render + part.render, acc.backward + part.backward);
+                acc.render_backward += part.render_backward;
                 acc
             }
         });
@@ -83,7 +86,14 @@ fn one(net: &InsSplatNet, sample: &Sample, k: usize, loss: &LossConfig, device: 
     let values = obj.values();
     let t = Instant::now();
     let grads = GradientsParams::from_grads(obj.total.div_scalar(k as f64).backward(), net);
-    Ok(StepGradients { grads, values, forward: obj.forward_time, render: obj.render_time, backward: t.elapsed() })
+    Ok(StepGradients {
+        grads,
+        values,
+        forward: obj.forward_time,
+        render: obj.render_time,
+        backward: t.elapsed(),
+        render_backward: obj.render_backward.elapsed(),
+    })
 }
 
 /// Moves the gradients of `module`'s parameters from `from` into `into`, adding them to any

@@ -484,7 +484,7 @@ fn run_loop(
                 .map(|d| format!("{:.3}", d.as_secs_f64())),
         );
         row.push(format!("{:.1}", state.elapsed_s));
-        row.push(format!("{:.4}", crate::render_op::take_backward_time().as_secs_f64()));
+        row.push(format!("{:.4}", g.render_backward.as_secs_f64()));
         train_log.row(&row).map_err(|e| io_error(train_log.path(), e))?;
         bar.set_position(state.step);
         bar.set_message(format!(

@@ -26,7 +26,7 @@ use crate::loss::{
     attention_match_loss, descriptor_grid_loss, descriptor_loss, descriptor_matches, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
-use crate::render_op::{RenderOpError, SplatTensors, render};
+use crate::render_op::{BackwardMeter, RenderOpError, SplatTensors, render_metered};
 
 /// Why a step could not be evaluated.
 #[derive(Debug, thiserror::Error)]
@@ -49,6 +49,9 @@ pub struct Objective {
     pub forward_time: Duration,
     pub render_time: Duration,
     pub loss_time: Duration,
+    /// The time the rasterizer's backward takes on this objective's renders, once
+    /// `total.backward()` has run.
+    pub render_backward: BackwardMeter,
 }
 
 /// The five terms and the total as numbers, for logs.
@@ -133,10 +136,11 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         _ => splats_from_outputs(&out, input_cameras),
     };
     let channels = splats.features.dims()[1];
+    let meter = BackwardMeter::default();
     let renders = sample
         .cameras
         .iter()
-        .map(|camera| render(splats.clone(), camera, &[], &RenderOptions::default()).map(|r| r.features))
+        .map(|camera| render_metered(splats.clone(), camera, &[], &RenderOptions::default(), &meter).map(|r| r.features))
         .collect::<Result<Vec<_>, _>>()?;
     let rendered = Tensor::stack::<4>(renders, 0); // [V, C, H, W]
     let render_time = t1.elapsed();
@@ -210,7 +214,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
                 + terms.semantic.clone().mul_scalar(config.semantic_weight)
         }
     };
-    Ok(Objective { total, terms, forward_time, render_time, loss_time: t2.elapsed() })
+    Ok(Objective { total, terms, forward_time, render_time, loss_time: t2.elapsed(), render_backward: meter })
 }
 
 /// `x` unchanged, with its gradient multiplied by `k` on the way back.
