@@ -36,6 +36,10 @@ pub struct LabelledDescriptor {
     /// The instance's semantic prototype (text space) where it was recorded.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub prototype: Vec<f32>,
+    /// The scene the instance was found in, where it was recorded (which instances share a
+    /// room: examples can be split by room, not by instance).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub scene: String,
 }
 
 /// One fully connected layer: `y = W·x + b`, `W` row-major `[outputs][inputs]`.

@@ -4,7 +4,7 @@
 //! names each true label got), that the JSON and markdown files are written, that bad
 //! arguments are named errors, and that a run whose stderr is no terminal logs a line per
 //! finished run; `--shape-examples` records the prototypes as the features give
-//! them, before the shipped shape classifier moves them. Also
+//! them, before the shipped shape classifier moves them, and the room each was found in. Also
 //! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
 
@@ -154,6 +154,7 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     assert!(!plain.is_empty());
     for e in &plain {
         assert_eq!(e.prototype.len(), 384, "{e:?}");
+        assert_eq!(e.scene, "scene_000000", "each example names the room it was found in");
         let norm = e.prototype.iter().map(|x| x * x).sum::<f32>().sqrt();
         assert!((norm - 1.0).abs() < 1e-3, "{e:?}");
     }

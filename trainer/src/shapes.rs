@@ -72,7 +72,7 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
         .iter()
         .filter_map(|(id, (p, c))| {
             let label = scene.instances.iter().find(|i| i.id == u32::from(*id))?.label.clone();
-            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new() })
+            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new(), scene: String::new() })
         })
         .collect()
 }

@@ -354,7 +354,7 @@ fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])
             }?;
             let prototype =
                 rec.unfused_prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
-            Some(LabelledDescriptor { label, descriptor: *d, prototype })
+            Some(LabelledDescriptor { label, descriptor: *d, prototype, scene: scene.name() })
         })
         .collect()
 }
