@@ -8,12 +8,15 @@
 //! loss is a fixed random linear functional of features, depth (where alpha > 0.1, the depth
 //! average being ill-conditioned where coverage vanishes) and alpha, accumulated in f64.
 //! Step h = 1e-3; bound per parameter: |autodiff − fd| ≤ 2e-2·|fd| + 2e-3·max|fd| over its kind.
+//! A render's backward time goes to its own meter only, whichever thread runs it.
+
+use std::time::Duration;
 
 use burn::prelude::*;
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::render::{AlphaCutoff, RenderOptions, Splats, render_with};
-use inssplat_trainer::render_op::{RenderOpError, SplatTensors, render};
+use inssplat_trainer::render_op::{BackwardMeter, RenderOpError, SplatTensors, render, render_metered};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -188,6 +191,35 @@ fn render_op_forward_equals_the_rasterizer() {
         assert_eq!(r.depth.into_data().try_to_vec::<f32>().unwrap(), image.depth);
         assert_eq!(r.alpha.into_data().try_to_vec::<f32>().unwrap(), image.alpha);
     }
+}
+
+#[test]
+fn a_renders_backward_time_goes_to_its_own_meter_only() {
+    let cam = camera();
+    let params = Params::scene(&cam);
+    let device = Device::flex().autodiff();
+    let (mine, other) = (BackwardMeter::default(), BackwardMeter::default());
+    let loss = |meter: Option<&BackwardMeter>| {
+        let s = params.tensors(&device);
+        let s = SplatTensors { means: s.means.require_grad(), ..s };
+        let r = match meter {
+            Some(m) => render_metered(s, &cam, &BACKGROUND, &OPTIONS, m),
+            None => render(s, &cam, &BACKGROUND, &OPTIONS),
+        };
+        r.unwrap().features.sum()
+    };
+    // A render of the other meter that is never differentiated, and two plain renders that
+    // are (one on another thread), add nothing to either meter.
+    let _forward_only = loss(Some(&other));
+    loss(None).backward();
+    std::thread::scope(|t| t.spawn(|| loss(None).backward()).join().unwrap());
+    assert_eq!((mine.elapsed(), other.elapsed()), (Duration::ZERO, Duration::ZERO));
+    loss(Some(&mine)).backward();
+    let once = mine.elapsed();
+    assert!(once > Duration::ZERO && other.elapsed() == Duration::ZERO);
+    // A second render of the same meter, differentiated on another thread, adds to it.
+    std::thread::scope(|t| t.spawn(|| loss(Some(&mine)).backward()).join().unwrap());
+    assert!(mine.elapsed() > once && other.elapsed() == Duration::ZERO);
 }
 
 #[test]
