@@ -77,6 +77,7 @@ fn registered(params: &RegisterParams) -> (inssplat_raster::register::Registrati
             photo: [0, 0, SIZE, SIZE],
             camera: &blank[v],
             descriptors: Some(Descriptors { data: &descriptors[v], dim: DIM }),
+            detail: None,
         })
         .collect();
     let start = Instant::now();

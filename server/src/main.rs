@@ -109,6 +109,11 @@ enum Command {
         /// `reconstruct --refine-steps`; 0, the default, times the feed-forward pipeline).
         #[arg(long, default_value_t = 0, value_name = "STEPS", conflicts_with = "against")]
         refine_steps: usize,
+        /// Long side in pixels of the copy of each photo that registration finds its keypoints
+        /// in, when the scene's photos are larger than the network's input (as `eval
+        /// --register-photo-size`).
+        #[arg(long, default_value_t = RegisterParams::default().photo_size, value_name = "PIXELS", conflicts_with = "against")]
+        register_photo_size: u32,
         /// Print JSON instead of the table.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -190,6 +195,16 @@ enum Command {
         /// focal length for all views from the matches (the ablation of that estimate).
         #[arg(long)]
         keep_focal: bool,
+        /// Long side in pixels of the copy of each photo that registration finds its keypoints
+        /// in, when the photo is larger than the network's input; at most the input's size
+        /// finds them in the input itself.
+        #[arg(long, default_value_t = RegisterParams::default().photo_size, value_name = "PIXELS")]
+        register_photo_size: u32,
+        /// Reconstruct from the context photos of this folder's scenes of the same names (the
+        /// same scenes synthesized at another size, `inssplat-train synth --size 512`), as a
+        /// camera gives them; every ground truth stays --data's, at the model resolution.
+        #[arg(long, value_name = "DIR", conflicts_with = "perturb")]
+        photos: Option<PathBuf>,
         /// Register on keypoint matches alone, ignoring the network's learned descriptors
         /// (the A/B of learned matches; a model without a descriptor head registers so anyway).
         #[arg(long)]
@@ -347,7 +362,7 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Command::Bench { data, views, runs, model, against, refine_steps, json, threads } => {
+        Command::Bench { data, views, runs, model, against, refine_steps, register_photo_size, json, threads } => {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
@@ -368,7 +383,11 @@ fn main() -> anyhow::Result<()> {
                 return Ok(());
             }
             let gpu = GpuRenderer::new().ok();
-            let config = PipelineConfig { refine_steps, ..PipelineConfig::default() };
+            let config = PipelineConfig {
+                refine_steps,
+                register: Some(RegisterParams { photo_size: register_photo_size, ..RegisterParams::default() }),
+                ..PipelineConfig::default()
+            };
             let vocabulary = vocab::vocabulary(None)?;
             let plan = bench::BenchPlan { views: &views, runs, vocabulary: &vocabulary, config: &config };
             let rows = bench::bench(&mut model, &labels, &scene, &plan, gpu.as_ref())?;
@@ -401,6 +420,8 @@ fn main() -> anyhow::Result<()> {
             merge_opacity,
             no_register,
             keep_focal,
+            register_photo_size,
+            photos,
             no_learned_matches,
             no_aggregation,
             refine_steps,
@@ -431,6 +452,7 @@ fn main() -> anyhow::Result<()> {
                     register: (!no_register).then(|| RegisterParams {
                         estimate_focal: !keep_focal,
                         use_descriptors: !no_learned_matches,
+                        photo_size: register_photo_size,
                         ..RegisterParams::default()
                     }),
                     cluster: cluster_params,
@@ -446,6 +468,7 @@ fn main() -> anyhow::Result<()> {
                 no_aggregation,
                 target_pose_steps,
                 query_rules,
+                photos,
                 perturb,
                 out: out.clone(),
                 progress: true,

@@ -4,7 +4,8 @@
 //! names each true label got), that the JSON and markdown files are written, that bad
 //! arguments are named errors, and that a run whose stderr is no terminal logs a line per
 //! finished run; `--shape-examples` records the prototypes as the features give
-//! them, before the shipped shape classifier moves them, and the room each was found in. Also
+//! them, before the shipped shape classifier moves them, and the room each was found in;
+//! `--photos` reconstructs from larger photos of the same scene and refuses another's. Also
 //! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
 
@@ -160,6 +161,43 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     }
     // The classifier at weight 4 names the instances differently, not what they record.
     assert_eq!(plain, fused);
+}
+
+#[test]
+fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_model(dir.path());
+    let data = dir.path().join("test");
+    support::test_scene(&data, 0);
+    // The same scene at 4× the size (the same seed gives the same room and cameras), and
+    // another scene under its name.
+    let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
+    (cfg.width, cfg.height, cfg.objects) = (128, 128, (3, 5));
+    let (photos, other) = (dir.path().join("photos"), dir.path().join("other"));
+    synth::generate_split(0, &cfg).unwrap().write(&photos.join("scene_000000")).unwrap();
+    synth::generate_split(1, &cfg).unwrap().write(&other.join("scene_000000")).unwrap();
+    let eval = |extra: &[&str]| {
+        let mut args = vec!["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
+        args.extend_from_slice(extra);
+        inssplat(&args)
+    };
+    let report = |out: std::process::Output| -> Value {
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let own = report(eval(&[]));
+    let large = report(eval(&["--photos", s(&photos)]));
+    // The photos are what is reconstructed (the network sees them downscaled, registration
+    // finds its keypoints in them), and the ground truth stays --data's.
+    assert_ne!(own["scenes"][0]["psnr"], large["scenes"][0]["psnr"]);
+    assert_eq!(own["scenes"][0]["instances_true"], large["scenes"][0]["instances_true"]);
+    let out = eval(&["--photos", s(&other)]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("transforms.json") && err.contains("not the same scene"), "{err}");
+    let missing = dir.path().join("missing");
+    let out = eval(&["--photos", s(&missing)]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--photos") && err.contains(s(&missing)), "{err}");
 }
 
 #[test]

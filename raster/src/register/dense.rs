@@ -350,7 +350,7 @@ mod tests {
         let (rgb, depth, camera) = (vec![0.5; 3 * pixels], vec![2.0; pixels], camera());
         // A letterboxed photo: the grid starts inside it.
         let photo = [0, 4, SIZE, SIZE - 4];
-        let view = RegisterView { rgb: &rgb, depth: &depth, photo, camera: &camera, descriptors: Some(Descriptors { data: &data, dim: DIM }) };
+        let view = RegisterView { rgb: &rgb, depth: &depth, photo, camera: &camera, descriptors: Some(Descriptors { data: &data, dim: DIM }), detail: None };
         let params = RegisterParams::default();
         let dense = prepare(&view, &params).expect("descriptors");
         // Every 4th pixel from 2 across 40 columns, and from 6 in rows 4..36.
@@ -369,7 +369,7 @@ mod tests {
         let (map_a, map_b) = (smooth_map(Vec2::ZERO, 5), smooth_map(shift, 5));
         let pixels = (SIZE * SIZE) as usize;
         let (rgb, depth, camera) = (vec![0.5; 3 * pixels], vec![2.0; pixels], camera());
-        let view = |data| RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: Some(Descriptors { data, dim: DIM }) };
+        let view = |data| RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: Some(Descriptors { data, dim: DIM }), detail: None };
         let params = RegisterParams::default();
         let (a, b) = (prepare(&view(&map_a), &params).unwrap(), prepare(&view(&map_b), &params).unwrap());
         let matches = match_views(&a, &b, &params);
@@ -389,7 +389,7 @@ mod tests {
         let views: Vec<_> = maps
             .iter()
             .map(|m| {
-                let v = RegisterView { rgb: &rgb, depth: &depth, photo: [1, 0, SIZE, SIZE - 1], camera: &camera, descriptors: Some(Descriptors { data: m, dim: DIM }) };
+                let v = RegisterView { rgb: &rgb, depth: &depth, photo: [1, 0, SIZE, SIZE - 1], camera: &camera, descriptors: Some(Descriptors { data: m, dim: DIM }), detail: None };
                 prepare(&v, &params).unwrap()
             })
             .collect();
@@ -399,7 +399,7 @@ mod tests {
     #[test]
     fn views_without_descriptors_are_not_prepared() {
         let (rgb, depth, camera) = (vec![0.5; 3 * 1600], vec![1.0; 1600], camera());
-        let view = RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: None };
+        let view = RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: None, detail: None };
         assert!(prepare(&view, &RegisterParams::default()).is_none());
     }
 }

@@ -1,8 +1,10 @@
 //! Keypoints and binary descriptors of one view, and their matches between two views.
-//! Corners are FAST-9 (imageproc) on the grey image upsampled ×2 — at the model's 128² a
-//! BRIEF patch (31 px) would otherwise cover a quarter of the image — and padded by its edge
-//! pixels, so corners up to the border get a descriptor; one corner per grid cell (the
-//! strongest) spreads them over the image. Descriptors are 256-bit BRIEF with test pairs drawn
+//! Corners are FAST-9 (imageproc) on a grey image of the view ([`KeypointImage`]): the photo
+//! itself where it is larger than the model's input (a user's photo keeps the detail the
+//! input has lost), else the view upsampled ×2 — at the model's 128² a BRIEF patch (31 px)
+//! would otherwise cover a quarter of the image — padded by its edge pixels, so corners up to
+//! the border get a descriptor; one corner per grid cell of the view (the strongest) spreads
+//! them over the image, and their positions come back in view pixels. Descriptors are 256-bit BRIEF with test pairs drawn
 //! from a fixed seed, so every view and every run compares the same tests. Matching is brute
 //! force on Hamming distance, kept when mutual, below a distance bound and clearly better than
 //! the second best (ratio test).
@@ -69,44 +71,78 @@ pub fn test_pairs() -> Vec<TestPair> {
     (0..BITS).map(|_| TestPair { p0: Point::new(coord(), coord()), p1: Point::new(coord(), coord()) }).collect()
 }
 
-/// Grey image of planar RGB `[3][H][W]` in [0, 1], upsampled ×[`UPSAMPLE`] and edge-padded
-/// by [`PAD`].
-fn grey_padded(rgb: &[f32], width: u32, height: u32) -> GrayImage {
-    let px = (width * height) as usize;
-    let grey = GrayImage::from_fn(width, height, |x, y| {
-        let i = (y * width + x) as usize;
-        let l = 0.299 * rgb[i] + 0.587 * rgb[px + i] + 0.114 * rgb[2 * px + i];
-        Luma([(l.clamp(0.0, 1.0) * 255.0).round() as u8])
-    });
-    let up = imageops::resize(&grey, width * UPSAMPLE, height * UPSAMPLE, imageops::FilterType::Triangle);
-    let (w, h) = up.dimensions();
+/// Edge-padded by [`PAD`], so that corners up to the border get a BRIEF patch.
+fn padded(image: &GrayImage) -> GrayImage {
+    let (w, h) = image.dimensions();
     GrayImage::from_fn(w + 2 * PAD, h + 2 * PAD, |x, y| {
         let cx = x.saturating_sub(PAD).min(w - 1);
         let cy = y.saturating_sub(PAD).min(h - 1);
-        *up.get_pixel(cx, cy)
+        *image.get_pixel(cx, cy)
     })
 }
 
-/// Keypoints stay this far (view pixels) inside the photo's rectangle, off the edge between a
+/// Keypoints stay this far (view pixels) inside the photo, off the edge between a
 /// letterboxed photo and its padding.
-const PHOTO_MARGIN: u32 = 3;
+const PHOTO_MARGIN: f32 = 3.0;
 
-/// Detects and describes the keypoints of one view (planar RGB `[3][H][W]` in [0, 1]) inside
-/// the photo's rectangle `photo` = `[x0, y0, x1, y1)` (view pixels).
-pub fn detect(rgb: &[f32], width: u32, height: u32, photo: [u32; 4], pairs: &[TestPair], params: &RegisterParams) -> Features {
-    let image = grey_padded(rgb, width, height);
-    let (w, h) = (width * UPSAMPLE, height * UPSAMPLE);
-    let cell = params.grid_cell * UPSAMPLE;
-    let (cols, rows) = (w.div_ceil(cell), h.div_ceil(cell));
-    let mut best: Vec<Option<(f32, u32, u32)>> = vec![None; (cols * rows) as usize];
-    for c in corners_fast9(&image, params.fast_threshold) {
-        let [x0, y0, x1, y1] = photo.map(|v| v * UPSAMPLE + PAD);
-        let m = PHOTO_MARGIN * UPSAMPLE;
-        let inside = (x0 + m..x1.saturating_sub(m)).contains(&c.x) && (y0 + m..y1.saturating_sub(m)).contains(&c.y);
+/// A grey image that keypoints are found in, and where it lies in its view: the view's photo
+/// rectangle upsampled ×[`UPSAMPLE`], or the photo itself at a finer scale than the model's
+/// input (what a user's photo has and the network's input has lost).
+#[derive(Debug, Clone)]
+pub struct KeypointImage {
+    /// The image, edge-padded by [`PAD`].
+    grey: GrayImage,
+    /// Its pixels per view pixel.
+    per_view: f32,
+    /// The view pixel position of its top-left corner.
+    origin: Vec2,
+}
+
+impl KeypointImage {
+    /// The photo rectangle `photo` = `[x0, y0, x1, y1)` of a view (planar RGB `[3][H][W]` in
+    /// [0, 1]), upsampled ×[`UPSAMPLE`].
+    pub fn of_view(rgb: &[f32], width: u32, height: u32, photo: [u32; 4]) -> Self {
+        let px = (width * height) as usize;
+        let [x0, y0, x1, y1] = photo;
+        let (w, h) = (x1.saturating_sub(x0).max(1), y1.saturating_sub(y0).max(1));
+        let grey = GrayImage::from_fn(w, h, |x, y| {
+            let i = ((y0 + y).min(height - 1) * width + (x0 + x).min(width - 1)) as usize;
+            let l = 0.299 * rgb[i] + 0.587 * rgb[px + i] + 0.114 * rgb[2 * px + i];
+            Luma([(l.clamp(0.0, 1.0) * 255.0).round() as u8])
+        });
+        let up = imageops::resize(&grey, w * UPSAMPLE, h * UPSAMPLE, imageops::FilterType::Triangle);
+        Self { grey: padded(&up), per_view: UPSAMPLE as f32, origin: Vec2::new(x0 as f32, y0 as f32) }
+    }
+
+    /// A grey photo with `per_view` of its pixels to a view pixel, its top-left corner at view
+    /// pixel `origin`.
+    pub fn of_photo(grey: &GrayImage, per_view: f32, origin: Vec2) -> Self {
+        Self { grey: padded(grey), per_view, origin }
+    }
+
+    /// Width and height without the padding.
+    fn size(&self) -> (u32, u32) {
+        (self.grey.width() - 2 * PAD, self.grey.height() - 2 * PAD)
+    }
+}
+
+/// Detects and describes the keypoints of one view in `image`, one per cell of
+/// `params.grid_cell` view pixels, at most `params.max_keypoints` (the strongest).
+pub fn detect(image: &KeypointImage, pairs: &[TestPair], params: &RegisterParams) -> Features {
+    let (w, h) = image.size();
+    let cell = params.grid_cell as f32 * image.per_view;
+    let cols = (w as f32 / cell).ceil() as usize;
+    let rows = (h as f32 / cell).ceil() as usize;
+    let margin = (PHOTO_MARGIN * image.per_view).round() as u32;
+    let mut best: Vec<Option<(f32, u32, u32)>> = vec![None; cols * rows];
+    for c in corners_fast9(&image.grey, params.fast_threshold) {
+        let inside = (PAD + margin..(PAD + w).saturating_sub(margin)).contains(&c.x)
+            && (PAD + margin..(PAD + h).saturating_sub(margin)).contains(&c.y);
         if !inside {
             continue;
         }
-        let slot = &mut best[(((c.y - PAD) / cell) * cols + (c.x - PAD) / cell) as usize];
+        let (col, row) = (((c.x - PAD) as f32 / cell) as usize, ((c.y - PAD) as f32 / cell) as usize);
+        let slot = &mut best[row.min(rows - 1) * cols + col.min(cols - 1)];
         if slot.is_none_or(|(s, _, _)| c.score > s) {
             *slot = Some((c.score, c.x, c.y));
         }
@@ -116,12 +152,11 @@ pub fn detect(rgb: &[f32], width: u32, height: u32, photo: [u32; 4], pairs: &[Te
     kept.truncate(params.max_keypoints);
     let keypoints: Vec<Point<u32>> = kept.iter().map(|&(_, x, y)| Point::new(x, y)).collect();
     let pairs = pairs.to_vec();
-    let (briefs, _) = brief(&image, &keypoints, BITS, Some(&pairs)).expect("padded keypoints are a patch radius inside");
+    let (briefs, _) = brief(&image.grey, &keypoints, BITS, Some(&pairs)).expect("padded keypoints are a patch radius inside");
     let descriptors = briefs.iter().map(|d| std::array::from_fn(|k| d.bits[k])).collect();
-    let scale = UPSAMPLE as f32;
     let points = keypoints
         .iter()
-        .map(|p| Vec2::new((p.x - PAD) as f32 + 0.5, (p.y - PAD) as f32 + 0.5) / scale)
+        .map(|p| image.origin + Vec2::new((p.x - PAD) as f32 + 0.5, (p.y - PAD) as f32 + 0.5) / image.per_view)
         .collect();
     Features { points, descriptors }
 }
@@ -183,4 +218,51 @@ pub fn match_features(a: &Features, b: &Features, params: &RegisterParams) -> Ve
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 96×64 grey image of seeded random 6-pixel blocks (corners everywhere) in a flat
+    /// border 12 pixels wide (no corner where margins differ).
+    fn blocks() -> GrayImage {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let shades: Vec<u8> = (0..16 * 11).map(|_| rng.random()).collect();
+        GrayImage::from_fn(96, 64, |x, y| {
+            let inside = (12..84).contains(&x) && (12..52).contains(&y);
+            Luma([if inside { shades[(y / 6 * 16 + x / 6) as usize] } else { 128 }])
+        })
+    }
+
+    #[test]
+    fn keypoints_of_a_finer_photo_come_back_in_view_pixels() {
+        let grey = blocks();
+        let pairs = test_pairs();
+        // The same cells of 8 image pixels: the photo as its own view, and as a view at half
+        // its scale whose photo starts at (3, 5).
+        let own = detect(&KeypointImage::of_photo(&grey, 1.0, Vec2::ZERO), &pairs, &RegisterParams { grid_cell: 8, ..RegisterParams::default() });
+        let half = detect(&KeypointImage::of_photo(&grey, 2.0, Vec2::new(3.0, 5.0)), &pairs, &RegisterParams::default());
+        assert!(own.len() > 20, "{} keypoints", own.len());
+        assert_eq!(own.descriptors, half.descriptors);
+        for (a, b) in own.points.iter().zip(&half.points) {
+            assert_eq!(Vec2::new(3.0, 5.0) + *a / 2.0, *b);
+        }
+    }
+
+    #[test]
+    fn keypoints_of_a_letterboxed_view_stay_inside_its_photo() {
+        // A 96×96 view whose photo fills rows 16..80; black padding, so that the photo's edge
+        // is a strong one.
+        let grey = blocks();
+        let px = 96 * 96;
+        let mut rgb = vec![0.0; 3 * px];
+        for (x, y, p) in grey.enumerate_pixels() {
+            (0..3).for_each(|c| rgb[c * px + ((y + 16) * 96 + x) as usize] = f32::from(p[0]) / 255.0);
+        }
+        let found = detect(&KeypointImage::of_view(&rgb, 96, 96, [0, 16, 96, 80]), &test_pairs(), &RegisterParams::default());
+        assert!(found.len() > 20, "{} keypoints", found.len());
+        let m = PHOTO_MARGIN;
+        assert!(found.points.iter().all(|p| p.y >= 16.0 + m && p.y <= 80.0 - m && p.x >= m && p.x <= 96.0 - m), "{:?}", found.points);
+    }
 }

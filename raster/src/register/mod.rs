@@ -1,30 +1,31 @@
-//! Camera registration from the photos and the network's depth: the test-time pose stage
-//! that VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
-//! ([`features`]) are matched with every other view's; each pair with enough matches gets a
-//! relative pose ([`relative`]). A pair that its keypoints leave without a pose is matched on
-//! the network's learned per-pixel descriptors instead when the model outputs them ([`dense`];
-//! unless [`RegisterParams::use_descriptors`] is off), lifted by the depth alike, and gets a
-//! pose when [`RegisterParams::descriptor_min_inliers`] of those matches agree. The views are
-//! chained to view 0 along the maximum spanning tree of the pairs' inlier counts, keypoint
-//! pairs before learned ones, each view through its best-supported path; then
-//! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors
-//! do not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms
-//! shot at 50–80°), so one focal-length multiplier for all views is measured first: each
-//! matched pair's pose is refined with a free focal length, the pairs' estimates are pooled by
-//! their precision-weighted median (a pair with little rotation cannot see the focal length and
+//! Camera registration from the photos and the network's depth: the test-time pose stage that
+//! VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
+//! ([`features`]; found in the photo at up to [`RegisterParams::photo_size`] pixels where it is
+//! larger than the network's input) are matched with every other view's; each pair with enough
+//! matches gets a relative pose ([`relative`]). A pair that its keypoints leave without a pose
+//! is matched on the network's learned per-pixel descriptors instead when the model outputs
+//! them ([`dense`]; unless [`RegisterParams::use_descriptors`] is off), lifted by the depth
+//! alike, and gets a pose when [`RegisterParams::descriptor_min_inliers`] of those matches
+//! agree. The views are chained to view 0 along the maximum spanning tree of the pairs' inlier
+//! counts, keypoint pairs before learned ones, each view through its best-supported path; then
+//! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors do
+//! not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms shot
+//! at 50–80°), so one focal-length multiplier for all views is measured first: each matched
+//! pair's pose is refined with a free focal length, the pairs' estimates are pooled by their
+//! precision-weighted median (a pair with little rotation cannot see the focal length and
 //! counts for little), every pair is solved again at that focal length (RANSAC included:
 //! inliers chosen through a wrong focal length favour the matches it fits), and the joint
 //! refinement refines it once more with all poses. When the pairs together pin it down less
 //! than [`MIN_FOCAL_PRECISION`] asks (few pairs, little rotation), the head's guess stays.
 //! Views that no chain reaches from view 0 (no overlap, or too little for a match) form
 //! components of their own, and then the photos' order is the best evidence left: the first
-//! view of each such component continues the motion of the two views before it (the step
-//! from the second-last to the last, applied once more; view 1, with nothing before it to
-//! continue, keeps the camera head's pose), and the rest are chained to it. On the 40 test
-//! scenes with their true depth this places such views far better than the camera head's
-//! near-identity poses did (8 views: rotation error 13.2° → 8.4°). The result is in the
-//! network's frame (world = view 0's camera), with the measured focal length and the depth's
-//! metric scale, so it replaces the predicted cameras one for one.
+//! view of each such component continues the motion of the two views before it (the step from
+//! the second-last to the last, applied once more; view 1, with nothing before it to continue,
+//! keeps the camera head's pose), and the rest are chained to it. On the 40 test scenes with
+//! their true depth this places such views far better than the camera head's near-identity
+//! poses did (8 views: rotation error 13.2° → 8.4°). The result is in the network's frame
+//! (world = view 0's camera), with the measured focal length and the depth's metric scale, so
+//! it replaces the predicted cameras one for one.
 
 pub mod dense;
 pub mod features;
@@ -32,6 +33,7 @@ mod joint;
 pub mod relative;
 
 pub use dense::Descriptors;
+pub use features::KeypointImage;
 
 use glam::{DMat3, DQuat, Quat, Vec3};
 use inssplat_proto::Camera;
@@ -48,7 +50,7 @@ const JOINT_GATE: f64 = 3.0;
 /// Tunables of [`register`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegisterParams {
-    /// FAST-9 intensity threshold (0–255) on the ×2 upsampled grey image.
+    /// FAST-9 intensity threshold (0–255) on the grey image keypoints are found in.
     pub fast_threshold: u8,
     /// One keypoint per cell of this side, in view pixels.
     pub grid_cell: u32,
@@ -81,6 +83,13 @@ pub struct RegisterParams {
     pub descriptor_ratio: f32,
     /// Smallest cosine of a descriptor match.
     pub descriptor_min_cos: f32,
+    /// Long side, in pixels, of the copy of each photo that keypoints are found in when the
+    /// photo is larger than the model's input (see [`RegisterView::detail`]); no larger than
+    /// the input finds them in the input. 512 against the input (128) on 120 val scenes
+    /// photographed at 512² (8 views, `inssplat eval --photos`): rotation error −0.92 ±
+    /// 0.27°, instance mIoU +0.99 ± 0.53, PSNR +0.31 ± 0.13 dB, for 15 ms more registration
+    /// (`inssplat bench`, 8 views; the model card); 256 gained about half as much.
+    pub photo_size: u32,
     /// Inliers a pair linked by descriptor matches alone needs (they are matched only where
     /// keypoints found no pose). On val40 at 8 views with run ds's descriptors (18% of the
     /// matches right), 20 linked as many views wrongly as rightly (rotation error +0.87 ±
@@ -107,6 +116,7 @@ impl Default for RegisterParams {
             descriptor_ratio: 0.75,
             descriptor_min_cos: 0.5,
             descriptor_min_inliers: 40,
+            photo_size: 512,
         }
     }
 }
@@ -125,6 +135,9 @@ pub struct RegisterView<'a> {
     pub camera: &'a Camera,
     /// The network's per-pixel matching descriptors of this view, if it outputs them.
     pub descriptors: Option<Descriptors<'a>>,
+    /// The photo at a finer scale than the view, to find keypoints in; `None` finds them in
+    /// the view's own photo rectangle, upsampled.
+    pub detail: Option<&'a KeypointImage>,
 }
 
 /// What a view is matched on: its keypoints, and its descriptor grid when it has one.
@@ -167,8 +180,16 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         .par_iter()
         .map(|v| {
             let k = &v.camera.intrinsics;
+            let own;
+            let image = match v.detail {
+                Some(detail) => detail,
+                None => {
+                    own = KeypointImage::of_view(v.rgb, k.width, k.height, v.photo);
+                    &own
+                }
+            };
             Described {
-                keypoints: features::detect(v.rgb, k.width, k.height, v.photo, &brief_tests, params),
+                keypoints: features::detect(image, &brief_tests, params),
                 dense: if params.use_descriptors { dense::prepare(v, params) } else { None },
             }
         })

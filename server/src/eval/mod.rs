@@ -6,6 +6,7 @@
 pub mod ceiling;
 pub mod confusion;
 pub mod perturb;
+pub mod photos;
 mod progress;
 pub mod query_rules;
 pub mod scene;
@@ -189,6 +190,8 @@ pub struct EvalRequest {
     pub target_pose_steps: usize,
     /// Score the text queries under every rule of [`query_rules::grid`] too.
     pub query_rules: bool,
+    /// Context photos from this folder's scenes of the same names ([`photos`]).
+    pub photos: Option<PathBuf>,
     /// Robustness sweeps to run (at [`EvalRequest::robust_views`] views).
     pub perturb: Vec<PerturbKind>,
     /// Where failure previews go (with `perturb`).
@@ -248,6 +251,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             no_aggregation: req.no_aggregation,
             target_pose_steps: req.target_pose_steps,
             query_rules: &rules,
+            photos: req.photos.as_deref(),
         };
         scenes
             .iter()

@@ -7,6 +7,7 @@
 //! cameras (`--known-poses`) the frame is the true one and the centres' scale (1) is kept.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 use std::time::Instant;
 
 use image::RgbImage;
@@ -27,6 +28,7 @@ use crate::runtime::Model;
 use super::ceiling::{ContextView, context_instances};
 use super::confusion::Confusion;
 use super::perturb::{self, Perturbation};
+use super::photos::photo_images;
 use super::mean;
 use super::query_rules::{QueryScores, query_scores};
 use super::views::{ClusterMode, pixel_labels, segment};
@@ -133,6 +135,9 @@ pub struct Settings<'a> {
     pub target_pose_steps: usize,
     /// Query rules scored beside the default one (`--query-rules`).
     pub query_rules: &'a [QueryRule],
+    /// Take the context photos from the scenes of this folder that have the same names
+    /// (`--photos`, [`super::photos`]).
+    pub photos: Option<&'a Path>,
 }
 
 /// The context frames of `scene` for `views` views (after an overlap perturbation), checked.
@@ -204,7 +209,10 @@ pub fn evaluate_scene_keeping(
     let name = scene.name();
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
     let context = context_frames(scene, views, settings.perturbation, model.resolution).map_err(&bad)?;
-    let images = context_images(scene, &context, settings.perturbation);
+    let images = match settings.photos {
+        Some(dir) => photo_images(dir, scene, &context).map_err(&bad)?,
+        None => context_images(scene, &context, settings.perturbation),
+    };
     let known;
     let pipeline = if settings.known_poses || settings.known_depth {
         let poses = settings.known_poses.then(|| context.iter().map(|&i| scene.frames[i].camera).collect());

@@ -64,12 +64,55 @@ pub struct ModelImage {
     /// Planar `[3][res][res]` in [0, 1].
     pub planar: Vec<f32>,
     pub letterbox: Letterbox,
+    /// The photo in grey at a finer scale than the model's input, for registration to find
+    /// keypoints in (`None` when the photo is no larger than the input or none was asked).
+    pub detail: Option<Detail>,
 }
 
-/// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`.
-pub fn decode(name: &str, bytes: &[u8], res: u32) -> Result<ModelImage, DecodeError> {
+/// A grey copy of a photo and its pixels per original pixel.
+#[derive(Debug, Clone)]
+pub struct Detail {
+    pub grey: image::GrayImage,
+    pub scale: f32,
+}
+
+impl ModelImage {
+    /// The detail's pixels per model pixel, and the model pixel of its top-left corner.
+    pub fn detail_in_model(&self) -> Option<(&image::GrayImage, f32, [f32; 2])> {
+        let lb = &self.letterbox;
+        self.detail.as_ref().map(|d| (&d.grey, d.scale / lb.scale, [lb.pad_x, lb.pad_y]))
+    }
+}
+
+/// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`; with
+/// `detail` > `res`, also keeps a grey copy whose long side is at most `detail`.
+pub fn decode(name: &str, bytes: &[u8], res: u32, detail: u32) -> Result<ModelImage, DecodeError> {
     let rgb = decode_rgb(name, bytes)?;
-    Ok(letterbox(&rgb, res))
+    let mut image = letterbox(&rgb, res);
+    image.detail = grey_detail(&rgb, res, detail);
+    Ok(image)
+}
+
+/// `rgb` in grey (BT.601 luma), its long side scaled down to `detail` if longer; `None` when
+/// it is no longer than `res` or `detail` is no larger than `res`.
+fn grey_detail(rgb: &image::RgbImage, res: u32, detail: u32) -> Option<Detail> {
+    let (w, h) = rgb.dimensions();
+    let long = w.max(h);
+    if detail <= res || long <= res {
+        return None;
+    }
+    let grey = image::GrayImage::from_fn(w, h, |x, y| {
+        let p = rgb.get_pixel(x, y);
+        let l = 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2]);
+        image::Luma([l.round().clamp(0.0, 255.0) as u8])
+    });
+    if long <= detail {
+        return Some(Detail { grey, scale: 1.0 });
+    }
+    let s = detail as f32 / long as f32;
+    let (dw, dh) = (((w as f32 * s).round() as u32).max(1), ((h as f32 * s).round() as u32).max(1));
+    let grey = image::imageops::resize(&grey, dw, dh, FilterType::Triangle);
+    Some(Detail { grey, scale: dw as f32 / w as f32 })
 }
 
 /// Decodes to RGB with EXIF orientation applied.
@@ -112,6 +155,7 @@ pub fn letterbox(rgb: &image::RgbImage, res: u32) -> ModelImage {
     ModelImage {
         planar,
         letterbox: Letterbox { width: w, height: h, scale: nw as f32 / w as f32, pad_x: ox as f32, pad_y: oy as f32 },
+        detail: None,
     }
 }
 
@@ -128,7 +172,7 @@ mod tests {
 
     #[test]
     fn letterboxes_wide_image_into_the_middle() {
-        let m = decode("a.png", &png(20, 10), 10).unwrap();
+        let m = decode("a.png", &png(20, 10), 10, 0).unwrap();
         assert_eq!(m.letterbox, Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 });
         let n = 100;
         assert_eq!(m.planar[0], PAD, "top rows are padding");
@@ -139,9 +183,23 @@ mod tests {
     }
 
     #[test]
+    fn keeps_a_grey_detail_only_of_photos_larger_than_the_input() {
+        // 40×20 into 10×10 (scale 1/4, 5 rows of padding split 2 above), the detail at 16 wide.
+        let m = decode("a.png", &png(40, 20), 10, 16).unwrap();
+        let (grey, per_view, origin) = m.detail_in_model().expect("a detail");
+        assert_eq!((grey.dimensions(), per_view, origin), ((16, 8), 1.6, [0.0, 2.0]));
+        // Grey is BT.601 luma of the photo (pixel (5, 0) of the 40×20 is (50, 0, 200)).
+        let luma = (0.299f32 * 50.0 + 0.114 * 200.0).round() as u8;
+        let exact = decode("a.png", &png(40, 20), 10, 40).unwrap().detail.unwrap();
+        assert_eq!((exact.scale, exact.grey.get_pixel(5, 0)[0]), (1.0, luma), "no larger than asked: kept as it is");
+        assert!(decode("a.png", &png(10, 5), 10, 16).unwrap().detail.is_none(), "no larger than the input");
+        assert!(decode("a.png", &png(40, 20), 10, 10).unwrap().detail.is_none(), "no detail asked");
+    }
+
+    #[test]
     fn refuses_empty_garbage_and_huge_inputs_by_name() {
-        assert!(matches!(decode("e.png", b"", 8), Err(DecodeError::Empty { .. })));
-        let err = decode("junk.jpg", b"this is not an image", 8).unwrap_err();
+        assert!(matches!(decode("e.png", b"", 8, 0), Err(DecodeError::Empty { .. })));
+        let err = decode("junk.jpg", b"this is not an image", 8, 0).unwrap_err();
         assert!(matches!(err, DecodeError::Format { .. }) && err.to_string().starts_with("junk.jpg"), "{err}");
         // A valid PNG header claiming 20000×20000: refused from the header, before decoding.
         let mut huge = png(1, 1);
@@ -149,10 +207,10 @@ mod tests {
         huge[20..24].copy_from_slice(&20000u32.to_be_bytes());
         let crc = crc32fast::hash(&huge[12..29]);
         huge[29..33].copy_from_slice(&crc.to_be_bytes());
-        let err = decode("huge.png", &huge, 8).unwrap_err();
+        let err = decode("huge.png", &huge, 8, 0).unwrap_err();
         assert!(matches!(err, DecodeError::Size { width: 20000, height: 20000, .. }), "{err}");
         let mut cut = png(16, 16);
         cut.truncate(cut.len() - 30);
-        assert!(matches!(decode("cut.png", &cut, 8), Err(DecodeError::Corrupt { .. })));
+        assert!(matches!(decode("cut.png", &cut, 8, 0), Err(DecodeError::Corrupt { .. })));
     }
 }

@@ -9,7 +9,7 @@
 
 use std::time::Instant;
 
-use glam::{Quat, Vec3};
+use glam::{Quat, Vec2, Vec3};
 use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::{DESCRIPTOR, label_cosines};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
@@ -19,7 +19,7 @@ use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::refine::{RefineParams, RefineView, SceneRefinement, refine_scene};
-use inssplat_raster::register::{Descriptors, RegisterParams, RegisterView, register};
+use inssplat_raster::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
 use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
@@ -234,7 +234,8 @@ pub fn reconstruct_with(
     let mut clock = Stopwatch { timings: Vec::new(), on_stage };
     let res = model.resolution;
     let decoded = clock.time("decode", || {
-        images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32)).collect::<Result<Vec<_>, _>>()
+        let detail = config.register.as_ref().map_or(0, |r| r.photo_size);
+        images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32, detail)).collect::<Result<Vec<_>, _>>()
     })?;
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
     let mut out = clock.time("model", || model.run(&batch, images.len()))?;
@@ -257,6 +258,10 @@ pub fn reconstruct_with(
             match &config.register {
                 None => (predicted, head(out.views), FocalSource::CameraHead),
                 Some(params) => clock.time("register", || {
+                    let details: Vec<Option<KeypointImage>> = decoded
+                        .iter()
+                        .map(|d| d.detail_in_model().map(|(grey, per_view, [x, y])| KeypointImage::of_photo(grey, per_view, Vec2::new(x, y))))
+                        .collect();
                     let views: Vec<RegisterView<'_>> = (0..out.views)
                         .map(|v| RegisterView {
                             rgb: &decoded[v].planar,
@@ -264,6 +269,7 @@ pub fn reconstruct_with(
                             photo: decoded[v].letterbox.photo_rect(),
                             camera: &predicted[v],
                             descriptors: out.descriptors.as_ref().map(|(data, dim)| Descriptors { data: &data[plane(*dim, v)], dim: *dim }),
+                            detail: details[v].as_ref(),
                         })
                         .collect();
                     let registration = register(&views, params);
