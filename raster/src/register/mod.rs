@@ -86,8 +86,8 @@ pub struct RegisterParams {
     /// Long side, in pixels, of the copy of each photo that keypoints are found in when the
     /// photo is larger than the model's input (see [`RegisterView::detail`]); no larger than
     /// the input finds them in the input. 512 against the input (128) on 120 val scenes
-    /// photographed at 512² (8 views, `inssplat eval --photos`): rotation error −0.92 ±
-    /// 0.27°, instance mIoU +0.99 ± 0.53, PSNR +0.31 ± 0.13 dB, for 15 ms more registration
+    /// photographed at 512² (8 views, `inssplat eval --photos`): rotation error −1.19 ±
+    /// 0.36°, instance mIoU +0.84 ± 0.56, PSNR +0.37 ± 0.15 dB, for 17 ms more registration
     /// (`inssplat bench`, 8 views; the model card); 256 gained about half as much.
     pub photo_size: u32,
     /// Inliers a pair linked by descriptor matches alone needs (they are matched only where
