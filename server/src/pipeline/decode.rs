@@ -1,6 +1,8 @@
 //! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
-//! letterboxed to the model's square input. The header is read first and oversized or empty
-//! images are refused before any pixel is decoded, so memory stays bounded whatever is sent.
+//! letterboxed to the model's square input, and, for registration, a grey copy of a photo
+//! larger than that input at up to `RegisterParams::photo_size` pixels (both resized by
+//! `fast_image_resize`). The header is read first and oversized or empty images are refused
+//! before any pixel is decoded, so memory stays bounded whatever is sent.
 
 use std::io::Cursor;
 
