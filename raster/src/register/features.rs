@@ -1,16 +1,16 @@
-//! Keypoints and binary descriptors of one view, and their matches between two views.
-//! Corners are FAST-9 (imageproc) on a grey image of the view ([`KeypointImage`]): the photo
-//! itself where it is larger than the model's input (a user's photo keeps the detail the
-//! input has lost), else the view upsampled ×2 — at the model's 128² a BRIEF patch (31 px)
-//! would otherwise cover a quarter of the image — padded by its edge pixels, so corners up to
-//! the border get a descriptor; one corner per grid cell of the view (the strongest) spreads
-//! them over the image, and their positions come back in view pixels. Descriptors are 256-bit BRIEF with test pairs drawn
-//! from a fixed seed, so every view and every run compares the same tests. Matching is brute
-//! force on Hamming distance, kept when mutual, below a distance bound and clearly better than
-//! the second best (ratio test).
+//! Keypoints and binary descriptors of one view, and their matches between two views. Corners
+//! are FAST-9 (imageproc) on a grey image of the view ([`KeypointImage`]): the photo itself
+//! where it is larger than the model's input (a user's photo keeps the detail the input has
+//! lost), else the view upsampled ×2 — at the model's 128² a BRIEF patch (31 px) would
+//! otherwise cover a quarter of the image — padded by its edge pixels, so corners up to the
+//! border get a descriptor; one corner per grid cell of the view (the strongest) spreads them
+//! over the image, and their positions come back in view pixels. Descriptors are 256-bit BRIEF
+//! with test pairs drawn from a fixed seed, so every view and every run compares the same
+//! tests. Matching is brute force on Hamming distance, kept when mutual, below a distance bound
+//! and clearly better than the second best (ratio test).
 
 use glam::Vec2;
-use image::{GrayImage, Luma, imageops};
+use image::{GrayImage, Luma, RgbImage, imageops};
 use imageproc::binary_descriptors::brief::{TestPair, brief};
 use imageproc::corners::corners_fast9;
 use imageproc::point::Point;
@@ -71,6 +71,11 @@ pub fn test_pairs() -> Vec<TestPair> {
     (0..BITS).map(|_| TestPair { p0: Point::new(coord(), coord()), p1: Point::new(coord(), coord()) }).collect()
 }
 
+/// BT.601 luma of an RGB colour in [0, 1], as an 8-bit grey.
+fn luma(r: f32, g: f32, b: f32) -> Luma<u8> {
+    Luma([((0.299 * r + 0.587 * g + 0.114 * b).clamp(0.0, 1.0) * 255.0).round() as u8])
+}
+
 /// Edge-padded by [`PAD`], so that corners up to the border get a BRIEF patch.
 fn padded(image: &GrayImage) -> GrayImage {
     let (w, h) = image.dimensions();
@@ -107,17 +112,21 @@ impl KeypointImage {
         let (w, h) = (x1.saturating_sub(x0).max(1), y1.saturating_sub(y0).max(1));
         let grey = GrayImage::from_fn(w, h, |x, y| {
             let i = ((y0 + y).min(height - 1) * width + (x0 + x).min(width - 1)) as usize;
-            let l = 0.299 * rgb[i] + 0.587 * rgb[px + i] + 0.114 * rgb[2 * px + i];
-            Luma([(l.clamp(0.0, 1.0) * 255.0).round() as u8])
+            luma(rgb[i], rgb[px + i], rgb[2 * px + i])
         });
         let up = imageops::resize(&grey, w * UPSAMPLE, h * UPSAMPLE, imageops::FilterType::Triangle);
         Self { grey: padded(&up), per_view: UPSAMPLE as f32, origin: Vec2::new(x0 as f32, y0 as f32) }
     }
 
-    /// A grey photo with `per_view` of its pixels to a view pixel, its top-left corner at view
+    /// A photo with `per_view` of its pixels to a view pixel, its top-left corner at view
     /// pixel `origin`.
-    pub fn of_photo(grey: &GrayImage, per_view: f32, origin: Vec2) -> Self {
-        Self { grey: padded(grey), per_view, origin }
+    pub fn of_photo(rgb: &RgbImage, per_view: f32, origin: Vec2) -> Self {
+        let unit = |v: u8| f32::from(v) / 255.0;
+        let grey = GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+            let p = rgb.get_pixel(x, y);
+            luma(unit(p[0]), unit(p[1]), unit(p[2]))
+        });
+        Self { grey: padded(&grey), per_view, origin }
     }
 
     /// Width and height without the padding.
@@ -226,23 +235,32 @@ mod tests {
 
     /// A 96×64 grey image of seeded random 6-pixel blocks (corners everywhere) in a flat
     /// border 12 pixels wide (no corner where margins differ).
-    fn blocks() -> GrayImage {
+    fn blocks() -> RgbImage {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let shades: Vec<u8> = (0..16 * 11).map(|_| rng.random()).collect();
-        GrayImage::from_fn(96, 64, |x, y| {
+        RgbImage::from_fn(96, 64, |x, y| {
             let inside = (12..84).contains(&x) && (12..52).contains(&y);
-            Luma([if inside { shades[(y / 6 * 16 + x / 6) as usize] } else { 128 }])
+            image::Rgb([if inside { shades[(y / 6 * 16 + x / 6) as usize] } else { 128 }; 3])
         })
     }
 
     #[test]
+    fn grey_is_the_bt601_luma_of_the_photo() {
+        // (50, 0, 200): 0.299 · 50 + 0.114 · 200 = 37.75.
+        let photo = RgbImage::from_pixel(1, 1, image::Rgb([50, 0, 200]));
+        let image = KeypointImage::of_photo(&photo, 1.0, Vec2::ZERO);
+        assert_eq!(image.grey.get_pixel(PAD, PAD)[0], 38);
+        assert_eq!(luma(50.0 / 255.0, 0.0, 200.0 / 255.0)[0], 38);
+    }
+
+    #[test]
     fn keypoints_of_a_finer_photo_come_back_in_view_pixels() {
-        let grey = blocks();
+        let photo = blocks();
         let pairs = test_pairs();
         // The same cells of 8 image pixels: the photo as its own view, and as a view at half
         // its scale whose photo starts at (3, 5).
-        let own = detect(&KeypointImage::of_photo(&grey, 1.0, Vec2::ZERO), &pairs, &RegisterParams { grid_cell: 8, ..RegisterParams::default() });
-        let half = detect(&KeypointImage::of_photo(&grey, 2.0, Vec2::new(3.0, 5.0)), &pairs, &RegisterParams::default());
+        let own = detect(&KeypointImage::of_photo(&photo, 1.0, Vec2::ZERO), &pairs, &RegisterParams { grid_cell: 8, ..RegisterParams::default() });
+        let half = detect(&KeypointImage::of_photo(&photo, 2.0, Vec2::new(3.0, 5.0)), &pairs, &RegisterParams::default());
         assert!(own.len() > 20, "{} keypoints", own.len());
         assert_eq!(own.descriptors, half.descriptors);
         for (a, b) in own.points.iter().zip(&half.points) {
@@ -254,11 +272,11 @@ mod tests {
     fn keypoints_of_a_letterboxed_view_stay_inside_its_photo() {
         // A 96×96 view whose photo fills rows 16..80; black padding, so that the photo's edge
         // is a strong one.
-        let grey = blocks();
+        let photo = blocks();
         let px = 96 * 96;
         let mut rgb = vec![0.0; 3 * px];
-        for (x, y, p) in grey.enumerate_pixels() {
-            (0..3).for_each(|c| rgb[c * px + ((y + 16) * 96 + x) as usize] = f32::from(p[0]) / 255.0);
+        for (x, y, p) in photo.enumerate_pixels() {
+            (0..3).for_each(|c| rgb[c * px + ((y + 16) * 96 + x) as usize] = f32::from(p[c]) / 255.0);
         }
         let found = detect(&KeypointImage::of_view(&rgb, 96, 96, [0, 16, 96, 80]), &test_pairs(), &RegisterParams::default());
         assert!(found.len() > 20, "{} keypoints", found.len());

@@ -1,6 +1,6 @@
 //! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
-//! letterboxed to the model's square input, and, for registration, a grey copy of a photo
-//! larger than that input at up to `RegisterParams::photo_size` pixels (both resized by
+//! letterboxed to the model's square input, and, for registration, a copy of a photo larger
+//! than that input at up to `RegisterParams::photo_size` pixels (both resized by
 //! `fast_image_resize`). The header is read first and oversized or empty images are refused
 //! before any pixel is decoded, so memory stays bounded whatever is sent.
 
@@ -66,32 +66,32 @@ pub struct ModelImage {
     /// Planar `[3][res][res]` in [0, 1].
     pub planar: Vec<f32>,
     pub letterbox: Letterbox,
-    /// The photo in grey at a finer scale than the model's input, for registration to find
-    /// keypoints in (`None` when the photo is no larger than the input or none was asked).
+    /// The photo at a finer scale than the model's input, for registration to find keypoints
+    /// in (`None` when the photo is no larger than the input or none was asked).
     pub detail: Option<Detail>,
 }
 
-/// A grey copy of a photo and its pixels per original pixel.
+/// A copy of a photo and its pixels per original pixel.
 #[derive(Debug, Clone)]
 pub struct Detail {
-    pub grey: image::GrayImage,
+    pub rgb: RgbImage,
     pub scale: f32,
 }
 
 impl ModelImage {
     /// The detail's pixels per model pixel, and the model pixel of its top-left corner.
-    pub fn detail_in_model(&self) -> Option<(&image::GrayImage, f32, [f32; 2])> {
+    pub fn detail_in_model(&self) -> Option<(&RgbImage, f32, [f32; 2])> {
         let lb = &self.letterbox;
-        self.detail.as_ref().map(|d| (&d.grey, d.scale / lb.scale, [lb.pad_x, lb.pad_y]))
+        self.detail.as_ref().map(|d| (&d.rgb, d.scale / lb.scale, [lb.pad_x, lb.pad_y]))
     }
 }
 
 /// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`; with
-/// `detail` > `res`, also keeps a grey copy whose long side is at most `detail`.
+/// `detail` > `res`, also keeps a copy whose long side is at most `detail`.
 pub fn decode(name: &str, bytes: &[u8], res: u32, detail: u32) -> Result<ModelImage, DecodeError> {
     let rgb = decode_rgb(name, bytes)?;
     let mut image = letterbox(&rgb, res);
-    image.detail = grey_detail(&rgb, res, detail);
+    image.detail = detail_copy(&rgb, res, detail);
     Ok(image)
 }
 
@@ -117,30 +117,20 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<RgbImage, DecodeError> {
     Ok(img.into_rgb8())
 }
 
-/// `rgb` in grey (BT.601 luma), its long side scaled down to `detail` if longer; `None` when
-/// it is no longer than `res` or `detail` is no larger than `res`.
-fn grey_detail(rgb: &RgbImage, res: u32, detail: u32) -> Option<Detail> {
+/// `rgb`, its long side scaled down to `detail` if longer; `None` when it is no longer than
+/// `res` or `detail` is no larger than `res`.
+fn detail_copy(rgb: &RgbImage, res: u32, detail: u32) -> Option<Detail> {
     let (w, h) = rgb.dimensions();
     let long = w.max(h);
     if detail <= res || long <= res {
         return None;
     }
     if long <= detail {
-        return Some(Detail { grey: grey(rgb), scale: 1.0 });
+        return Some(Detail { rgb: rgb.clone(), scale: 1.0 });
     }
     let s = detail as f32 / long as f32;
     let (dw, dh) = (((w as f32 * s).round() as u32).max(1), ((h as f32 * s).round() as u32).max(1));
-    Some(Detail { grey: grey(&resize(rgb, dw, dh)), scale: dw as f32 / w as f32 })
-}
-
-/// BT.601 luma of every pixel, rounded.
-fn grey(rgb: &RgbImage) -> image::GrayImage {
-    let luma = rgb
-        .as_raw()
-        .chunks_exact(3)
-        .map(|p| ((299 * u32::from(p[0]) + 587 * u32::from(p[1]) + 114 * u32::from(p[2]) + 500) / 1000) as u8)
-        .collect();
-    image::GrayImage::from_raw(rgb.width(), rgb.height(), luma).expect("one luma per pixel")
+    Some(Detail { rgb: resize(rgb, dw, dh), scale: dw as f32 / w as f32 })
 }
 
 /// `rgb` resized to `w`×`h` by a bilinear convolution whose support widens with the
@@ -202,15 +192,14 @@ mod tests {
     }
 
     #[test]
-    fn keeps_a_grey_detail_only_of_photos_larger_than_the_input() {
+    fn keeps_a_detail_copy_only_of_photos_larger_than_the_input() {
         // 40×20 into 10×10 (scale 1/4, 5 rows of padding split 2 above), the detail at 16 wide.
         let m = decode("a.png", &png(40, 20), 10, 16).unwrap();
-        let (grey, per_view, origin) = m.detail_in_model().expect("a detail");
-        assert_eq!((grey.dimensions(), per_view, origin), ((16, 8), 1.6, [0.0, 2.0]));
-        // Grey is BT.601 luma of the photo (pixel (5, 0) of the 40×20 is (50, 0, 200)).
-        let luma = (0.299f32 * 50.0 + 0.114 * 200.0).round() as u8;
+        let (copy, per_view, origin) = m.detail_in_model().expect("a detail");
+        assert_eq!((copy.dimensions(), per_view, origin), ((16, 8), 1.6, [0.0, 2.0]));
+        // Pixel (5, 0) of the 40×20 is (50, 0, 200).
         let exact = decode("a.png", &png(40, 20), 10, 40).unwrap().detail.unwrap();
-        assert_eq!((exact.scale, exact.grey.get_pixel(5, 0)[0]), (1.0, luma), "no larger than asked: kept as it is");
+        assert_eq!((exact.scale, exact.rgb.get_pixel(5, 0).0), (1.0, [50, 0, 200]), "no larger than asked: kept as it is");
         assert!(decode("a.png", &png(10, 5), 10, 16).unwrap().detail.is_none(), "no larger than the input");
         assert!(decode("a.png", &png(40, 20), 10, 10).unwrap().detail.is_none(), "no detail asked");
     }

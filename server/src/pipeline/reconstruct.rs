@@ -260,7 +260,7 @@ pub fn reconstruct_with(
                 Some(params) => clock.time("register", || {
                     let details: Vec<Option<KeypointImage>> = decoded
                         .iter()
-                        .map(|d| d.detail_in_model().map(|(grey, per_view, [x, y])| KeypointImage::of_photo(grey, per_view, Vec2::new(x, y))))
+                        .map(|d| d.detail_in_model().map(|(rgb, per_view, [x, y])| KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y))))
                         .collect();
                     let views: Vec<RegisterView<'_>> = (0..out.views)
                         .map(|v| RegisterView {
