@@ -105,7 +105,7 @@ fn bench_objective_step(config: &ModelConfig, views: usize, steps: usize) {
         Furniture::Catalog(dir) if dir.is_dir() => Some(dir),
         _ => None,
     };
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32, structure: Structure::Instances };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32, structure: Structure::Instances, antialias: 1 };
     let plan = ViewPlan { min_views: views, max_views: views, targets: 1, reuse: 1, first_scene: 0, window: None };
     let sampler = Sampler { source: Source::open(&data).expect("synth"), plan, seed: 0, labels };
     let train = TrainConfig::new(config.clone(), LossConfig::new());

@@ -43,6 +43,10 @@ pub struct TrainArgs {
     /// Synthesize with furniture from primitives only.
     #[arg(long)]
     primitives_only: bool,
+    /// Rays per pixel side for the synthesized colour (`inssplat-train synth --antialias`):
+    /// 2 renders edges as a camera or a downscaled photo has them.
+    #[arg(long, default_value_t = 1, conflicts_with_all = ["data", "resume"], value_parser = clap::value_parser!(u32).range(1..=synth::MAX_ANTIALIAS as i64))]
+    antialias: u32,
     /// Optimizer steps of the whole run (with --resume: extends or shortens it).
     #[arg(long)]
     steps: Option<u64>,
@@ -344,6 +348,7 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
                 furniture_dir: args.furniture()?,
                 size: args.image_size as u32,
                 structure: if args.shell_background { Structure::Background } else { Structure::Instances },
+                antialias: args.antialias,
             },
         };
         let config = args.config();

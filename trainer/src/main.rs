@@ -143,6 +143,11 @@ struct SynthArgs {
     /// between models with `inssplat eval` on val scenes).
     #[arg(long)]
     eval_views: bool,
+    /// Rays per pixel side for the colour: 1 casts one ray through each pixel's centre (sharp,
+    /// aliased edges, as the released evaluation sets are); 2 averages 2×2 (edges as a camera
+    /// or a downscaled photo has them). Depth and masks stay the centre ray's.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=synth::MAX_ANTIALIAS as i64))]
+    antialias: u32,
     /// Write contact sheets (RGB, depth, instances) of the first N scenes to OUT/preview/.
     #[arg(long, num_args = 0..=1, default_missing_value = "1", default_value_t = 0)]
     preview: u64,
@@ -223,6 +228,7 @@ fn config(a: &SynthArgs) -> Result<SynthConfig> {
         };
     }
     cfg.mesh_share = a.mesh_share;
+    cfg.antialias = a.antialias;
     cfg.validate().context("check the synth flags")?;
     Ok(cfg)
 }

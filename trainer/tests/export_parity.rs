@@ -241,7 +241,7 @@ fn a_briefly_trained_checkpoint_exports_with_parity() {
 
     let run = tempfile::tempdir().expect("temp dir");
     let config = TrainConfig::new(small_config().with_image_skips(Some(4)), LossConfig::new()).with_steps(3).with_warmup(1).with_max_views(3);
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances, antialias: 1 };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let summary = train::train(run.path(), config, data, &session).expect("train");
     let dir = summary.checkpoint.expect("a checkpoint at the end");
@@ -372,7 +372,7 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     let onnx = dir.path().join("start.onnx");
     export_onnx(&source, &onnx, &ExportMeta { model_version: "start".into(), train_steps: 41, weights: Weights::F32 }).expect("export");
     let config = TrainConfig::new(ModelConfig::new().with_global_kv_pool(Some(2)), LossConfig::new()).with_steps(2).with_warmup(1).with_max_views(3).with_first_scene(5);
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances };
+    let data = DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances, antialias: 1 };
     let session = Session { val_every: 0, progress: false, ..Session::default() };
     let run = dir.path().join("run");
     let summary = train::fine_tune(&run, config, data.clone(), &onnx, &session).expect("fine-tune from ONNX");

@@ -27,7 +27,7 @@ fn tiny_model() -> ModelConfig {
 }
 
 fn tiny_data() -> DataSpec {
-    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances }
+    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances, antialias: 1 }
 }
 
 fn quiet_session() -> Session {

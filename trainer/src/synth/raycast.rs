@@ -2,8 +2,9 @@
 //! inside) and the placed objects (a world-space bounds test, then the object's own BVH with
 //! the ray moved into object space: rotation and uniform scale leave `t` unchanged), shadow
 //! rays for the point lights, and Lambert + ambient shading. It renders one frame into
-//! linear RGB, depth along the camera axis and instance ids; pixels are independent, so the
-//! result does not depend on how rayon splits the rows.
+//! linear RGB (anti-aliased by several rays a pixel if asked), depth along the camera axis
+//! and instance ids; pixels are independent, so the result does not depend on how rayon
+//! splits the rows.
 
 use glam::{Quat, Vec3};
 use inssplat_proto::camera::Camera;
@@ -167,21 +168,37 @@ impl<'a> World<'a> {
         h.albedo * light
     }
 
-    /// Renders one view.
-    pub fn render(&self, cam: &Camera) -> FrameBuffers {
+    /// Renders one view. Each pixel's colour is the mean of `samples`² rays on a stratified
+    /// grid inside it (1: the ray through its centre), as a camera's pixel integrates the
+    /// light over its area; its depth and instance id are the centre ray's, so the labels stay
+    /// exact whatever the colour's anti-aliasing.
+    pub fn render(&self, cam: &Camera, samples: u32) -> FrameBuffers {
         let k = cam.intrinsics;
         let (w, h) = (k.width as usize, k.height as usize);
         let origin = cam.center();
         let to_world = cam.rotation.inverse();
+        // Camera-space direction with z = 1 through (u, v), so the hit distance is the depth.
+        let ray = |u: f32, v: f32| to_world * Vec3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+        let n = samples.max(1);
+        let offsets: Vec<f32> = (0..n).map(|i| (i as f32 + 0.5) / n as f32).collect();
         let rows: Vec<Vec<(Vec3, f32, u16)>> = (0..h)
             .into_par_iter()
             .map(|y| {
                 (0..w)
                     .map(|x| {
-                        // Camera-space direction with z = 1, so the hit distance is the depth.
-                        let dc = Vec3::new((x as f32 + 0.5 - k.cx) / k.fx, (y as f32 + 0.5 - k.cy) / k.fy, 1.0);
-                        let hit = self.trace(origin, to_world * dc);
-                        (self.shade(&hit), hit.t, hit.id)
+                        let centre = self.trace(origin, ray(x as f32 + 0.5, y as f32 + 0.5));
+                        let colour = if n == 1 {
+                            self.shade(&centre)
+                        } else {
+                            let mut sum = Vec3::ZERO;
+                            for &dy in &offsets {
+                                for &dx in &offsets {
+                                    sum += self.shade(&self.trace(origin, ray(x as f32 + dx, y as f32 + dy)));
+                                }
+                            }
+                            sum / (n * n) as f32
+                        };
+                        (colour, centre.t, centre.id)
                     })
                     .collect()
             })
@@ -215,5 +232,50 @@ impl<'a> World<'a> {
     /// The centres of the objects' bounds, with their sizes, for camera aiming.
     pub fn object_centres(&self) -> Vec<(Vec3, f32)> {
         self.objects.iter().map(|o| (0.5 * (o.lo + o.hi), (o.hi - o.lo).length())).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use inssplat_proto::camera::Intrinsics;
+    use rand::SeedableRng;
+
+    use super::super::layout::{Source, furnish};
+    use super::super::{Furniture, Reserved, Split, SynthConfig};
+    use super::*;
+
+    /// A furnished room (primitives) and a camera looking across it at `size`².
+    fn view(size: u32) -> (Room, Vec<Placed>, Camera) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let room = Room::random(&mut rng, 1.0);
+        let cfg = SynthConfig::new(Split::Train, Furniture::Primitives);
+        let src = Source { catalog: None, reserved: Reserved::Exclude, mesh_share: 0.0, contrast: 1.0 };
+        let objects = furnish(&room, &src, &cfg, &mut rng).objects;
+        let eye = Vec3::new(0.3 * room.size.x, 1.5, 0.2 * room.size.z);
+        let target = Vec3::new(0.7 * room.size.x, 0.5, 0.8 * room.size.z);
+        (room, objects, Camera::look_at(Intrinsics::from_fov_y(size, size, 1.1), eye, target, Vec3::Y))
+    }
+
+    #[test]
+    fn antialiased_colour_is_the_mean_of_the_finer_grid_and_labels_stay_the_centres() {
+        let (room, objects, cam) = view(24);
+        let ids: Vec<u16> = (1..=objects.len() as u16).collect();
+        let world = World::new(&room, &objects, &ids, [0; 6]);
+        let plain = world.render(&cam, 1);
+        let smooth = world.render(&cam, 2);
+        let (_, _, fine_cam) = view(48);
+        let fine = world.render(&fine_cam, 1);
+        let mut edges = 0;
+        for y in 0..24 {
+            for x in 0..24 {
+                let i = y * 24 + x;
+                let block = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| fine.radiance[(2 * y + dy) * 48 + 2 * x + dx]);
+                let mean = block.iter().copied().sum::<Vec3>() / 4.0;
+                assert!((smooth.radiance[i] - mean).abs().max_element() < 1e-5, "pixel ({x}, {y}): {} against {mean}", smooth.radiance[i]);
+                assert_eq!((smooth.depth[i], smooth.ids[i]), (plain.depth[i], plain.ids[i]), "pixel ({x}, {y})");
+                edges += usize::from((smooth.radiance[i] - plain.radiance[i]).abs().max_element() > 1e-3);
+            }
+        }
+        assert!(objects.len() >= 3 && edges > 20, "{} objects, {edges} pixels changed by anti-aliasing", objects.len());
     }
 }

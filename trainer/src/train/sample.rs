@@ -33,8 +33,20 @@ pub enum DataSpec {
     Folder(PathBuf),
     /// Scenes of a split generated on demand; `furniture_dir` `None` = primitives only.
     /// `structure` says whether walls, floor and ceiling are instances with labels (so the
-    /// network learns to name and separate them) or unlabelled background.
-    Synth { split: Split, furniture_dir: Option<PathBuf>, size: u32, structure: Structure },
+    /// network learns to name and separate them) or unlabelled background. `antialias` is
+    /// [`SynthConfig::antialias`] (runs saved before it existed read 1).
+    Synth {
+        split: Split,
+        furniture_dir: Option<PathBuf>,
+        size: u32,
+        structure: Structure,
+        #[serde(default = "one_ray")]
+        antialias: u32,
+    },
+}
+
+fn one_ray() -> u32 {
+    1
 }
 
 /// Why samples cannot be made.
@@ -77,7 +89,7 @@ impl Source {
                 scenes.sort();
                 Ok(Source::Folder(Arc::new(scenes)))
             }
-            DataSpec::Synth { split, furniture_dir, size, structure } => {
+            DataSpec::Synth { split, furniture_dir, size, structure, antialias } => {
                 let furniture = match furniture_dir {
                     Some(dir) => Furniture::Catalog(dir.clone()),
                     None => Furniture::Primitives,
@@ -86,6 +98,7 @@ impl Source {
                 cfg.width = *size;
                 cfg.height = *size;
                 cfg.structure = *structure;
+                cfg.antialias = *antialias;
                 cfg.validate()?;
                 Ok(Source::Synth(Arc::new(cfg)))
             }
@@ -329,8 +342,9 @@ impl Drop for Prefetcher {
 pub fn describe(spec: &DataSpec) -> String {
     match spec {
         DataSpec::Folder(dir) => format!("scenes in {}", dir.display()),
-        DataSpec::Synth { split, furniture_dir, size, structure } => format!(
-            "{split} scenes synthesized on the fly at {size}², room shell as {structure:?} ({})",
+        DataSpec::Synth { split, furniture_dir, size, structure, antialias } => format!(
+            "{split} scenes synthesized on the fly at {size}²{}, room shell as {structure:?} ({})",
+            if *antialias > 1 { format!(" ({antialias}×{antialias} rays a pixel)") } else { String::new() },
             furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!("furniture {}", d.display()))
         ),
     }

@@ -109,11 +109,12 @@ pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &A
     }
     let spec = match (&session.val_data, &state.data) {
         (Some(spec), _) => spec.clone(),
-        (None, DataSpec::Synth { furniture_dir, size, structure, .. }) => DataSpec::Synth {
+        (None, DataSpec::Synth { furniture_dir, size, structure, antialias, .. }) => DataSpec::Synth {
             split: crate::synth::Split::Val,
             furniture_dir: furniture_dir.clone(),
             size: *size,
             structure: *structure,
+            antialias: *antialias,
         },
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
