@@ -91,7 +91,7 @@ impl ModelImage {
 pub fn decode(name: &str, bytes: &[u8], res: u32, detail: u32) -> Result<ModelImage, DecodeError> {
     let rgb = decode_rgb(name, bytes)?;
     let mut image = letterbox(&rgb, res);
-    image.detail = detail_copy(&rgb, res, detail);
+    image.detail = detail_copy(rgb, res, detail);
     Ok(image)
 }
 
@@ -119,18 +119,18 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<RgbImage, DecodeError> {
 
 /// `rgb`, its long side scaled down to `detail` if longer; `None` when it is no longer than
 /// `res` or `detail` is no larger than `res`.
-fn detail_copy(rgb: &RgbImage, res: u32, detail: u32) -> Option<Detail> {
+fn detail_copy(rgb: RgbImage, res: u32, detail: u32) -> Option<Detail> {
     let (w, h) = rgb.dimensions();
     let long = w.max(h);
     if detail <= res || long <= res {
         return None;
     }
     if long <= detail {
-        return Some(Detail { rgb: rgb.clone(), scale: 1.0 });
+        return Some(Detail { rgb, scale: 1.0 });
     }
     let s = detail as f32 / long as f32;
     let (dw, dh) = (((w as f32 * s).round() as u32).max(1), ((h as f32 * s).round() as u32).max(1));
-    Some(Detail { rgb: resize(rgb, dw, dh), scale: dw as f32 / w as f32 })
+    Some(Detail { rgb: resize(&rgb, dw, dh), scale: dw as f32 / w as f32 })
 }
 
 /// `rgb` resized to `w`×`h` by a bilinear convolution whose support widens with the

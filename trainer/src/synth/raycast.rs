@@ -244,8 +244,8 @@ mod tests {
     use super::super::{Furniture, Reserved, Split, SynthConfig};
     use super::*;
 
-    /// A furnished room (primitives) and a camera looking across it at `size`².
-    fn view(size: u32) -> (Room, Vec<Placed>, Camera) {
+    /// A furnished room (primitives) and a camera looking across it at 24².
+    fn view() -> (Room, Vec<Placed>, Camera) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let room = Room::random(&mut rng, 1.0);
         let cfg = SynthConfig::new(Split::Train, Furniture::Primitives);
@@ -253,17 +253,17 @@ mod tests {
         let objects = furnish(&room, &src, &cfg, &mut rng).objects;
         let eye = Vec3::new(0.3 * room.size.x, 1.5, 0.2 * room.size.z);
         let target = Vec3::new(0.7 * room.size.x, 0.5, 0.8 * room.size.z);
-        (room, objects, Camera::look_at(Intrinsics::from_fov_y(size, size, 1.1), eye, target, Vec3::Y))
+        (room, objects, Camera::look_at(Intrinsics::from_fov_y(24, 24, 1.1), eye, target, Vec3::Y))
     }
 
     #[test]
     fn antialiased_colour_is_the_mean_of_the_finer_grid_and_labels_stay_the_centres() {
-        let (room, objects, cam) = view(24);
+        let (room, objects, cam) = view();
         let ids: Vec<u16> = (1..=objects.len() as u16).collect();
         let world = World::new(&room, &objects, &ids, [0; 6]);
         let plain = world.render(&cam, 1);
         let smooth = world.render(&cam, 2);
-        let (_, _, fine_cam) = view(48);
+        let fine_cam = Camera { intrinsics: Intrinsics::from_fov_y(48, 48, 1.1), ..cam };
         let fine = world.render(&fine_cam, 1);
         let mut edges = 0;
         for y in 0..24 {
