@@ -18,5 +18,6 @@ pub mod refine;
 pub mod register;
 pub mod render;
 pub mod rotation;
+pub mod superpixel;
 pub mod target_pose;
 pub mod voxel;

@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::cluster::split::SplitParams;
+use inssplat_raster::superpixel::SuperpixelParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_raster::voxel::{OpacityMerge, VoxelParams};
 use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
@@ -170,6 +171,10 @@ enum Command {
         /// clustering's instances.
         #[arg(long, default_value_t = SplitParams::default().cell_voxels)]
         split_cell: f32,
+        /// Scale of the colour superpixels the instance embeddings are snapped to (larger:
+        /// larger superpixels); 0 leaves the network's maps as they are.
+        #[arg(long, default_value_t = SuperpixelParams::default().scale)]
+        superpixel_scale: f32,
         /// Write every found instance's shape descriptor and unfused semantic prototype with
         /// its majority true label here (JSON), for `inssplat-train fit-shapes --examples`
         /// (use train-split scenes).
@@ -414,6 +419,7 @@ fn main() -> anyhow::Result<()> {
             min_cosine,
             shape_weight,
             split_cell,
+            superpixel_scale,
             shape_examples,
             known_poses,
             known_depth,
@@ -460,6 +466,7 @@ fn main() -> anyhow::Result<()> {
                     shape_weight,
                     voxel: VoxelParams { opacity: merge_opacity.into(), ..VoxelParams::default() },
                     refine_steps,
+                    superpixels: (superpixel_scale > 0.0).then(|| SuperpixelParams { scale: superpixel_scale, ..SuperpixelParams::default() }),
                     ..PipelineConfig::default()
                 },
                 cluster,

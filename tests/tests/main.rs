@@ -12,5 +12,6 @@ mod reconstruct;
 mod register_synth;
 mod shipped_model;
 mod splat_transform;
+mod superpixels_synth;
 mod support;
 mod web_page;

@@ -1,4 +1,5 @@
-//! The reconstruct pipeline: photos → decode (parallel) → network → back-project → voxelize
+//! The reconstruct pipeline: photos → decode (parallel) → network → instance embeddings
+//! snapped to each photo's colour superpixels → register → back-project → voxelize
 //! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
 //! of each instance's size and colour → text labels → (optionally) the Gaussians and cameras
 //! refined against the photos, ids and names kept → per-view instance and label maps. An
@@ -17,6 +18,7 @@ use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
+use inssplat_raster::superpixel::{SuperpixelParams, segment, snap};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::refine::{RefineParams, RefineView, SceneRefinement, refine_scene};
 use inssplat_raster::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
@@ -85,6 +87,10 @@ pub struct PipelineConfig {
     /// clustered and named, which it keeps (stage "refine", [`inssplat_raster::refine`]; 0, the
     /// default, is the feed-forward pipeline).
     pub refine_steps: usize,
+    /// Snap each view's instance embeddings to its photo's colour superpixels before they
+    /// are placed (stage "superpixels", [`inssplat_raster::superpixel`]; `None`: the
+    /// network's maps as they are).
+    pub superpixels: Option<SuperpixelParams>,
 }
 
 impl Default for PipelineConfig {
@@ -98,6 +104,7 @@ impl Default for PipelineConfig {
             known_depth: None,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
             refine_steps: 0,
+            superpixels: Some(SuperpixelParams::default()),
         }
     }
 }
@@ -251,6 +258,15 @@ pub fn reconstruct_with(
         }
     }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
+    if let Some(params) = &config.superpixels {
+        clock.time("superpixels", || {
+            let (width, height) = (out.width, out.height);
+            out.instance
+                .par_chunks_exact_mut(INSTANCE_DIM * pixels)
+                .zip(&decoded)
+                .for_each(|(map, d)| snap(map, &segment(&d.planar, width, height, params), true));
+        });
+    }
     let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
     let (mut cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
         None => {
