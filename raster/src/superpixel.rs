@@ -50,7 +50,10 @@ pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelP
             }
         }
     }
-    edges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // Weights are non-negative, so their bit patterns sort as they do. A stable sort keeps
+    // equal weights in the grid's order, so the segments do not depend on the sort's
+    // implementation.
+    edges.sort_by_key(|e| e.0.to_bits());
     let k = params.scale / 255.0;
     let mut forest = DisjointSetForest::new(n);
     // Size and threshold of each tree, valid at its root.
