@@ -35,40 +35,48 @@ pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelP
     assert_eq!(planar.len(), 3 * n, "a planar RGB image of {width}×{height}");
     let image = blur(planar, width, height, params.sigma);
     let colour = |i: usize| [image[i], image[n + i], image[2 * n + i]];
+    // Each edge as one sortable word: its weight's bits (non-negative floats sort as their
+    // bits do) above its pixel and direction, so that equal weights keep the grid's order
+    // and the segments do not depend on the sort's implementation.
+    const STEPS: [(isize, isize); 4] = [(0, 1), (1, 0), (1, 1), (-1, 1)];
     let mut edges = Vec::with_capacity(4 * n);
     for y in 0..height {
         for x in 0..width {
             let i = y * width + x;
-            let neighbours = [(x + 1 < width, 0isize, 1isize), (y + 1 < height, 1, 0), (x + 1 < width && y + 1 < height, 1, 1), (x + 1 < width && y > 0, -1, 1)];
-            for (inside, dy, dx) in neighbours {
-                if inside {
-                    let j = ((y as isize + dy) as usize) * width + (x as isize + dx) as usize;
-                    let (a, b) = (colour(i), colour(j));
-                    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
-                    edges.push((d, i as u32, j as u32));
+            for (d, &(dy, dx)) in STEPS.iter().enumerate() {
+                let (ny, nx) = (y as isize + dy, x as isize + dx);
+                if ny < 0 || ny >= height as isize || nx >= width as isize {
+                    continue;
                 }
+                let (a, b) = (colour(i), colour(ny as usize * width + nx as usize));
+                let w = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                edges.push(u64::from(w.to_bits()) << 32 | (4 * i + d) as u64);
             }
         }
     }
-    // Weights are non-negative, so their bit patterns sort as they do. A stable sort keeps
-    // equal weights in the grid's order, so the segments do not depend on the sort's
-    // implementation.
-    edges.sort_by_key(|e| e.0.to_bits());
+    edges.sort_unstable();
+    let ends = |e: u64| {
+        let id = (e & 0xffff_ffff) as usize;
+        let (i, (dy, dx)) = (id / 4, STEPS[id % 4]);
+        (f32::from_bits((e >> 32) as u32), i, ((i / width) as isize + dy) as usize * width + ((i % width) as isize + dx) as usize)
+    };
     let k = params.scale / 255.0;
     let mut forest = DisjointSetForest::new(n);
     // Size and threshold of each tree, valid at its root.
     let mut size = vec![1usize; n];
     let mut threshold = vec![k; n];
-    for &(w, a, b) in &edges {
-        let (ra, rb) = (forest.root(a as usize), forest.root(b as usize));
+    for &e in &edges {
+        let (w, a, b) = ends(e);
+        let (ra, rb) = (forest.root(a), forest.root(b));
         if ra != rb && w <= threshold[ra].min(threshold[rb]) {
             join(&mut forest, &mut size, ra, rb);
             let r = forest.root(ra);
             threshold[r] = w + k / size[r] as f32;
         }
     }
-    for &(_, a, b) in &edges {
-        let (ra, rb) = (forest.root(a as usize), forest.root(b as usize));
+    for &e in &edges {
+        let (_, a, b) = ends(e);
+        let (ra, rb) = (forest.root(a), forest.root(b));
         if ra != rb && (size[ra] < params.min_size || size[rb] < params.min_size) {
             join(&mut forest, &mut size, ra, rb);
         }
