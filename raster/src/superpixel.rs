@@ -3,7 +3,8 @@
 //! tokens); the photo's own colour edges are sharp. Felzenszwalb & Huttenlocher's graph-based
 //! segmentation (IJCV 2004) over-segments the photo along those edges, and each segment's
 //! pixels then take their segment's mean feature, so that an object's outline in the
-//! features follows its outline in the photo.
+//! features follows its outline in the photo. An input view's instance map, read back from
+//! the merged Gaussians, is voted over the same segments.
 
 use imageproc::union_find::DisjointSetForest;
 
@@ -160,6 +161,20 @@ pub fn snap(features: &mut [f32], segments: &[u32], unit: bool) {
     }
 }
 
+/// Gives every pixel of a segment the id most of the segment's pixels carry (ties: the
+/// smallest id).
+pub fn vote(ids: &mut [u32], segments: &[u32]) {
+    let count = segments.iter().max().map_or(0, |&m| m as usize + 1);
+    let mut tallies: Vec<rustc_hash::FxHashMap<u32, u32>> = vec![Default::default(); count];
+    for (&s, &id) in segments.iter().zip(ids.iter()) {
+        *tallies[s as usize].entry(id).or_default() += 1;
+    }
+    let winners: Vec<u32> = tallies.iter().map(|t| t.iter().max_by_key(|(id, n)| (**n, std::cmp::Reverse(**id))).map_or(0, |(id, _)| *id)).collect();
+    for (&s, id) in segments.iter().zip(ids.iter_mut()) {
+        *id = winners[s as usize];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,6 +201,15 @@ mod tests {
         let image = two_halves(w, h, 2, [0.9, 0.1, 0.1], [0.1, 0.2, 0.8]);
         let params = SuperpixelParams { sigma: 0.0, min_size: 30, ..SuperpixelParams::default() };
         assert!(segment(&image, w, h, &params).iter().all(|&s| s == 0));
+    }
+
+    #[test]
+    fn voting_gives_each_segment_its_majority_id() {
+        let segments = [0, 0, 0, 1, 1, 2, 2];
+        let mut ids = [4, 7, 4, 9, 2, 5, 5];
+        vote(&mut ids, &segments);
+        // Segment 1 ties between 9 and 2: the smaller id wins, whatever the order.
+        assert_eq!(ids, [4, 4, 4, 2, 2, 5, 5]);
     }
 
     #[test]

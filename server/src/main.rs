@@ -171,8 +171,9 @@ enum Command {
         /// clustering's instances.
         #[arg(long, default_value_t = SplitParams::default().cell_voxels)]
         split_cell: f32,
-        /// Scale of the colour superpixels the instance embeddings are snapped to (larger:
-        /// larger superpixels); 0 leaves the network's maps as they are.
+        /// Scale of the colour superpixels the instance embeddings are snapped to and the
+        /// input views' masks voted over (larger: larger superpixels); 0 leaves the network's
+        /// maps and each pixel's own id as they are.
         #[arg(long, default_value_t = SuperpixelParams::default().scale)]
         superpixel_scale: f32,
         /// Write every found instance's shape descriptor and unfused semantic prototype with

@@ -2,9 +2,10 @@
 //! 128×128): the segments must follow the objects' outlines (almost every pixel shares its
 //! segment with pixels of its own instance), must be large enough to average over, and
 //! snapping an embedding map blurred across the outlines (as the decoder's upsampled maps are)
-//! to them must give more pixels back to their own instance than the blurred map gives.
+//! to them must give more pixels back to their own instance than the blurred map gives; so
+//! must voting an id map whose outlines are shifted by two pixels over them.
 
-use inssplat_raster::superpixel::{SuperpixelParams, segment, snap};
+use inssplat_raster::superpixel::{SuperpixelParams, segment, snap, vote};
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -18,6 +19,9 @@ const MIN_MEAN_SIZE: f64 = 40.0;
 /// Nearest-prototype accuracy the snapping must add to the blurred map (measured: 0.938
 /// blurred over 9×9 pixels, about a patch of the network, 0.964 snapped).
 const MIN_GAIN: f64 = 0.015;
+/// Share of pixels with their own id that voting must add to an id map shifted by 2 pixels
+/// (measured: 0.928 shifted, 0.954 voted).
+const MIN_VOTE_GAIN: f64 = 0.015;
 
 /// Each instance's random unit embedding, painted on its pixels, box-blurred over `radius`
 /// pixels and perturbed by noise: `[8][pixels]`.
@@ -66,11 +70,12 @@ fn accuracy(map: &[f32], ids: &[u16], protos: &[[f32; 8]]) -> f64 {
 }
 
 #[test]
-fn superpixels_follow_the_outlines_and_snapping_restores_them() {
+fn superpixels_follow_the_outlines_and_snapping_and_voting_restore_them() {
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let (mut pure, mut pixels, mut segments_total) = (0usize, 0usize, 0usize);
     let (mut blurred_acc, mut snapped_acc) = (0.0, 0.0);
+    let (mut shifted_right, mut voted_right) = (0usize, 0usize);
     let mut views = 0;
     for index in 0..3 {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
@@ -92,14 +97,23 @@ fn superpixels_follow_the_outlines_and_snapping_restores_them() {
             blurred_acc += accuracy(&map, ids, &protos);
             snap(&mut map, &segments, true);
             snapped_acc += accuracy(&map, ids, &protos);
+
+            let mut shifted: Vec<u32> = (0..ids.len()).map(|p| u32::from(ids[p - (p % SIZE).min(2)])).collect();
+            shifted_right += shifted.iter().zip(ids).filter(|(s, i)| **s == u32::from(**i)).count();
+            vote(&mut shifted, &segments);
+            voted_right += shifted.iter().zip(ids).filter(|(s, i)| **s == u32::from(**i)).count();
             views += 1;
         }
     }
     let purity = pure as f64 / pixels as f64;
     let mean_size = pixels as f64 / segments_total as f64;
     let (blurred_acc, snapped_acc) = (blurred_acc / views as f64, snapped_acc / views as f64);
-    eprintln!("{views} views: purity {purity:.3}, mean segment {mean_size:.0} px, accuracy blurred {blurred_acc:.3} snapped {snapped_acc:.3}");
+    let (shifted_acc, voted_acc) = (shifted_right as f64 / pixels as f64, voted_right as f64 / pixels as f64);
+    eprintln!(
+        "{views} views: purity {purity:.3}, mean segment {mean_size:.0} px, accuracy blurred {blurred_acc:.3} snapped {snapped_acc:.3}, ids shifted {shifted_acc:.3} voted {voted_acc:.3}"
+    );
     assert!(purity >= MIN_PURITY, "segments straddle the outlines: purity {purity:.3}");
     assert!(mean_size >= MIN_MEAN_SIZE, "segments too small to average over: {mean_size:.1} px");
     assert!(snapped_acc >= blurred_acc + MIN_GAIN, "snapping gave {snapped_acc:.3} against {blurred_acc:.3} blurred");
+    assert!(voted_acc >= shifted_acc + MIN_VOTE_GAIN, "voting gave {voted_acc:.3} against {shifted_acc:.3} shifted");
 }

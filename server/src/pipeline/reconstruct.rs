@@ -5,8 +5,8 @@
 //! refined against the photos, ids and names kept → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
 //! Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in every
-//! view that sees that Gaussian); novel views are rendered (`inssplat render`, eval's target
-//! views). Every stage is timed.
+//! view that sees that Gaussian), and then each superpixel takes its pixels' majority id;
+//! novel views are rendered (`inssplat render`, eval's target views). Every stage is timed.
 
 use std::time::Instant;
 
@@ -18,7 +18,7 @@ use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{ViewOutputs, backproject};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
-use inssplat_raster::superpixel::{SuperpixelParams, segment, snap};
+use inssplat_raster::superpixel::{SuperpixelParams, segment, snap, vote};
 use inssplat_raster::label::masks::label_map;
 use inssplat_raster::refine::{RefineParams, RefineView, SceneRefinement, refine_scene};
 use inssplat_raster::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
@@ -88,8 +88,9 @@ pub struct PipelineConfig {
     /// default, is the feed-forward pipeline).
     pub refine_steps: usize,
     /// Snap each view's instance embeddings to its photo's colour superpixels before they
-    /// are placed (stage "superpixels", [`inssplat_raster::superpixel`]; `None`: the
-    /// network's maps as they are).
+    /// are placed, and give every superpixel of an input view's instance map the id most of
+    /// its pixels carry (stage "superpixels", [`inssplat_raster::superpixel`]; `None`: the
+    /// network's maps as they are, and each pixel its own merged Gaussian's id).
     pub superpixels: Option<SuperpixelParams>,
 }
 
@@ -258,15 +259,20 @@ pub fn reconstruct_with(
         }
     }
     let plane = |channels: usize, v: usize| v * channels * pixels..(v + 1) * channels * pixels;
-    if let Some(params) = &config.superpixels {
+    let segments: Option<Vec<Vec<u32>>> = config.superpixels.as_ref().map(|params| {
         clock.time("superpixels", || {
             let (width, height) = (out.width, out.height);
             out.instance
                 .par_chunks_exact_mut(INSTANCE_DIM * pixels)
                 .zip(&decoded)
-                .for_each(|(map, d)| snap(map, &segment(&d.planar, width, height, params), true));
-        });
-    }
+                .map(|(map, d)| {
+                    let segments = segment(&d.planar, width, height, params);
+                    snap(map, &segments, true);
+                    segments
+                })
+                .collect()
+        })
+    });
     let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
     let (mut cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
         None => {
@@ -381,8 +387,13 @@ pub fn reconstruct_with(
     };
     let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
-    let id_maps: Vec<Vec<u32>> =
+    let mut id_maps: Vec<Vec<u32>> =
         clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
+    if let Some(segments) = &segments {
+        // Each superpixel of an input view takes the id most of its pixels carry, so that
+        // the masks follow the photo's edges where merged Gaussians of two instances meet.
+        id_maps.iter_mut().zip(segments).for_each(|(ids, s)| vote(ids, s));
+    }
     let merged_into: Vec<u32> = voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
     let gaussian_maps = per_pixel.to_pixels(&merged_into);
     let views = decoded
