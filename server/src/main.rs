@@ -442,6 +442,9 @@ fn main() -> anyhow::Result<()> {
             if let Some(v) = views.iter().find(|v| !(2..=16).contains(*v)) {
                 anyhow::bail!("--views: {v} is outside 2-16");
             }
+            if !(superpixel_scale.is_finite() && superpixel_scale >= 0.0) {
+                anyhow::bail!("--superpixel-scale: {superpixel_scale} must be a finite number ≥ 0 (0 turns the superpixels off)");
+            }
             let cluster_params = ClusterParams { position_weight, min_cluster_share, min_samples, min_cosine, ..ClusterParams::default() };
             cluster_params.validate()?;
             let mut dirs = eval::scene_dirs(&data)?;

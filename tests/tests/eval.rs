@@ -212,6 +212,9 @@ fn eval_names_bad_arguments() {
     let out = inssplat(&["eval", "--data", s(dir.path()), "--min-cluster-share", "0"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("min_cluster_share") && err.contains("(0, 1)"), "{err}");
+    let out = inssplat(&["eval", "--data", s(dir.path()), "--superpixel-scale=-5"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--superpixel-scale: -5"), "{err}");
 }
 
 #[test]
