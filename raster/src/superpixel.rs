@@ -10,7 +10,7 @@ use imageproc::union_find::DisjointSetForest;
 
 /// Tunables of [`segment`], in the units of `skimage.segmentation.felzenszwalb`. The default
 /// scale was chosen on the validation split: 200 scored within noise of 100 and above 400 and
-/// 800 (the model card).
+/// 800 (the model card's history).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SuperpixelParams {
     /// Larger gives larger segments: a segment joins a neighbour across an edge only while
@@ -34,6 +34,7 @@ impl Default for SuperpixelParams {
 pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelParams) -> Vec<u32> {
     let n = width * height;
     assert_eq!(planar.len(), 3 * n, "a planar RGB image of {width}×{height}");
+    assert!(4 * n as u64 <= 1 << 32, "{width}×{height}: too many pixels to number the edges in 32 bits");
     let image = blur(planar, width, height, params.sigma);
     let colour = |i: usize| [image[i], image[n + i], image[2 * n + i]];
     // Each edge as one sortable word: its weight's bits (non-negative floats sort as their
@@ -132,27 +133,26 @@ fn blur(planar: &[f32], width: usize, height: usize, sigma: f32) -> Vec<f32> {
     pass(&pass(planar, true), false)
 }
 
-/// Replaces each pixel's feature in a planar `[channels][pixels]` map by the mean over its
-/// segment. With `unit` (the instance embeddings, which the clustering reads as directions)
-/// each pixel's feature counts as its direction and the mean is rescaled to unit length.
-pub fn snap(features: &mut [f32], segments: &[u32], unit: bool) {
+/// Replaces each pixel's feature in a planar `[channels][pixels]` map (the instance
+/// embeddings, which the clustering reads as directions) by the mean direction over its
+/// segment: each pixel's feature counts as a unit vector, and the mean is rescaled to unit
+/// length.
+pub fn snap(features: &mut [f32], segments: &[u32]) {
     let pixels = segments.len();
     assert_eq!(features.len() % pixels.max(1), 0, "a planar map of {pixels} pixels");
     let channels = features.len() / pixels.max(1);
     let count = segments.iter().max().map_or(0, |&m| m as usize + 1);
-    let length = |p: usize| if unit { (0..channels).map(|c| features[c * pixels + p].powi(2)).sum::<f32>().sqrt().max(1e-12) } else { 1.0 };
+    let length = |p: usize| (0..channels).map(|c| features[c * pixels + p].powi(2)).sum::<f32>().sqrt().max(1e-12);
     let lengths: Vec<f32> = (0..pixels).map(length).collect();
     let mut sums = vec![0.0f32; count * channels];
-    let mut sizes = vec![0u32; count];
     for (p, &s) in segments.iter().enumerate() {
-        sizes[s as usize] += 1;
         for c in 0..channels {
             sums[s as usize * channels + c] += features[c * pixels + p] / lengths[p];
         }
     }
-    for (mean, &n) in sums.chunks_exact_mut(channels).zip(&sizes) {
-        let scale = if unit { mean.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12) } else { n.max(1) as f32 };
-        mean.iter_mut().for_each(|v| *v /= scale);
+    for mean in sums.chunks_exact_mut(channels) {
+        let norm = mean.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        mean.iter_mut().for_each(|v| *v /= norm);
     }
     for (c, plane) in features.chunks_exact_mut(pixels).enumerate() {
         for (&s, f) in segments.iter().zip(plane) {
@@ -213,16 +213,13 @@ mod tests {
     }
 
     #[test]
-    fn snapping_takes_each_segments_mean() {
-        let segments = [0, 0, 1, 1, 1];
-        // Two channels, planar.
-        let mut f = vec![1.0, 3.0, 0.0, 3.0, 6.0, 0.0, 0.0, 2.0, 2.0, 2.0];
-        snap(&mut f, &segments, false);
-        assert_eq!(f, [2.0, 2.0, 3.0, 3.0, 3.0, 0.0, 0.0, 2.0, 2.0, 2.0]);
-        // As directions: each pixel counts once, whatever its length.
-        let mut f = vec![10.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-        snap(&mut f, &[0, 0, 0], true);
+    fn snapping_takes_each_segments_mean_direction() {
+        // Two channels, planar, three pixels in segment 0 and two in segment 1. Each pixel
+        // counts once whatever its length, and a zero vector adds nothing.
+        let mut f = vec![10.0, 0.0, 0.0, 3.0, 0.0, 0.0, 1.0, 0.0, 0.0, -2.0];
+        snap(&mut f, &[0, 0, 0, 1, 1]);
         let s = 0.5f32.sqrt();
-        assert!(f.iter().all(|v| (v - s).abs() < 1e-6), "{f:?}");
+        let want = [s, s, s, s, s, s, s, s, -s, -s];
+        assert!(f.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-6), "{f:?}");
     }
 }

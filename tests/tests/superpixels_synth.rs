@@ -95,7 +95,7 @@ fn superpixels_follow_the_outlines_and_snapping_and_voting_restore_them() {
 
             let (mut map, protos) = blurred_embeddings(ids, 4, &mut rng);
             blurred_acc += accuracy(&map, ids, &protos);
-            snap(&mut map, &segments, true);
+            snap(&mut map, &segments);
             snapped_acc += accuracy(&map, ids, &protos);
 
             let mut shifted: Vec<u32> = (0..ids.len()).map(|p| u32::from(ids[p - (p % SIZE).min(2)])).collect();

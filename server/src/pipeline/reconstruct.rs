@@ -267,7 +267,7 @@ pub fn reconstruct_with(
                 .zip(&decoded)
                 .map(|(map, d)| {
                     let segments = segment(&d.planar, width, height, params);
-                    snap(map, &segments, true);
+                    snap(map, &segments);
                     segments
                 })
                 .collect()
