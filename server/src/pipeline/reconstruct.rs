@@ -387,13 +387,15 @@ pub fn reconstruct_with(
     };
     let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
-    let mut id_maps: Vec<Vec<u32>> =
-        clock.time("masks", || per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
-    if let Some(segments) = &segments {
-        // Each superpixel of an input view takes the id most of its pixels carry, so that
-        // the masks follow the photo's edges where merged Gaussians of two instances meet.
-        id_maps.iter_mut().zip(segments).for_each(|(ids, s)| vote(ids, s));
-    }
+    let id_maps: Vec<Vec<u32>> = clock.time("masks", || {
+        let mut maps: Vec<Vec<u32>> = per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect();
+        if let Some(segments) = &segments {
+            // Each superpixel of an input view takes the id most of its pixels carry, so that
+            // the masks follow the photo's edges where merged Gaussians of two instances meet.
+            maps.iter_mut().zip(segments).for_each(|(ids, s)| vote(ids, s));
+        }
+        maps
+    });
     let merged_into: Vec<u32> = voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
     let gaussian_maps = per_pixel.to_pixels(&merged_into);
     let views = decoded
