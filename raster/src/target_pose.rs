@@ -82,7 +82,7 @@ pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps:
 
 /// Planar images of `factor`·`w` × `factor`·`h` averaged over `factor` × `factor` blocks into
 /// `w` × `h`.
-fn downsample(planes: &[f32], w: usize, h: usize, factor: usize) -> Vec<f32> {
+pub(crate) fn downsample(planes: &[f32], w: usize, h: usize, factor: usize) -> Vec<f32> {
     if factor == 1 {
         return planes.to_vec();
     }

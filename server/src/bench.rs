@@ -229,7 +229,7 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
     // The refine stage only runs when asked for (`--refine-steps`).
     let refined = rows.iter().any(|r| r.stage_ms.contains_key("refine"));
-    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "backproject", "voxelize", "cluster", "label"]
+    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "label"]
         .into_iter()
         .chain(refined.then_some("refine"))
         .chain(["masks"])

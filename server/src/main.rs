@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_raster::cluster::ClusterParams;
 use inssplat_raster::cluster::split::SplitParams;
+use inssplat_raster::heading::HeadingParams;
 use inssplat_raster::superpixel::SuperpixelParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_raster::voxel::{OpacityMerge, VoxelParams};
@@ -176,6 +177,11 @@ enum Command {
         /// maps and each pixel's own id as they are.
         #[arg(long, default_value_t = SuperpixelParams::default().scale)]
         superpixel_scale: f32,
+        /// Headings tried, over the full turn, for each group of views that registration
+        /// could not link to the first photo (each is turned to the heading at which the
+        /// linked views' Gaussians match its photos best); 0 keeps the continued poses.
+        #[arg(long, default_value_t = HeadingParams::default().candidates)]
+        heading_candidates: usize,
         /// Write every found instance's shape descriptor and unfused semantic prototype with
         /// its majority true label here (JSON), for `inssplat-train fit-shapes --examples`
         /// (use train-split scenes).
@@ -421,6 +427,7 @@ fn main() -> anyhow::Result<()> {
             shape_weight,
             split_cell,
             superpixel_scale,
+            heading_candidates,
             shape_examples,
             known_poses,
             known_depth,
@@ -471,6 +478,7 @@ fn main() -> anyhow::Result<()> {
                     voxel: VoxelParams { opacity: merge_opacity.into(), ..VoxelParams::default() },
                     refine_steps,
                     superpixels: (superpixel_scale > 0.0).then(|| SuperpixelParams { scale: superpixel_scale, ..SuperpixelParams::default() }),
+                    heading: (heading_candidates > 0).then(|| HeadingParams { candidates: heading_candidates, ..HeadingParams::default() }),
                     ..PipelineConfig::default()
                 },
                 cluster,

@@ -1,6 +1,7 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → instance embeddings
-//! snapped to each photo's colour superpixels → register → back-project → voxelize
-//! → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
+//! snapped to each photo's colour superpixels → register → the views no match links turned
+//! to the heading where the linked views' Gaussians match their photos → back-project →
+//! voxelize → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
 //! of each instance's size and colour → text labels → (optionally) the Gaussians and cameras
 //! refined against the photos, ids and names kept → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
@@ -15,7 +16,8 @@ use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::{DESCRIPTOR, label_cosines};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
-use inssplat_raster::backproject::{ViewOutputs, backproject};
+use inssplat_raster::backproject::{BackProjected, ViewOutputs, backproject};
+use inssplat_raster::heading::{HeadingParams, place_by_heading};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterError, ClusterParams, cluster_instances};
 use inssplat_raster::superpixel::{SuperpixelParams, segment, snap, vote};
@@ -92,6 +94,10 @@ pub struct PipelineConfig {
     /// its pixels carry (stage "superpixels", [`inssplat_raster::superpixel`]; `None`: the
     /// network's maps as they are, and each pixel its own merged Gaussian's id).
     pub superpixels: Option<SuperpixelParams>,
+    /// Turn each component of views that registration could not link to the first photo to
+    /// the heading at which the linked views' Gaussians match its photos best (stage
+    /// "heading", [`inssplat_raster::heading`]; `None`: the continued poses stay).
+    pub heading: Option<HeadingParams>,
 }
 
 impl Default for PipelineConfig {
@@ -106,6 +112,7 @@ impl Default for PipelineConfig {
             shape_weight: DEFAULT_SHAPE_WEIGHT,
             refine_steps: 0,
             superpixels: Some(SuperpixelParams::default()),
+            heading: Some(HeadingParams::default()),
         }
     }
 }
@@ -274,11 +281,11 @@ pub fn reconstruct_with(
         })
     });
     let head = |views: usize| (0..views).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
-    let (mut cameras, placements, focal): (Vec<Camera>, Vec<Placement>, FocalSource) = match &config.known_poses {
+    let (mut cameras, placements, focal, component): (Vec<Camera>, Vec<Placement>, FocalSource, Option<Vec<usize>>) = match &config.known_poses {
         None => {
             let predicted = predicted_cameras(&out);
             match &config.register {
-                None => (predicted, head(out.views), FocalSource::CameraHead),
+                None => (predicted, head(out.views), FocalSource::CameraHead, None),
                 Some(params) => clock.time("register", || {
                     let details: Vec<Option<KeypointImage>> = decoded
                         .iter()
@@ -297,17 +304,18 @@ pub fn reconstruct_with(
                     let registration = register(&views, params);
                     let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
                     let focal = if registration.focal_scale.is_some() { FocalSource::Measured } else { FocalSource::CameraHead };
-                    (registration.cameras, placements, focal)
+                    (registration.cameras, placements, focal, Some(registration.component))
                 }),
             }
         }
-        Some(poses) if poses.len() == images.len() => (poses.clone(), vec![Placement::Given; poses.len()], FocalSource::Given),
+        Some(poses) if poses.len() == images.len() => (poses.clone(), vec![Placement::Given; poses.len()], FocalSource::Given, None),
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };
 
-    let per_pixel = clock.time("backproject", || {
-        let views: Vec<ViewOutputs<'_>> = (0..out.views)
-            .map(|v| ViewOutputs {
+    let outputs = |cameras: &[Camera], views: &[usize]| -> Result<BackProjected, PipelineError> {
+        let views: Vec<ViewOutputs<'_>> = views
+            .iter()
+            .map(|&v| ViewOutputs {
                 camera: &cameras[v],
                 depth: &out.depth[plane(1, v)],
                 depth_conf: &out.depth_conf[plane(1, v)],
@@ -316,9 +324,23 @@ pub fn reconstruct_with(
                 semantic: &out.semantic[plane(out.sem_dim, v)],
             })
             .collect();
-        backproject(&views, out.sem_dim)
-    });
-    let per_pixel = per_pixel.map_err(|e| stage_err("backproject")(&e))?;
+        backproject(&views, out.sem_dim).map_err(|e| stage_err("backproject")(&e))
+    };
+    if let (Some(params), Some(component)) = (&config.heading, &component) {
+        clock.time("heading", || -> Result<(), PipelineError> {
+            if !component.iter().enumerate().any(|(v, &root)| v == root && v != 0) {
+                return Ok(());
+            }
+            let linked: Vec<usize> = (0..out.views).filter(|&v| component[v] == 0).collect();
+            let scene = outputs(&cameras, &linked)?.scene;
+            let photos: Vec<&[f32]> = decoded.iter().map(|d| d.planar.as_slice()).collect();
+            let depths: Vec<&[f32]> = (0..out.views).map(|v| &out.depth[plane(1, v)]).collect();
+            place_by_heading(&scene, &mut cameras, component, &photos, &depths, params).map_err(|e| stage_err("heading")(&e))?;
+            Ok(())
+        })?;
+    }
+    let per_pixel = clock.time("backproject", || outputs(&cameras, &(0..out.views).collect::<Vec<_>>()));
+    let per_pixel = per_pixel?;
     let mut voxelized =
         clock.time("voxelize", || voxelize(&per_pixel.scene, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;
     clock
