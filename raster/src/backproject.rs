@@ -9,6 +9,7 @@
 
 use glam::{Quat, Vec3};
 use inssplat_proto::signature::GAUSSIAN_CHANNELS;
+use inssplat_proto::gaussian::Gaussian;
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM};
 use rayon::prelude::*;
 
@@ -66,6 +67,35 @@ impl BackProjected {
         let mut out = vec![0; self.pixels];
         for (&p, &v) in self.pixel.iter().zip(values) {
             out[p as usize] = v;
+        }
+        out
+    }
+
+    /// The Gaussians of every `stride`-th pixel across and down each view (`width` ×
+    /// `height` pixels), each grown by `stride`, so that they cover the views as before when
+    /// rendered at 1/`stride` of their resolution: a cheap stand-in for comparing renders at
+    /// that size. Only what a colour render reads is kept (no embeddings or features).
+    pub fn thinned(&self, width: u32, height: u32, stride: u32) -> GaussianScene {
+        let (w, per_view, stride) = (width as usize, (width * height) as usize, stride.max(1) as usize);
+        let grow = (stride as f32).ln();
+        let mut out = GaussianScene::with_sem_dim(0);
+        let s = &self.scene;
+        for (i, &p) in self.pixel.iter().enumerate() {
+            let local = p as usize % per_view;
+            if local % w % stride != 0 || local / w % stride != 0 {
+                continue;
+            }
+            out.push(Gaussian {
+                mean: s.means[i],
+                log_scale: s.log_scales[i].map(|l| l + grow),
+                rotation: s.rotations[i],
+                logit_opacity: s.logit_opacity[i],
+                sh_dc: s.sh_dc[i],
+                confidence: s.confidence[i],
+                instance_embedding: [0.0; INSTANCE_DIM],
+                semantic: &[],
+                instance_id: 0,
+            });
         }
         out
     }

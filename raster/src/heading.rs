@@ -7,10 +7,11 @@
 //! [`HeadingParams::candidates`] headings; at each, the linked views' Gaussians are rendered
 //! into the component's views at a low resolution and compared with their photos and with
 //! the network's own depth of those views ([`HeadingParams::score`]). The best-scoring
-//! heading replaces the continued one when it scores better than it by
-//! [`HeadingParams::max_error_ratio`], or when the continued one covers too little of the
-//! photos to be judged. A component that no heading shows enough of the linked views keeps
-//! its continued pose. The defaults were chosen on val40 and 120 more val scenes at 8 views
+//! heading that shows enough of the linked views ([`HeadingParams::min_coverage`]) replaces
+//! the continued one when it scores better than it by [`HeadingParams::max_error_ratio`];
+//! else the continued pose stays. The components are placed in the photos' order, each
+//! against the views placed before it, so a component next to an earlier one is matched
+//! against it too. The defaults were chosen on val40 and 120 more val scenes at 8 views
 //! (the model card's history, "Unlinked views turned to their best heading").
 
 use glam::{Quat, Vec3};
@@ -28,11 +29,11 @@ pub struct HeadingParams {
     pub candidates: usize,
     /// The views are compared at their size divided by this.
     pub factor: usize,
-    /// A heading counts only where the render covers at least this share of the
+    /// A new heading counts only where the render covers at least this share of the
     /// component's pixels.
     pub min_coverage: f32,
-    /// The best heading replaces the continued one when its score is under this share of
-    /// the continued one's (always when the continued one covers too little).
+    /// The best new heading replaces the continued one when its score is under this share
+    /// of the continued one's.
     pub max_error_ratio: f32,
     /// What an uncovered pixel costs in a heading's score, as a squared colour error: lower
     /// trusts a close match of a small overlap more (0.1 scored lower than 0.05 and 0.02).
@@ -44,9 +45,9 @@ pub struct HeadingParams {
 
 impl HeadingParams {
     /// A heading's score, lower is better: the covered pixels' colour and depth error and the
-    /// uncovered ones' fixed cost, per pixel; infinite under the coverage asked for.
+    /// uncovered ones' fixed cost, per pixel (infinite when nothing is covered).
     pub fn score(&self, fit: &Fit) -> f64 {
-        if fit.coverage < self.min_coverage || !fit.error.is_finite() {
+        if !fit.error.is_finite() {
             return f64::INFINITY;
         }
         let c = f64::from(fit.coverage);
@@ -82,65 +83,81 @@ pub struct Fit {
 }
 
 /// Turns every component other than view 0's (`component[v]` is view v's root, as
-/// [`crate::register::Registration::component`]) to the heading at which `linked` (the
-/// Gaussians of view 0's component) matches its `photos` (planar `[3][H][W]` in 0..1, one per
-/// view, each its camera's size) best. Returns one choice per such component.
+/// [`crate::register::Registration::component`]), in the photos' order, to the heading at
+/// which the Gaussians of the views placed so far (view 0's component, then each component
+/// as it is placed) match its `photos` (planar `[3][H][W]` in 0..1, one per view, each its
+/// camera's size) and the network's `depths` of them (`[H][W]`) best. `gaussians(cameras,
+/// views)` gives the Gaussians of `views` placed with `cameras`. Returns one choice per such
+/// component.
 pub fn place_by_heading(
-    linked: &GaussianScene,
     cameras: &mut [Camera],
     component: &[usize],
     photos: &[&[f32]],
     depths: &[&[f32]],
     params: &HeadingParams,
+    gaussians: &dyn Fn(&[Camera], &[usize]) -> GaussianScene,
 ) -> Result<Vec<HeadingChoice>, MaskError> {
-    linked.validate()?;
-    let roots: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == v && v != 0).collect();
-    let reference: Vec<&Camera> = (0..cameras.len()).filter(|&v| component[v] == 0).map(|v| &cameras[v]).collect();
-    let Some(up) = up_axis(&reference) else { return Ok(Vec::new()) };
-    if roots.is_empty() || linked.is_empty() {
-        return Ok(Vec::new());
-    }
-    let colours = colours(linked);
-    let splats = splats(linked, &colours, 3);
+    let mut placed: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == 0).collect();
+    let roots: Vec<usize> = (1..cameras.len()).filter(|&v| component[v] == v).collect();
     let mut choices = Vec::new();
     for root in roots {
         let members: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == root).collect();
-        let small: Vec<(Camera, Vec<f32>, Vec<f32>)> = members
-            .iter()
-            .map(|&v| {
-                let k = cameras[v].intrinsics;
-                let (w, h) = (k.width as usize / params.factor, k.height as usize / params.factor);
-                let cam = Camera { intrinsics: k.scaled_to(w as u32, h as u32), ..cameras[v] };
-                (cam, downsample(photos[v], w, h, params.factor), downsample(depths[v], w, h, params.factor))
-            })
-            .collect();
-        let pivot = cameras[root].center();
-        let fits: Vec<Fit> = (0..params.candidates)
-            .into_par_iter()
-            .map(|k| {
-                let angle = k as f32 * std::f32::consts::TAU / params.candidates as f32;
-                fit(&splats, &small, up, pivot, angle)
-            })
-            .collect::<Result<_, _>>()?;
-        let continued = fits[0];
-        let (best_k, best) = fits
-            .iter()
-            .enumerate()
-            .min_by(|a, b| params.score(a.1).total_cmp(&params.score(b.1)))
-            .map_or((0, continued), |(k, f)| (k, *f));
-        let better = best_k != 0
-            && params.score(&best).is_finite()
-            && params.score(&best) < f64::from(params.max_error_ratio) * params.score(&continued);
-        let angle = if better { best_k as f32 * std::f32::consts::TAU / params.candidates as f32 } else { 0.0 };
-        if better {
-            for &v in &members {
-                cameras[v] = turned(&cameras[v], up, pivot, angle);
-            }
-        }
-        let turn = angle.to_degrees();
-        choices.push(HeadingChoice { root, turn_deg: if turn > 180.0 { turn - 360.0 } else { turn }, continued, best });
+        let linked = gaussians(cameras, &placed);
+        linked.validate()?;
+        let reference: Vec<&Camera> = placed.iter().map(|&v| &cameras[v]).collect();
+        let Some(up) = up_axis(&reference).filter(|_| !linked.is_empty()) else { break };
+        choices.push(place_component(&linked, cameras, &members, up, photos, depths, params)?);
+        placed.extend(members);
     }
     Ok(choices)
+}
+
+/// Turns the component of `members` (its root first) about `up` to its best heading against
+/// `linked`, when that heading wins (see the module documentation).
+fn place_component(
+    linked: &GaussianScene,
+    cameras: &mut [Camera],
+    members: &[usize],
+    up: Vec3,
+    photos: &[&[f32]],
+    depths: &[&[f32]],
+    params: &HeadingParams,
+) -> Result<HeadingChoice, MaskError> {
+    let colours = colours(linked);
+    let splats = splats(linked, &colours, 3);
+    let root = members[0];
+    let small: Vec<(Camera, Vec<f32>, Vec<f32>)> = members
+        .iter()
+        .map(|&v| {
+            let k = cameras[v].intrinsics;
+            let (w, h) = (k.width as usize / params.factor, k.height as usize / params.factor);
+            let cam = Camera { intrinsics: k.scaled_to(w as u32, h as u32), ..cameras[v] };
+            (cam, downsample(photos[v], w, h, params.factor), downsample(depths[v], w, h, params.factor))
+        })
+        .collect();
+    let pivot = cameras[root].center();
+    let angle_of = |k: usize| k as f32 * std::f32::consts::TAU / params.candidates as f32;
+    let fits: Vec<Fit> =
+        (0..params.candidates).into_par_iter().map(|k| fit(&splats, &small, up, pivot, angle_of(k))).collect::<Result<_, _>>()?;
+    let continued = fits[0];
+    let (best_k, best) = fits
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, f)| f.coverage >= params.min_coverage)
+        .min_by(|a, b| params.score(a.1).total_cmp(&params.score(b.1)))
+        .map_or((0, continued), |(k, f)| (k, *f));
+    let wins = best_k != 0
+        && params.score(&best).is_finite()
+        && params.score(&best) < f64::from(params.max_error_ratio) * params.score(&continued);
+    let angle = if wins { angle_of(best_k) } else { 0.0 };
+    if wins {
+        for &v in members {
+            cameras[v] = turned(&cameras[v], up, pivot, angle);
+        }
+    }
+    let turn = angle.to_degrees();
+    Ok(HeadingChoice { root, turn_deg: if turn > 180.0 { turn - 360.0 } else { turn }, continued, best })
 }
 
 /// The world's up direction as the linked cameras see it: the direction most nearly at right
@@ -155,7 +172,7 @@ fn up_axis(cameras: &[&Camera]) -> Option<Vec3> {
     let prior = mean_up.normalize();
     // M = Σ x xᵀ + PRIOR (I − p pᵀ); its eigenvector of least eigenvalue, by power iteration
     // on trace(M)·I − M from the prior.
-    const PRIOR: f32 = 0.1;
+    const PRIOR: f32 = 0.01;
     let rows: Vec<Vec3> = cameras.iter().map(|c| c.rotation.conjugate() * Vec3::X).collect();
     let apply = |u: Vec3| -> Vec3 { rows.iter().map(|x| *x * x.dot(u)).sum::<Vec3>() + PRIOR * (u - prior * prior.dot(u)) };
     let trace = rows.iter().map(|x| x.length_squared()).sum::<f32>() + 2.0 * PRIOR;

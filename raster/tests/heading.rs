@@ -3,6 +3,7 @@
 //! back by its photo, and a photo that shows nothing of the room moves nothing.
 
 use glam::{Quat, Vec3};
+use inssplat_proto::Camera;
 use inssplat_raster::heading::{HeadingParams, place_by_heading};
 use inssplat_raster::metrics::turn_deg;
 
@@ -23,13 +24,17 @@ fn a_view_turned_off_its_heading_is_turned_back_by_its_photo() {
     off.rotation = (truth.rotation * turn.conjugate()).normalize();
     off.translation = -(off.rotation * truth.center());
     let grey = vec![0.5; photo.len()];
+    let ring_gaussians = |_: &[Camera], views: &[usize]| {
+        assert_eq!(views, [0, 1], "only the linked views are asked for");
+        linked.clone()
+    };
     let flat = vec![1.0; depth.len()];
 
     let mut cameras = vec![ring[0], ring[1], off];
     let photos: Vec<&[f32]> = vec![&grey, &grey, &photo];
     let depths: Vec<&[f32]> = vec![&flat, &flat, &depth];
     let params = HeadingParams::default();
-    let choices = place_by_heading(&linked, &mut cameras, &[0, 0, 2], &photos, &depths, &params).unwrap();
+    let choices = place_by_heading(&mut cameras, &[0, 0, 2], &photos, &depths, &params, &ring_gaussians).unwrap();
     assert_eq!(choices.len(), 1, "{choices:?}");
     let choice = choices[0];
     assert_eq!(choice.root, 2);
@@ -43,11 +48,11 @@ fn a_view_turned_off_its_heading_is_turned_back_by_its_photo() {
     let magenta: Vec<f32> = (0..photo.len()).map(|i| if i / depth.len() == 1 { 0.0 } else { 1.0 }).collect();
     let mut cameras = vec![ring[0], ring[1], off];
     let photos: Vec<&[f32]> = vec![&grey, &grey, &magenta];
-    let choices = place_by_heading(&linked, &mut cameras, &[0, 0, 2], &photos, &depths, &params).unwrap();
+    let choices = place_by_heading(&mut cameras, &[0, 0, 2], &photos, &depths, &params, &ring_gaussians).unwrap();
     assert_eq!(choices[0].turn_deg, 0.0, "{choices:?}");
     assert_eq!(cameras[2], off);
 
     // Every view linked: nothing to place.
     let mut cameras = vec![ring[0], ring[1], off];
-    assert!(place_by_heading(&linked, &mut cameras, &[0, 0, 0], &photos, &depths, &params).unwrap().is_empty());
+    assert!(place_by_heading(&mut cameras, &[0, 0, 0], &photos, &depths, &params, &ring_gaussians).unwrap().is_empty());
 }
