@@ -59,7 +59,9 @@ pub enum Placement {
     /// Linked to the first photo through keypoint matches.
     Registered,
     /// Linked to the first photo by no match (too little overlap): placed by continuing the
-    /// camera's motion over the photos before it, or chained to a photo so placed.
+    /// camera's motion over the photos before it, or chained to a photo so placed, then
+    /// turned to the heading at which the photos placed before it match it best, where one
+    /// matches clearly better (the stage "heading").
     Continued,
     /// The camera head's pose as the network predicted it (registration off, or the second
     /// photo when no match links it, and the photos chained to it).

@@ -57,7 +57,7 @@ impl HeadingParams {
 
 impl Default for HeadingParams {
     fn default() -> Self {
-        Self { candidates: 72, factor: 4, min_coverage: 0.25, max_error_ratio: 0.9, uncovered_cost: 0.05, depth_weight: 0.05 }
+        Self { candidates: 36, factor: 4, min_coverage: 0.25, max_error_ratio: 0.9, uncovered_cost: 0.05, depth_weight: 0.05 }
     }
 }
 

@@ -258,7 +258,7 @@ fn describe_cameras(cameras: &[CameraOut]) -> String {
     let mut parts = vec![format!("{linked} of {} views registered to view 0", cameras.len())];
     let continued = views(Placement::Continued);
     if !continued.is_empty() {
-        parts.push(format!("{continued} placed by continuing the camera's motion (no keypoint match links them)"));
+        parts.push(format!("{continued} placed by continuing the camera's motion, then turned to the heading the photos before them match best (no keypoint match links them)"));
     }
     let head = views(Placement::CameraHead);
     if !head.is_empty() {
