@@ -78,6 +78,8 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(scene.get("target_pose_turn_deg").is_none(), "no target pose refinement unless asked: {scene}");
     assert!(scene.get("refine_context_psnr").is_none() && scene["stage_ms"].get("refine").is_none(), "no refinement unless asked: {scene}");
     assert!(report["protocol"].as_str().unwrap().contains("no test-time optimization of the Gaussians"));
+    assert!(report["protocol"].as_str().unwrap().contains("best of 36 headings"), "{}", report["protocol"]);
+    assert!(scene["stage_ms"]["heading"].as_f64().unwrap() >= 0.0, "the stage is timed whether or not it turns a view");
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");

@@ -319,7 +319,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}; depth AbsRel (the network's) after median scale; {}{}{}",
+             the clustered scene rendered there{}; depth AbsRel (the network's) after median scale; {}{}{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -350,6 +350,14 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 (Some(p), false) if model.has_descriptors && p.use_descriptors => "; the network's learned descriptors matched beside the keypoints",
                 (Some(_), false) if model.has_descriptors => "; the network's learned descriptors ignored (--no-learned-matches)",
                 _ => "",
+            },
+            match (&req.pipeline.register, &req.pipeline.heading, req.known_poses) {
+                (Some(_), Some(h), false) => format!(
+                    "; the views no match links turned to the best of {} headings against the views placed before them (stage `heading`)",
+                    h.candidates
+                ),
+                (Some(_), None, false) => "; the views no match links kept where the camera's motion continues (--heading-candidates 0)".to_string(),
+                _ => String::new(),
             }
         ),
     })
