@@ -3,11 +3,11 @@
 //! ([`crate::register`]), and what that gets wrong is almost only the heading: the turn about
 //! the room's up axis (on val40 at 8 views, 53.8° median error about the up axis against
 //! 4–5° of pitch and roll). Here each such component is turned, as one rigid body, about the
-//! up axis of the linked cameras through its first view's centre, to each of
-//! [`HeadingParams::candidates`] headings; at each, the linked views' Gaussians are rendered
+//! up axis of the cameras placed before it, through its first view's centre, to each of
+//! [`HeadingParams::candidates`] headings; at each, those views' Gaussians are rendered
 //! into the component's views at a low resolution and compared with their photos and with
 //! the network's own depth of those views ([`HeadingParams::score`]). The best-scoring
-//! heading that shows enough of the linked views ([`HeadingParams::min_coverage`]) replaces
+//! heading that shows enough of them ([`HeadingParams::min_coverage`]) replaces
 //! the continued one when it scores better than it by [`HeadingParams::max_error_ratio`];
 //! else the continued pose stays. The components are placed in the photos' order, each
 //! against the views placed before it, so a component next to an earlier one is matched
@@ -68,7 +68,8 @@ pub struct HeadingChoice {
     pub root: usize,
     /// The turn applied about the up axis, degrees (0 when the continued pose stays).
     pub turn_deg: f32,
-    /// Mean squared colour error and coverage at the continued heading and at the best one.
+    /// How the continued heading fits, and the best new one (the continued one's again
+    /// when no new heading covers enough).
     pub continued: Fit,
     pub best: Fit,
 }
@@ -76,7 +77,9 @@ pub struct HeadingChoice {
 /// How a render matches the photos at one heading.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Fit {
+    /// Mean squared colour error over the covered pixels (infinite when none is covered).
     pub error: f64,
+    /// Share of the pixels the render covers (alpha above [`MASK_ALPHA`]).
     pub coverage: f32,
     /// Mean |ln(rendered depth / the view's own depth)| over the covered pixels.
     pub depth_error: f64,
