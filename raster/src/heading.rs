@@ -100,16 +100,23 @@ pub fn place_by_heading(
     params: &HeadingParams,
     gaussians: &dyn Fn(&[Camera], &[usize]) -> GaussianScene,
 ) -> Result<Vec<HeadingChoice>, MaskError> {
-    let mut placed: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == 0).collect();
     let roots: Vec<usize> = (1..cameras.len()).filter(|&v| component[v] == v).collect();
+    if roots.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut placed: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == 0).collect();
+    // A placed view's camera no longer moves, so its Gaussians are made once.
+    let mut linked = gaussians(cameras, &placed);
     let mut choices = Vec::new();
-    for root in roots {
+    for (i, &root) in roots.iter().enumerate() {
         let members: Vec<usize> = (0..cameras.len()).filter(|&v| component[v] == root).collect();
-        let linked = gaussians(cameras, &placed);
         linked.validate()?;
         let reference: Vec<&Camera> = placed.iter().map(|&v| &cameras[v]).collect();
         let Some(up) = up_axis(&reference).filter(|_| !linked.is_empty()) else { break };
         choices.push(place_component(&linked, cameras, &members, up, photos, depths, params)?);
+        if i + 1 < roots.len() {
+            linked.append(gaussians(cameras, &members));
+        }
         placed.extend(members);
     }
     Ok(choices)
@@ -195,8 +202,9 @@ fn turned(camera: &Camera, up: Vec3, pivot: Vec3, angle: f32) -> Camera {
     Camera { rotation, translation: -(rotation * centre), ..*camera }
 }
 
-/// The mean squared colour error over the pixels the render covers (alpha above
-/// [`MASK_ALPHA`]) of the component's `views` turned by `angle`, and the covered share.
+/// The mean squared colour error and depth disagreement over the pixels the render covers
+/// (alpha above [`MASK_ALPHA`]) of the component's `views` turned by `angle`, and the covered
+/// share.
 fn fit(splats: &Splats<'_>, views: &[(Camera, Vec<f32>, Vec<f32>)], up: Vec3, pivot: Vec3, angle: f32) -> Result<Fit, MaskError> {
     let (mut error, mut covered, mut pixels, mut depth_error) = (0.0f64, 0usize, 0usize, 0.0f64);
     for (camera, photo, depth) in views {

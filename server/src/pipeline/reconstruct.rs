@@ -330,9 +330,9 @@ pub fn reconstruct_with(
         clock.time("heading", || -> Result<(), PipelineError> {
             let photos: Vec<&[f32]> = decoded.iter().map(|d| d.planar.as_slice()).collect();
             let depths: Vec<&[f32]> = (0..out.views).map(|v| &out.depth[plane(1, v)]).collect();
-            // A back-projection error is named by the stage "backproject" right after.
             // Every `factor`-th pixel's Gaussian, grown to cover as many, for the renders at
-            // 1/`factor` of the size: a tenth of the cost of all of them (val40, 8 views).
+            // 1/`factor` of the size: a tenth of the cost of all of them (val40, 8 views). A
+            // back-projection error is named by the stage "backproject" right after.
             let stride = params.factor as u32;
             let gaussians = |cameras: &[Camera], views: &[usize]| {
                 outputs(cameras, views).map_or_else(|_| GaussianScene::with_sem_dim(0), |b| b.thinned(out.width as u32, out.height as u32, stride))
