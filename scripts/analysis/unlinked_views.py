@@ -5,6 +5,7 @@ views before it when no pair links it), its rotation error relative to view 0, a
 the other context views see in truth (true depth and cameras: the share of its pixels that
 project into another view and meet the surface there within 5%). Prints, per placement, the
 views' rotation error (and its split about the true up: heading, pitch and roll), their
+rotation and centre errors by how much of them view 0 and the views chained to it see, their
 largest true overlap with another view, and their largest with
 view 0 or a view registration chained to it: whether the views that no match links could be
 linked by any matcher at all. PAIRS.json gets, for each unlinked view that overlaps view 0 or
@@ -62,7 +63,11 @@ for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
         hp, ht = fp - (fp @ up) * up, ft - (ft @ up) * up
         heading = np.degrees(np.arccos(np.clip(hp @ ht / np.linalg.norm(hp) / np.linalg.norm(ht), -1, 1)))
         tilt = lambda a, b: abs(np.degrees(np.arcsin(np.clip(a @ up, -1, 1)) - np.arcsin(np.clip(b @ up, -1, 1))))
+        # The centre's error relative to view 0, at the depth's scale against metres.
+        centre = lambda T, Tk: (np.linalg.inv(T) @ Tk)[:3, 3]
+        ct, cp = centre(T0, cam(t, fr[k])[0]), centre(P0, np.array(cams[k]['transform_matrix']))
         rows.append(dict(scene=scene, view=k, placement=cams[k]['placement'], rot=rot_err(Rp, Rt), ov0=O[k, 0], ovmax=max(others),
+                         centre_err=np.linalg.norm(ct - cp), distance=np.linalg.norm(ct),
                          heading=heading, pitch=tilt(fp, ft), roll=tilt(Rp[:, 0], Rt[:, 0])))
     # What a matcher could link a view to: view 0 and the views registration chained to it.
     linked = [0] + [k for k in range(1, nv) if cams[k]['placement'] == 'registered']
@@ -78,5 +83,10 @@ for p, rs in by.items():
     print(f'{p:12s} n={len(rs):3d} rot median {np.median(rot):6.2f} mean {rot.mean():6.2f}  GT max overlap median {np.median(om):.2f}  share with ovmax>0.3: {(om>0.3).mean():.2f} >0.1: {(om>0.1).mean():.2f}')
     print(f'{"":12s} error medians about the true up: heading {np.median([r["heading"] for r in rs]):.1f}, pitch {np.median([r["pitch"] for r in rs]):.1f}, roll {np.median([r["roll"] for r in rs]):.1f}')
     print(f'{"":12s} with view 0 or a view chained to it: overlap median {np.median(ol):.2f}, views over 0.3: {(ol>0.3).sum()}, under 0.05: {(ol<0.05).sum()}')
+    for lo, hi in [(0, 0.05), (0.05, 0.3), (0.3, 1.01)]:
+        band = [r for r in rs if lo <= r['ovlinked'] < hi]
+        if band:
+            print(f'{"":12s} seen {lo:.2f}-{hi:.2f} by them: {len(band)} views, rotation error median {np.median([r["rot"] for r in band]):.1f}, '
+                  f'centre error median {np.median([r["centre_err"] for r in band]):.2f} at true distance from view 0 {np.median([r["distance"] for r in band]):.2f}')
 if pairs_out:
     json.dump([[r['scene'], r['view'], int(r['partner']), float(r['ovlinked'])] for r in rows if r['placement'] != 'registered' and r['ovlinked'] > 0.3], open(pairs_out, 'w'))
