@@ -11,6 +11,7 @@
 mod adam;
 pub mod backproject;
 pub mod cluster;
+pub mod fill;
 pub mod heading;
 pub mod ideal;
 pub mod label;

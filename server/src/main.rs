@@ -90,6 +90,10 @@ enum Command {
         /// or the GPU (any adapter, software included; an error if there is none).
         #[arg(long, value_enum, default_value = "auto", env = "INSSPLAT_RENDER")]
         render: RenderChoice,
+        /// Keep the raw renders: what no Gaussian covers black and without an instance,
+        /// instead of filled from the colours, ids and labels around it.
+        #[arg(long)]
+        no_fill: bool,
     },
     /// Time the pipeline per stage at several view counts on one scene.
     Bench {
@@ -225,6 +229,10 @@ enum Command {
         /// prototype (the ablation of instance-grounded aggregation).
         #[arg(long)]
         no_aggregation: bool,
+        /// Score the target views' raw renders, with what no Gaussian covers left black and
+        /// without an instance, instead of filled from around it as `render` fills a new view.
+        #[arg(long)]
+        no_fill: bool,
         /// Refine the Gaussians and the input cameras against the input photos for this many
         /// Adam steps after the network (test-time optimization, one view a step, about 50 ms a
         /// step at 8 views on two cores; 0, the default, is the feed-forward pipeline).
@@ -356,12 +364,12 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Render { out, camera, to, render } => {
+        Command::Render { out, camera, to, render, no_fill } => {
             let saved = saved::Saved::load(&out)?;
             let cameras = render_view::cameras(&saved, &camera)?;
             let dir = to.unwrap_or_else(|| out.join("render"));
             let gpu = gpu_renderer(render)?;
-            let (files, backend) = render_view::render_views(&saved, &cameras, &dir, gpu.as_ref())?;
+            let (files, backend) = render_view::render_views(&saved, &cameras, &dir, gpu.as_ref(), !no_fill)?;
             println!(
                 "{} images from {} camera(s) in {} (masks rendered on {})",
                 files.len(),
@@ -438,6 +446,7 @@ fn main() -> anyhow::Result<()> {
             photos,
             no_learned_matches,
             no_aggregation,
+            no_fill,
             refine_steps,
             target_pose_steps,
             query_rules,
@@ -485,6 +494,7 @@ fn main() -> anyhow::Result<()> {
                 known_poses,
                 known_depth,
                 no_aggregation,
+            no_fill,
                 target_pose_steps,
                 query_rules,
                 photos,

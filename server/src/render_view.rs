@@ -3,7 +3,8 @@
 //! `labels_NNN.png`). Cameras come from a `transforms.json` (nerfstudio convention, e.g. one
 //! edited by hand or exported by another tool) or from `interp:i,j,t`, the pose a fraction t
 //! of the way from input view i to input view j (centres lerped, rotations slerped, the
-//! intrinsics of view i). The instance masks render on a GPU where one is asked for.
+//! intrinsics of view i). The instance masks render on a GPU where one is asked for. What no
+//! Gaussian covers is filled from around it (`--no-fill` keeps the raw renders).
 
 use std::path::{Path, PathBuf};
 
@@ -11,7 +12,7 @@ use anyhow::{Context, bail};
 use image::{Rgb, RgbImage};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_raster::label::masks::{label_map, render_colour, render_instance_ids_on};
+use inssplat_raster::label::masks::{fill_uncovered, label_map, render_colour, render_colour_filled, render_instance_ids_on};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 
@@ -47,13 +48,15 @@ pub fn cameras(saved: &Saved, spec: &str) -> anyhow::Result<Vec<Camera>> {
 }
 
 /// Renders every camera into `out`, the instance masks on `gpu` when given (the CPU if it
-/// fails); returns the files written and where the masks were rendered (the CPU if any view's
+/// fails), with what no Gaussian covers filled from around it unless `fill` is off
+/// ([`inssplat_raster::fill`]); returns the files written and where the masks were rendered (the CPU if any view's
 /// were).
 pub fn render_views(
     saved: &Saved,
     cameras: &[Camera],
     out: &Path,
     gpu: Option<&GpuRenderer>,
+    fill: bool,
 ) -> anyhow::Result<(Vec<PathBuf>, Backend)> {
     std::fs::create_dir_all(out).with_context(|| format!("-o: cannot create {}", out.display()))?;
     let label_of_id = label_table(&saved.doc.instances, &saved.doc.vocabulary);
@@ -63,16 +66,22 @@ pub fn render_views(
     for (v, camera) in cameras.iter().enumerate() {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let pixels = (w * h) as usize;
-        let colour = render_colour(&saved.scene, camera)?;
+        let colour = match fill {
+            true => render_colour_filled(&saved.scene, camera)?,
+            false => render_colour(&saved.scene, camera)?,
+        };
         let rgb = RgbImage::from_fn(w, h, |x, y| {
             let p = (y * w + x) as usize;
             Rgb([0, 1, 2].map(|c| (colour[c * pixels + p].clamp(0.0, 1.0) * 255.0).round() as u8))
         });
-        let (ids, used) = render_instance_ids_on(gpu, &saved.scene, camera, k)?;
+        let (mut ids, used) = render_instance_ids_on(gpu, &saved.scene, camera, k)?;
         if used == Backend::Cpu {
             backend = Backend::Cpu;
         }
-        let labels = label_map(&ids, &label_of_id);
+        let mut labels = label_map(&ids, &label_of_id);
+        if fill {
+            fill_uncovered(&mut ids, &mut labels, w as usize, h as usize);
+        }
         let images = [
             ("rgb", rgb),
             ("instances", colour_map(w, h, &ids, palette)),

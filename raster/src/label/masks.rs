@@ -3,11 +3,13 @@
 //! largest weight where the accumulated alpha exceeds 0.5 (else 0). Because ids live on the
 //! Gaussians, masks of any view, context or novel, agree by construction. Also the small maps
 //! built from an id map: a label map and the mask of a set of ids (a text query's answer);
-//! and the scene's colour image from any camera (novel-view RGB for evaluation).
+//! and the scene's colour image from any camera (novel-view RGB for evaluation); and a new
+//! view's maps with what no Gaussian covers filled ([`crate::fill`]).
 
 use inssplat_proto::gaussian::LengthMismatch;
 use inssplat_proto::{Camera, GaussianScene};
 
+use crate::fill::{fill_colour, nearest_covered};
 use crate::metrics::NO_LABEL;
 use crate::render::{Backend, GpuRenderer, RenderError, Splats, render, render_ids_any};
 
@@ -65,6 +67,25 @@ pub fn render_instance_ids_on(
 pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
     Ok(render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?.0.features)
+}
+
+/// [`render_colour`] with what no Gaussian covers filled from the colours around it
+/// ([`fill_colour`]): a new view's render.
+pub fn render_colour_filled(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
+    scene.validate()?;
+    let (image, _) = render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?;
+    Ok(fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize))
+}
+
+/// Every pixel of a view's id map without an instance (0), in `ids` and in its label map
+/// `labels` alike, takes the nearest one's id and label ([`nearest_covered`]).
+pub fn fill_uncovered(ids: &mut [u32], labels: &mut [u32], width: usize, height: usize) {
+    let source = nearest_covered(&ids.iter().map(|&i| i != 0).collect::<Vec<_>>(), width, height);
+    let (own_ids, own_labels) = (ids.to_vec(), labels.to_vec());
+    for (p, &s) in source.iter().enumerate() {
+        ids[p] = own_ids[s];
+        labels[p] = own_labels[s];
+    }
 }
 
 /// The scene's SH-DC colours as RGB, row-major per Gaussian.

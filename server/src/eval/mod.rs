@@ -80,6 +80,9 @@ pub struct Report {
     pub known_depth: bool,
     /// Whether pixels were named without instance-grounded aggregation.
     pub no_aggregation: bool,
+    /// Whether the target views were scored on their raw renders (nothing filled).
+    #[serde(default)]
+    pub no_fill: bool,
     /// Adam steps of photometric pose refinement of each target camera (0: none).
     pub target_pose_steps: usize,
     /// Adam steps of test-time refinement of the Gaussians and context cameras (0: none).
@@ -186,6 +189,8 @@ pub struct EvalRequest {
     pub known_depth: bool,
     /// Pixels named from their own semantic features (see [`Settings`]).
     pub no_aggregation: bool,
+    /// Score the target views' raw renders (see [`Settings`]).
+    pub no_fill: bool,
     /// Refine each target camera's pose against its photo (see [`Settings`]).
     pub target_pose_steps: usize,
     /// Score the text queries under every rule of [`query_rules::grid`] too.
@@ -249,6 +254,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             known_poses: req.known_poses,
             known_depth: req.known_depth,
             no_aggregation: req.no_aggregation,
+            no_fill: req.no_fill,
             target_pose_steps: req.target_pose_steps,
             query_rules: &rules,
             photos: req.photos.as_deref(),
@@ -308,6 +314,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         known_poses: req.known_poses,
         known_depth: req.known_depth,
         no_aggregation: req.no_aggregation,
+        no_fill: req.no_fill,
         target_pose_steps: req.target_pose_steps,
         refine_steps: req.pipeline.refine_steps,
         summaries,
@@ -319,7 +326,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}; depth AbsRel (the network's) after median scale; {}{}{}{}",
+             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -332,6 +339,10 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                     ", after TEST-TIME OPTIMIZATION of each target camera's pose against its photo (--target-pose-steps {n}: Adam on the pose, \
                      the Gaussians frozen, coarse to fine; kept only where it lowers the colour error)"
                 ),
+            },
+            match req.no_fill {
+                true => "; the RAW renders scored (--no-fill): what no Gaussian covers black and without an instance",
+                false => "; what no Gaussian covers there filled from around it (colours by push-pull, ids and labels from the nearest covered pixel)",
             },
             match req.pipeline.refine_steps {
                 0 => "no test-time optimization of the Gaussians".to_string(),
@@ -478,6 +489,9 @@ pub fn markdown(r: &Report) -> String {
     }
     if r.no_aggregation {
         notes += " Labels per pixel, no instance-grounded aggregation (--no-aggregation).";
+    }
+    if r.no_fill {
+        notes += " Target views scored on their raw renders (--no-fill).";
     }
     let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";

@@ -13,7 +13,7 @@ use std::time::Instant;
 use image::RgbImage;
 use inssplat_proto::dataset::Scene;
 use inssplat_raster::label::QueryRule;
-use inssplat_raster::label::masks::render_colour;
+use inssplat_raster::label::masks::{fill_uncovered, render_colour, render_colour_filled};
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors, turn_deg};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
@@ -129,6 +129,10 @@ pub struct Settings<'a> {
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
     pub no_aggregation: bool,
+    /// Score the target views' raw renders: what no Gaussian covers left black and without an
+    /// instance, instead of filled from around it ([`inssplat_raster::fill`]), as a new
+    /// view's render is.
+    pub no_fill: bool,
     /// Adam steps of test-time refinement of each target camera's pose against its photo, the
     /// Gaussians frozen ([`inssplat_raster::target_pose`]; 0 scores at the mapped camera, the
     /// protocol's default).
@@ -416,7 +420,11 @@ fn target_scores(
             turns.push(turn_deg(&refined.camera, &camera));
             camera = refined.camera;
         }
-        let colour = render_colour(&rec.scene, &camera).map_err(|e| err(&e))?;
+        let colour = match settings.no_fill {
+            true => render_colour(&rec.scene, &camera),
+            false => render_colour_filled(&rec.scene, &camera),
+        }
+        .map_err(|e| err(&e))?;
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
@@ -424,6 +432,9 @@ fn target_scores(
         let mut seg = segment(rec, &camera, mode, &texts, params)?;
         if settings.no_aggregation {
             seg.labels = pixel_labels(rec, &camera, &texts)?;
+        }
+        if !settings.no_fill {
+            fill_uncovered(&mut seg.ids, &mut seg.labels, frame.width() as usize, frame.height() as usize);
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
