@@ -6,12 +6,14 @@
 //! ≤ 50 ms). Each time is also given as a ratio to a memory-bandwidth bound: the bytes a pass
 //! must move at least (Gaussian parameters and features read, image planes written, the
 //! per-tile index lists written and read; the backward also reads the output gradients and
-//! writes the parameter gradients) divided by the copy bandwidth measured at start-up.
+//! writes the parameter gradients) divided by the copy bandwidth measured at start-up. Last,
+//! what filling a new view's uncovered pixels costs beside its render.
 
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
+use inssplat_raster::fill::{fill_colour, nearest_covered};
 use inssplat_raster::render::{GpuRenderer, render, render_any, render_backward};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -194,5 +196,22 @@ fn main() {
         let (t, _) =
             time(5, || cams.iter().map(|c| render_any(Some(g), &s.splats(), c, &[]).unwrap()).collect::<Vec<_>>());
         println!("wgpu ({}): {:.1} ms wall", g.adapter(), ms(t));
+    }
+
+    println!();
+    println!("a new view's fill (push-pull colours, nearest covered pixel for ids), against its 3-channel forward, 30k Gaussians");
+    println!("| size | uncovered | forward ms | fill ms | fill / forward |");
+    println!("|---|---|---|---|---|");
+    let s = scene(30_000, 3);
+    for size in [128u32, 448] {
+        // Turned past the room's surfaces, so that part of the view is empty.
+        let cam = camera(size, 2.4);
+        let (image, _) = render(&s.splats(), &cam, &[]).unwrap();
+        let (w, h) = (size as usize, size as usize);
+        let covered: Vec<bool> = image.alpha.iter().map(|&a| a > 0.5).collect();
+        let (fwd, _) = time(9, || render(&s.splats(), &cam, &[]).unwrap());
+        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h), nearest_covered(&covered, w, h)));
+        let open = covered.iter().filter(|&&c| !c).count() as f64 / covered.len() as f64;
+        println!("| {size}² | {:.0}% | {:.2} | {:.2} | {:.2} |", 100.0 * open, ms(fwd), ms(fill), fill.as_secs_f64() / fwd.as_secs_f64());
     }
 }

@@ -80,7 +80,7 @@ pub fn render_views(
         }
         let mut labels = label_map(&ids, &label_of_id);
         if fill {
-            fill_uncovered(&mut ids, &mut labels, w as usize, h as usize);
+            fill_uncovered(&mut ids, Some(&mut labels), w as usize, h as usize);
         }
         let images = [
             ("rgb", rgb),

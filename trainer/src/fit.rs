@@ -5,8 +5,9 @@
 //! renderer and losses (L_rgb + w·L_ins against the context views' true instance masks) until
 //! the loss stops falling. The fitted scene is then clustered in 3D exactly as the pipeline
 //! clusters a network's output (instances split into their parts apart in 3D included),
-//! rendered at the scene's target cameras, and scored with the evaluation's instance metric
-//! (pooled over target views and visible instances), so its time and instance mIoU stand
+//! rendered at the scene's target cameras (what no Gaussian covers taking the nearest covered
+//! pixel's id, as `inssplat eval` fills a new view), and scored with the evaluation's
+//! instance metric (pooled over target views and visible instances), so its time and instance mIoU stand
 //! next to `inssplat eval`'s numbers for the feed-forward model.
 
 use std::time::Instant;
@@ -19,7 +20,7 @@ use inssplat_proto::dataset::Scene;
 use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::label::masks::render_instance_ids;
+use inssplat_raster::label::masks::{fill_uncovered, render_instance_ids};
 use inssplat_raster::metrics::segmentation::instance_scores;
 use inssplat_raster::render::RenderOptions;
 use inssplat_raster::voxel::{VoxelParams, robust_extent};
@@ -225,7 +226,10 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     for &t in &eval.target {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
-        let pred = render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| bad(e.to_string()))?;
+        let mut pred = render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| bad(e.to_string()))?;
+        // Filled as `inssplat eval` fills a target view's ids, so that both sides score alike.
+        let (w, h) = (frame.camera.intrinsics.width as usize, frame.camera.intrinsics.height as usize);
+        fill_uncovered(&mut pred, None, w, h);
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(s) = instance_scores(&pred, &gt).map_err(|e| bad(e.to_string()))? {
             ious.extend(s.matches.iter().map(|m| m.iou));

@@ -78,13 +78,18 @@ pub fn render_colour_filled(scene: &GaussianScene, camera: &Camera) -> Result<Ve
 }
 
 /// Every pixel of a view's id map without an instance (0), in `ids` and in its label map
-/// `labels` alike, takes the nearest one's id and label ([`nearest_covered`]).
-pub fn fill_uncovered(ids: &mut [u32], labels: &mut [u32], width: usize, height: usize) {
+/// `labels` alike where given, takes the nearest one's id and label ([`nearest_covered`]).
+pub fn fill_uncovered(ids: &mut [u32], labels: Option<&mut [u32]>, width: usize, height: usize) {
     let source = nearest_covered(&ids.iter().map(|&i| i != 0).collect::<Vec<_>>(), width, height);
-    let (own_ids, own_labels) = (ids.to_vec(), labels.to_vec());
+    let own_ids = ids.to_vec();
     for (p, &s) in source.iter().enumerate() {
         ids[p] = own_ids[s];
-        labels[p] = own_labels[s];
+    }
+    if let Some(labels) = labels {
+        let own_labels = labels.to_vec();
+        for (p, &s) in source.iter().enumerate() {
+            labels[p] = own_labels[s];
+        }
     }
 }
 

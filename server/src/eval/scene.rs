@@ -434,7 +434,7 @@ fn target_scores(
             seg.labels = pixel_labels(rec, &camera, &texts)?;
         }
         if !settings.no_fill {
-            fill_uncovered(&mut seg.ids, &mut seg.labels, frame.width() as usize, frame.height() as usize);
+            fill_uncovered(&mut seg.ids, Some(&mut seg.labels), frame.width() as usize, frame.height() as usize);
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
