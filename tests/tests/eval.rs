@@ -79,6 +79,7 @@ fn eval_reports_every_metric_per_view_count() {
     assert!(scene.get("refine_context_psnr").is_none() && scene["stage_ms"].get("refine").is_none(), "no refinement unless asked: {scene}");
     assert!(report["protocol"].as_str().unwrap().contains("no test-time optimization of the Gaussians"));
     assert!(report["protocol"].as_str().unwrap().contains("best of 36 headings"), "{}", report["protocol"]);
+    assert!(report["protocol"].as_str().unwrap().contains("covers there filled from around it"), "{}", report["protocol"]);
     assert!(scene["stage_ms"]["heading"].as_f64().unwrap() >= 0.0, "the stage is timed whether or not it turns a view");
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
     assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
@@ -93,12 +94,14 @@ fn eval_reports_every_metric_per_view_count() {
     // Gaussians fitted to the context photos (the given cameras kept) ...
     let out = inssplat(&[
         "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
-        "--target-pose-steps", "6", "--refine-steps", "12", "--json",
+        "--target-pose-steps", "6", "--refine-steps", "12", "--no-fill", "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
     assert_eq!(report["known_depth"], true);
+    assert_eq!(report["no_fill"], true);
+    assert!(report["protocol"].as_str().unwrap().contains("the RAW renders scored"), "{}", report["protocol"]);
     assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras and depth"));
     assert_eq!(report["target_pose_steps"], 6);
     assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of each target camera's pose"));

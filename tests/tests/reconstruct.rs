@@ -146,6 +146,38 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     let again = dir.path().join("or_again");
     let (ok, stdout, stderr) = run(&["render", s(&out), "--camera", s(&out.join("transforms.json")), "-o", s(&again)]);
     assert!(ok && stdout.contains("12 images from 4 camera"), "{stdout}{stderr}");
+    // The first camera turned 60° about its own up axis sees past what the photos saw: raw,
+    // those pixels carry no instance; filled, every pixel takes the nearest one's, and the
+    // covered pixels keep theirs.
+    let mut transforms: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let frame = transforms["frames"][0].clone();
+    let m: Vec<Vec<f64>> = serde_json::from_value(frame["transform_matrix"].clone()).unwrap();
+    let (c, sn) = (60f64.to_radians().cos(), 60f64.to_radians().sin());
+    let turn = [[c, 0.0, sn], [0.0, 1.0, 0.0], [-sn, 0.0, c]];
+    let mut turned = m.clone();
+    for (r, row) in turned.iter_mut().enumerate().take(3) {
+        for (k, v) in row.iter_mut().enumerate().take(3) {
+            *v = (0..3).map(|j| m[r][j] * turn[j][k]).sum();
+        }
+    }
+    let mut frame = frame;
+    frame["transform_matrix"] = serde_json::to_value(&turned).unwrap();
+    transforms["frames"] = serde_json::Value::Array(vec![frame]);
+    let turned_path = dir.path().join("turned.json");
+    std::fs::write(&turned_path, transforms.to_string()).unwrap();
+    let instances = |extra: &[&str], to: &str| -> image::RgbImage {
+        let to = dir.path().join(to);
+        let mut args = vec!["render", s(&out), "--camera", s(&turned_path), "-o", s(&to)];
+        args.extend_from_slice(extra);
+        let (ok, _, stderr) = run(&args);
+        assert!(ok, "{stderr}");
+        image::open(to.join("instances_000.png")).unwrap().to_rgb8()
+    };
+    let (raw, filled) = (instances(&["--no-fill"], "turned_raw"), instances(&[], "turned_filled"));
+    let black = |img: &image::RgbImage| img.pixels().filter(|p| p.0 == [0, 0, 0]).count();
+    assert!(black(&raw) > 0, "the turned camera should see past the reconstruction");
+    assert_eq!(black(&filled), 0, "every pixel filled");
+    assert!(raw.pixels().zip(filled.pixels()).all(|(r, f)| r.0 == [0, 0, 0] || r == f), "a covered pixel changed");
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,9,0.5"]);
     assert!(!ok && stderr.contains("view 9 does not exist"), "{stderr}");
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,2"]);
