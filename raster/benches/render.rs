@@ -210,7 +210,7 @@ fn main() {
         let (w, h) = (size as usize, size as usize);
         let covered: Vec<bool> = image.alpha.iter().map(|&a| a > 0.5).collect();
         let (fwd, _) = time(9, || render(&s.splats(), &cam, &[]).unwrap());
-        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h), nearest_covered(&covered, w, h)));
+        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h, 0.5), nearest_covered(&covered, w, h)));
         let open = covered.iter().filter(|&&c| !c).count() as f64 / covered.len() as f64;
         println!("| {size}² | {:.0}% | {:.2} | {:.2} | {:.2} |", 100.0 * open, ms(fwd), ms(fill), fill.as_secs_f64() / fwd.as_secs_f64());
     }

@@ -1,10 +1,12 @@
 //! Filling what no Gaussian covers in a render of a new view. A view away from the input
 //! cameras sees places no input photo saw, and cracks open between splats; the rasterizer
-//! leaves them at the background (black) and the id map at 0. [`fill_colour`] composites the
-//! render over a push-pull fill of itself (Gortler et al., 1996): the premultiplied colours
-//! and their alpha are averaged down a pyramid, then each level's uncovered share is taken
-//! from the coarser level, bilinearly, so a hole takes the colours around it, blended
-//! smoothly across it. [`nearest_covered`] finds for every pixel without an instance the
+//! leaves them at the background (black) and the id map at 0. [`fill_colour`] composites
+//! the open pixels of the render (alpha at most a bound) over a push-pull fill of itself
+//! (Gortler et al., 1996): the premultiplied colours and their alpha are averaged down a
+//! pyramid, then each level's uncovered share is taken from the coarser level, bilinearly,
+//! so a hole takes the colours around it, blended smoothly across it. The pixels above the
+//! bound keep their render: their colours were fitted over black (by the network's training
+//! and the test-time refinement), and a fill behind them would brighten them. [`nearest_covered`] finds for every pixel without an instance the
 //! nearest pixel with one (breadth first over the 4-neighbours, so the nearest along the
 //! image, ties to the first reached), whose id and label it then takes. Covered pixels keep
 //! what they rendered.
@@ -12,9 +14,10 @@
 use std::collections::VecDeque;
 
 /// `premultiplied` (planar `[C][H][W]`, the rasterizer's colours over a zero background)
-/// composited over their own push-pull fill by `alpha` (`[H][W]`): pixel = colour + (1 −
-/// alpha) · fill. Without any covered pixel the image stays as it is.
-pub fn fill_colour(premultiplied: &[f32], alpha: &[f32], width: usize, height: usize) -> Vec<f32> {
+/// composited over their own push-pull fill by `alpha` (`[H][W]`) where alpha is at most
+/// `open` (pixel = colour + (1 − alpha) · fill); above it a pixel keeps its render, whose
+/// colours were fitted over black. Without any covered pixel the image stays as it is.
+pub fn fill_colour(premultiplied: &[f32], alpha: &[f32], width: usize, height: usize, open: f32) -> Vec<f32> {
     let pixels = width * height;
     assert_eq!(alpha.len(), pixels, "alpha must be [height][width]");
     assert_eq!(premultiplied.len() % pixels.max(1), 0, "colours must be [channels][height][width]");
@@ -22,7 +25,8 @@ pub fn fill_colour(premultiplied: &[f32], alpha: &[f32], width: usize, height: u
         return premultiplied.to_vec();
     }
     let weight: Vec<f32> = alpha.iter().map(|a| a.clamp(0.0, 1.0)).collect();
-    pull(premultiplied, &weight, width, height)
+    let filled = pull(premultiplied, &weight, width, height);
+    filled.iter().zip(premultiplied).enumerate().map(|(i, (&f, &p))| if alpha[i % pixels] <= open { f } else { p }).collect()
 }
 
 /// Premultiplied colours `p` (planar `[C][H][W]`) with coverage `w` (each at most 1)
@@ -126,7 +130,7 @@ mod tests {
         }
         colour[2 * w + 2] = 0.1;
         alpha[2 * w + 2] = 0.5;
-        let out = fill_colour(&colour, &alpha, w, h);
+        let out = fill_colour(&colour, &alpha, w, h, 1.0);
         assert_eq!(out[0], 0.2);
         assert_eq!(out[w - 1], 0.8);
         // The hole's left edge lies nearer the left colours, its right edge the right ones.
@@ -135,7 +139,7 @@ mod tests {
         // Half covered by 0.2 (premultiplied 0.1): the other half is filled near 0.2.
         assert!((out[2 * w + 2] - 0.2).abs() < 0.05, "{}", out[2 * w + 2]);
         // Nothing covered: nothing to fill from.
-        assert_eq!(fill_colour(&[0.0; 4], &[0.0; 4], 2, 2), vec![0.0; 4]);
+        assert_eq!(fill_colour(&[0.0; 4], &[0.0; 4], 2, 2, 1.0), vec![0.0; 4]);
     }
 
     #[test]

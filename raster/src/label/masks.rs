@@ -74,7 +74,7 @@ pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>,
 pub fn render_colour_filled(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
     let (image, _) = render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?;
-    Ok(fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize))
+    Ok(fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize, MASK_ALPHA))
 }
 
 /// Every pixel of a view's id map without an instance (0), in `ids` and in its label map
