@@ -204,7 +204,8 @@ fn main() {
     println!("|---|---|---|---|---|");
     let s = scene(30_000, 3);
     for size in [128u32, 448] {
-        // Turned past the room's surfaces, so that part of the view is empty.
+        // A view turned across the room; the fill's work hardly depends on how much of it is
+        // open (the whole pyramid, and one pass over the pixels for the ids).
         let cam = camera(size, 2.4);
         let (image, _) = render(&s.splats(), &cam, &[]).unwrap();
         let (w, h) = (size as usize, size as usize);
