@@ -38,7 +38,7 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     let k = Intrinsics::from_fov_y(size, size, 34f32.to_radians());
     let novel = Camera::look_at(k, Vec3::new(6.0, 4.0, 4.0), Vec3::new(0.0, 0.5, 0.0), Vec3::Y);
     let novel_photo = render_scene(&[novel]).frames[0].planar_rgb();
-    let novel_before = mse(&render_colour(&scene, &novel).unwrap(), &novel_photo);
+    let novel_before = mse(&render_colour(&scene, &novel, false).unwrap(), &novel_photo);
 
     let photos: Vec<Vec<f32>> = room.frames.iter().map(|f| f.planar_rgb()).collect();
     let inputs: Vec<RefineView<'_>> = photos.iter().map(|p| RefineView { photo: p, rect: [0, 0, size, size] }).collect();
@@ -48,7 +48,7 @@ fn refining_against_the_photos_mends_displaced_gaussians_and_a_turned_camera() {
     assert!(done.mse_after < 0.3 * done.mse_before, "input views {done:?}");
     assert_eq!(done.steps, 160);
     assert!(done.psnr()[1] > done.psnr()[0] + 5.0, "{:?}", done.psnr());
-    let novel_after = mse(&render_colour(&scene, &novel).unwrap(), &novel_photo);
+    let novel_after = mse(&render_colour(&scene, &novel, false).unwrap(), &novel_photo);
     assert!(novel_after < 0.6 * novel_before, "novel view {novel_before:.4} → {novel_after:.4}");
     let turned_after = turn_deg(&cameras[3], &truth[3]);
     assert!(turned_after < 0.75 * turned_before, "turned camera {turned_before:.2}° → {turned_after:.2}°");

@@ -494,7 +494,7 @@ fn main() -> anyhow::Result<()> {
                 known_poses,
                 known_depth,
                 no_aggregation,
-            no_fill,
+                no_fill,
                 target_pose_steps,
                 query_rules,
                 photos,

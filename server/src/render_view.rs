@@ -12,7 +12,7 @@ use anyhow::{Context, bail};
 use image::{Rgb, RgbImage};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_raster::label::masks::{fill_uncovered, label_map, render_colour, render_colour_filled, render_instance_ids_on};
+use inssplat_raster::label::masks::{fill_uncovered, label_map, render_colour, render_instance_ids_on};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 
@@ -66,10 +66,7 @@ pub fn render_views(
     for (v, camera) in cameras.iter().enumerate() {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let pixels = (w * h) as usize;
-        let colour = match fill {
-            true => render_colour_filled(&saved.scene, camera)?,
-            false => render_colour(&saved.scene, camera)?,
-        };
+        let colour = render_colour(&saved.scene, camera, fill)?;
         let rgb = RgbImage::from_fn(w, h, |x, y| {
             let p = (y * w + x) as usize;
             Rgb([0, 1, 2].map(|c| (colour[c * pixels + p].clamp(0.0, 1.0) * 255.0).round() as u8))

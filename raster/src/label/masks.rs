@@ -63,33 +63,28 @@ pub fn render_instance_ids_on(
 }
 
 /// The scene's colours (SH degree 0) seen by `camera` over black: planar `[3][H][W]`, not
-/// clamped (a metric clamps if it needs to).
-pub fn render_colour(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
-    scene.validate()?;
-    Ok(render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?.0.features)
-}
-
-/// [`render_colour`] with what no Gaussian covers filled from the colours around it
-/// ([`fill_colour`]): a new view's render.
-pub fn render_colour_filled(scene: &GaussianScene, camera: &Camera) -> Result<Vec<f32>, MaskError> {
+/// clamped (a metric clamps if it needs to). With `fill`, what no Gaussian covers takes the
+/// colours around it ([`fill_colour`] on the pixels without an instance): a new view's render.
+pub fn render_colour(scene: &GaussianScene, camera: &Camera, fill: bool) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
     let (image, _) = render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?;
-    Ok(fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize, MASK_ALPHA))
+    Ok(match fill {
+        true => fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize, MASK_ALPHA),
+        false => image.features,
+    })
 }
 
 /// Every pixel of a view's id map without an instance (0), in `ids` and in its label map
 /// `labels` alike where given, takes the nearest one's id and label ([`nearest_covered`]).
 pub fn fill_uncovered(ids: &mut [u32], labels: Option<&mut [u32]>, width: usize, height: usize) {
     let source = nearest_covered(&ids.iter().map(|&i| i != 0).collect::<Vec<_>>(), width, height);
-    let own_ids = ids.to_vec();
-    for (p, &s) in source.iter().enumerate() {
-        ids[p] = own_ids[s];
-    }
+    let read = |map: &mut [u32]| {
+        let own = map.to_vec();
+        map.iter_mut().zip(&source).for_each(|(v, &s)| *v = own[s]);
+    };
+    read(ids);
     if let Some(labels) = labels {
-        let own_labels = labels.to_vec();
-        for (p, &s) in source.iter().enumerate() {
-            labels[p] = own_labels[s];
-        }
+        read(labels);
     }
 }
 

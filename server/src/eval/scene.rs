@@ -13,7 +13,7 @@ use std::time::Instant;
 use image::RgbImage;
 use inssplat_proto::dataset::Scene;
 use inssplat_raster::label::QueryRule;
-use inssplat_raster::label::masks::{fill_uncovered, render_colour, render_colour_filled};
+use inssplat_raster::label::masks::{fill_uncovered, render_colour};
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors, turn_deg};
 use inssplat_raster::metrics::segmentation::{NO_LABEL, consistency_scores, instance_scores, semantic_scores};
@@ -420,11 +420,7 @@ fn target_scores(
             turns.push(turn_deg(&refined.camera, &camera));
             camera = refined.camera;
         }
-        let colour = match settings.no_fill {
-            true => render_colour(&rec.scene, &camera),
-            false => render_colour_filled(&rec.scene, &camera),
-        }
-        .map_err(|e| err(&e))?;
+        let colour = render_colour(&rec.scene, &camera, !settings.no_fill).map_err(|e| err(&e))?;
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
