@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, pool_keys_file, quantize_file};
+use inssplat_trainer::export::{ExportMeta, Weights, average_file, export_onnx, pool_keys_file, quantize_file};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
@@ -452,6 +452,59 @@ pub fn run_quantize(args: QuantizeArgs) -> Result<()> {
     let meta = quantize_file(&args.model, &args.out, args.model_version.as_deref())?;
     let mb = |p: &PathBuf| std::fs::metadata(p).map_or(0.0, |m| m.len() as f64 / 1e6);
     println!("wrote {} ({}, int8 linear weights, {:.1} MB; {} is {:.1} MB)", args.out.display(), meta.model_version, mb(&args.out), args.model.display(), mb(&args.model));
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct AverageArgs {
+    /// The model file whose network shape and metadata (the shape classifier) the result
+    /// keeps, such as the file the run started from.
+    #[arg(long)]
+    model: PathBuf,
+    /// The ONNX file to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Checkpoint folders, or run folders (every checkpoint they keep), to average.
+    #[arg(required = true)]
+    checkpoints: Vec<PathBuf>,
+    /// Only the checkpoints of this step or later.
+    #[arg(long, default_value_t = 0)]
+    from_step: u64,
+    /// Model version recorded in the metadata (default: the first checkpoint's run and the
+    /// steps averaged over).
+    #[arg(long)]
+    model_version: Option<String>,
+}
+
+pub fn run_average(args: AverageArgs) -> Result<()> {
+    let mut dirs = Vec::new();
+    for path in &args.checkpoints {
+        let found = checkpoint::all(path);
+        if found.is_empty() {
+            bail!("{} is neither a run with checkpoints nor a checkpoint", path.display());
+        }
+        dirs.extend(found);
+    }
+    let (mut nets, mut names, mut steps) = (Vec::new(), Vec::new(), Vec::new());
+    for dir in dirs {
+        let state = checkpoint::read_state(&dir)?;
+        if state.step < args.from_step {
+            continue;
+        }
+        nets.push(checkpoint::load_model(&dir, &state, &Device::flex())?);
+        names.push(dir.display().to_string());
+        steps.push(state.step);
+    }
+    let (Some(&first), Some(&last)) = (steps.iter().min(), steps.iter().max()) else {
+        bail!("no checkpoint of step {} or later among {:?}", args.from_step, args.checkpoints);
+    };
+    let version = args.model_version.unwrap_or_else(|| {
+        let run = args.checkpoints[0].file_name().and_then(|n| n.to_str()).unwrap_or("run");
+        format!("inssplat-{}+{run}.avg{first}-{last}", env!("CARGO_PKG_VERSION"))
+    });
+    let meta = average_file(&args.model, &args.out, &nets, &names, &version, last)
+        .with_context(|| format!("--model {} --out {}", args.model.display(), args.out.display()))?;
+    println!("wrote {} ({}, the mean of {} checkpoints, steps {first}..={last})", args.out.display(), meta.model_version, nets.len());
     Ok(())
 }
 

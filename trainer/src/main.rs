@@ -37,6 +37,9 @@ enum Command {
     /// Write an exported model whose global layers read keys and values averaged over squares
     /// of patches (the same weights, a cheaper global attention), its metadata kept.
     PoolKeys(cli_train::PoolKeysArgs),
+    /// Write the mean of several checkpoints' weights (weight averaging) into a copy of a
+    /// model file, its metadata kept.
+    Average(cli_train::AverageArgs),
     /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
     /// context views (true cameras), then score instance mIoU on its target views.
     FitScene(cli_fit::FitArgs),
@@ -174,6 +177,7 @@ fn main() -> Result<()> {
         Command::Export(args) => cli_train::run_export(args),
         Command::Quantize(args) => cli_train::run_quantize(args),
         Command::PoolKeys(args) => cli_train::run_pool_keys(args),
+        Command::Average(args) => cli_train::run_average(args),
         Command::FitScene(args) => cli_fit::run_fit(args),
         Command::FitShapes(args) => cli_shapes::run_fit_shapes(args),
         Command::LabelTable { out } => {

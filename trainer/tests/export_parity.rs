@@ -32,7 +32,7 @@ enum Tol {
     Int8,
 }
 
-fn small_config() -> ModelConfig {
+pub(crate) fn small_config() -> ModelConfig {
     ModelConfig::new()
         .with_image_size(32)
         .with_dim(32)
@@ -86,7 +86,7 @@ fn environment() -> &'static ort::environment::Environment {
     })
 }
 
-fn session_of(bytes: &[u8]) -> Session {
+pub(crate) fn session_of(bytes: &[u8]) -> Session {
     let builder = Session::builder(environment()).expect("session builder");
     let mut builder = builder.with_intra_threads(2).expect("thread count");
     builder
@@ -429,7 +429,7 @@ fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_
 
 /// `net` exported to `dir/plain.onnx` (version "plain", 9 steps) with one metadata entry the
 /// exporter does not write, `inssplat.extra` = "kept", which a rewrite must keep.
-fn plain_file(net: &InsSplatNet, dir: &std::path::Path) -> std::path::PathBuf {
+pub(crate) fn plain_file(net: &InsSplatNet, dir: &std::path::Path) -> std::path::PathBuf {
     use inssplat_trainer::export::onnx_pb::StringStringEntryProto;
     use prost::Message;
     let path = dir.join("plain.onnx");
@@ -440,7 +440,7 @@ fn plain_file(net: &InsSplatNet, dir: &std::path::Path) -> std::path::PathBuf {
 }
 
 /// Runs the `inssplat-train` binary with `args`.
-fn trainer(args: &[&std::ffi::OsStr]) -> std::process::Output {
+pub(crate) fn trainer(args: &[&std::ffi::OsStr]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_inssplat-train")).args(args).output().expect("run inssplat-train")
 }
 

@@ -2,6 +2,7 @@
 //! model, losses and their gradients, the training loop, export parity, fit-scene and the
 //! shape classifier.
 
+mod average;
 mod export_parity;
 mod fit_scene;
 mod loss_attention_match;

@@ -13,6 +13,7 @@
 //! the official field numbers, and the parity test proves the bytes by loading them in ONNX
 //! Runtime.
 
+mod average;
 mod graph;
 mod import;
 mod int8;
@@ -27,6 +28,7 @@ use prost::Message;
 
 use crate::model::InsSplatNet;
 use graph::Graph;
+pub use average::{AverageError, average_file, average_networks};
 pub use import::{ImportError, import_onnx};
 pub use int8::quantize_file;
 pub use rewrite::{RewriteError, pool_keys_file};

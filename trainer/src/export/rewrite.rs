@@ -1,7 +1,8 @@
 //! Rewriting an exported file: its network is read back, changed in how it is stored or
 //! run, and written again with every metadata entry of the input that the exporter does not
-//! write itself (the shape classifier) kept. `inssplat-train quantize` ([`super::int8`]) and
-//! `inssplat-train pool-keys` ([`pool_keys_file`]) are such rewrites.
+//! write itself (the shape classifier) kept. `inssplat-train quantize` ([`super::int8`]),
+//! `inssplat-train pool-keys` ([`pool_keys_file`]) and `inssplat-train average`
+//! ([`super::average`]) are such rewrites.
 
 use std::path::Path;
 
@@ -21,6 +22,8 @@ pub enum RewriteError {
     Export(#[from] ExportError),
     #[error(transparent)]
     Model(#[from] ModelError),
+    #[error(transparent)]
+    Average(#[from] super::average::AverageError),
 }
 
 /// Reads the ONNX file `input`, lets `change` alter its network and what the file says about

@@ -85,14 +85,21 @@ pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &Chec
     Ok(dir)
 }
 
-/// Deletes all but the newest `keep` checkpoints (best effort).
-fn prune(root: &Path, keep: usize) {
-    let Ok(entries) = std::fs::read_dir(root) else { return };
+/// The checkpoint folders under `root` (a run's [`checkpoints_dir`]), oldest first; none if
+/// it cannot be read.
+fn step_folders(root: &Path) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(root) else { return Vec::new() };
     let mut steps: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("step_")))
         .collect();
     steps.sort();
+    steps
+}
+
+/// Deletes all but the newest `keep` checkpoints (best effort).
+fn prune(root: &Path, keep: usize) {
+    let steps = step_folders(root);
     let excess = steps.len().saturating_sub(keep.max(1));
     for old in &steps[..excess] {
         let _ = std::fs::remove_dir_all(old);
@@ -114,6 +121,15 @@ pub fn latest(run: &Path) -> Result<Option<PathBuf>, CheckpointError> {
         return Err(io(&pointer, format!("points at {}, which has no state.json", dir.display())));
     }
     Ok(Some(dir))
+}
+
+/// Every checkpoint of run `run`, oldest first (those with a `state.json`): a run folder, or
+/// a checkpoint folder itself.
+pub fn all(run: &Path) -> Vec<PathBuf> {
+    if run.join("state.json").is_file() {
+        return vec![run.to_path_buf()];
+    }
+    step_folders(&checkpoints_dir(run)).into_iter().filter(|d| d.join("state.json").is_file()).collect()
 }
 
 /// Reads the `state.json` of checkpoint folder `dir`.
