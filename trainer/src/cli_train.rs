@@ -143,6 +143,10 @@ pub struct TrainArgs {
     /// w_ins, the weight of L_ins in the total (the paper's 0.01).
     #[arg(long, default_value_t = 0.01)]
     instance_weight: f64,
+    /// δ_pull of L_ins: the cosine distance to its instance's prototype within which a
+    /// pixel's embedding is no longer pulled (0: pulled all the way, into the tightest groups).
+    #[arg(long, default_value_t = LossConfig::new().pull_margin, value_parser = unit_interval)]
+    pull_margin: f64,
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
@@ -280,6 +284,7 @@ impl TrainArgs {
             .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
             .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)
+            .with_pull_margin(self.pull_margin)
             .with_camera_weight(self.camera_weight)
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_point_map_offsets(self.point_map_offsets.then_some(true))
