@@ -1,9 +1,10 @@
 //! Weight averaging (Izmailov et al., 2018, "Averaging Weights Leads to Wider Optima and
 //! Better Generalization"): the mean of several networks of one shape, parameter by
 //! parameter, written as a model file. The networks are checkpoints of one run late in its
-//! schedule; their mean sits nearer the middle of the region they wander in than any one of
-//! them. `inssplat-train average` writes it into a copy of a base file, whose metadata (the
-//! shape classifier) it keeps.
+//! schedule, whose mean may sit nearer the middle of the region they wander in than any one
+//! of them (for the shipped network's recipe it did not score better: the history's "Tighter
+//! instance groups and weight averaging"). `inssplat-train average` writes it into a copy of
+//! a base file, whose metadata (the shape classifier) it keeps.
 
 use std::collections::HashMap;
 use std::path::Path;
