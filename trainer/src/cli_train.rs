@@ -220,9 +220,10 @@ pub struct TrainArgs {
     /// Minutes between checkpoints.
     #[arg(long, default_value_t = 5.0)]
     checkpoint_minutes: f64,
-    /// Checkpoints kept.
-    #[arg(long, default_value_t = 2)]
-    keep: usize,
+    /// Checkpoints kept (default 2; with --resume, as many as the session that wrote the
+    /// newest checkpoint kept).
+    #[arg(long)]
+    keep: Option<usize>,
     /// Validate every N steps (0 = never).
     #[arg(long, default_value_t = 250)]
     val_every: u64,
@@ -327,7 +328,15 @@ impl TrainArgs {
     fn session(&self) -> Result<Session> {
         Ok(Session {
             checkpoint_every: minutes(self.checkpoint_minutes, "--checkpoint-minutes")?,
-            keep: self.keep,
+            keep: match (self.keep, self.resume) {
+                (Some(keep), _) => keep,
+                (None, true) => checkpoint::latest(&self.out)?
+                    .map(|dir| checkpoint::read_state(&dir))
+                    .transpose()?
+                    .and_then(|state| state.keep)
+                    .unwrap_or(Session::default().keep),
+                (None, false) => Session::default().keep,
+            },
             val_every: self.val_every,
             val_samples: self.val_samples,
             val_data: self.val_data.clone().map(DataSpec::Folder),

@@ -453,3 +453,24 @@ impl burn::module::ModuleVisitor for Compare<'_> {
         }
     }
 }
+
+/// `--resume` without `--keep` keeps as many checkpoints as the session that wrote the newest
+/// one: a run told to keep 10 is not pruned to the default 2 by the session that resumes
+/// it; `--keep 1` still prunes when asked.
+#[test]
+fn resuming_keeps_the_checkpoints_the_run_kept() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let every_step = Session { checkpoint_every: Duration::ZERO, keep: 10, ..quiet_session() };
+    train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_max_views(2), tiny_data(), &every_step).unwrap();
+    let steps = || checkpoint::all(&run).iter().map(|d| checkpoint::read_state(d).unwrap().step).collect::<Vec<_>>();
+    assert_eq!(steps(), [1, 2, 3, 4], "a checkpoint after every step");
+    let resume = |steps: &str, extra: &[&str]| {
+        let out = bin().args(["train", "--quiet", "--resume", "--steps", steps, "--checkpoint-minutes", "0", "--out"]).arg(&run).args(extra).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    };
+    resume("6", &[]);
+    assert_eq!(steps(), [1, 2, 3, 4, 5, 6], "nothing the run kept is deleted");
+    resume("7", &["--keep", "1"]);
+    assert_eq!(steps(), [7], "an explicit --keep prunes");
+}

@@ -32,6 +32,10 @@ pub struct CheckpointState {
     /// The checkpoint whose weights started this run (a fine-tune), if any.
     #[serde(default)]
     pub init_from: Option<InitFrom>,
+    /// How many checkpoints the session that wrote this one kept (none in checkpoints older
+    /// than this field), which a session resuming the run keeps too unless told otherwise.
+    #[serde(default)]
+    pub keep: Option<usize>,
 }
 
 /// Where a fine-tune's starting weights came from.
@@ -72,7 +76,8 @@ pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &Chec
     let opt = tmp.join("optim.bpk");
     optim.save(&opt).map_err(|e| io(&opt, format!("{e:?}")))?;
     let json = tmp.join("state.json");
-    let text = serde_json::to_string_pretty(state).map_err(|e| io(&json, e))?;
+    let state = CheckpointState { keep: Some(keep), ..state.clone() };
+    let text = serde_json::to_string_pretty(&state).map_err(|e| io(&json, e))?;
     std::fs::write(&json, text).map_err(|e| io(&json, e))?;
     let dir = root.join(&name);
     let _ = std::fs::remove_dir_all(&dir);

@@ -237,7 +237,7 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
     let device = session.compute.device()?;
     let net = seeded_init(&config.model, config.seed, &device).map_err(|e| TrainError::Config(e.to_string()))?;
     let optim = optimizer(&config);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: None };
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: None, keep: None };
     run_loop(run, net, optim, state, session, &device)
 }
 
@@ -293,7 +293,7 @@ pub fn fine_tune(
     config.model = net.config().clone();
     config.validate()?;
     let optim = optimizer(&config);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: Some(init_from) };
+    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: Some(init_from), keep: None };
     run_loop(run, net, optim, state, session, &device)
 }
 
