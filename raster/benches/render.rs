@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::fill::{fill_colour, nearest_covered};
+use inssplat_raster::label::masks::MASK_ALPHA;
 use inssplat_raster::render::{GpuRenderer, render, render_any, render_backward};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -209,9 +210,9 @@ fn main() {
         let cam = camera(size, 2.4);
         let (image, _) = render(&s.splats(), &cam, &[]).unwrap();
         let (w, h) = (size as usize, size as usize);
-        let covered: Vec<bool> = image.alpha.iter().map(|&a| a > 0.5).collect();
+        let covered: Vec<bool> = image.alpha.iter().map(|&a| a > MASK_ALPHA).collect();
         let (fwd, _) = time(9, || render(&s.splats(), &cam, &[]).unwrap());
-        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h, 0.5), nearest_covered(&covered, w, h)));
+        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h, MASK_ALPHA), nearest_covered(&covered, w, h)));
         let open = covered.iter().filter(|&&c| !c).count() as f64 / covered.len() as f64;
         println!("| {size}² | {:.0}% | {:.2} | {:.2} | {:.2} |", 100.0 * open, ms(fwd), ms(fill), fill.as_secs_f64() / fwd.as_secs_f64());
     }
