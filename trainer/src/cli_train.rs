@@ -328,15 +328,7 @@ impl TrainArgs {
     fn session(&self) -> Result<Session> {
         Ok(Session {
             checkpoint_every: minutes(self.checkpoint_minutes, "--checkpoint-minutes")?,
-            keep: match (self.keep, self.resume) {
-                (Some(keep), _) => keep,
-                (None, true) => checkpoint::latest(&self.out)?
-                    .map(|dir| checkpoint::read_state(&dir))
-                    .transpose()?
-                    .and_then(|state| state.keep)
-                    .unwrap_or(Session::default().keep),
-                (None, false) => Session::default().keep,
-            },
+            keep: self.keep,
             val_every: self.val_every,
             val_samples: self.val_samples,
             val_data: self.val_data.clone().map(DataSpec::Folder),

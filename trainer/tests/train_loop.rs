@@ -461,7 +461,7 @@ impl burn::module::ModuleVisitor for Compare<'_> {
 fn resuming_keeps_the_checkpoints_the_run_kept() {
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("run");
-    let every_step = Session { checkpoint_every: Duration::ZERO, keep: 10, ..quiet_session() };
+    let every_step = Session { checkpoint_every: Duration::ZERO, keep: Some(10), ..quiet_session() };
     train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_max_views(2), tiny_data(), &every_step).unwrap();
     let steps = || checkpoint::all(&run).iter().map(|d| checkpoint::read_state(d).unwrap().step).collect::<Vec<_>>();
     assert_eq!(steps(), [1, 2, 3, 4], "a checkpoint after every step");

@@ -33,7 +33,8 @@ pub struct CheckpointState {
     #[serde(default)]
     pub init_from: Option<InitFrom>,
     /// How many checkpoints the session that wrote this one kept (none in checkpoints older
-    /// than this field), which a session resuming the run keeps too unless told otherwise.
+    /// than this field: [`DEFAULT_KEEP`]), which a session resuming the run keeps too unless
+    /// told otherwise.
     #[serde(default)]
     pub keep: Option<usize>,
 }
@@ -63,8 +64,11 @@ pub fn checkpoints_dir(run: &Path) -> PathBuf {
     run.join("checkpoints")
 }
 
-/// Writes a checkpoint of `net` and `optim` at `state.step`; keeps the newest `keep`.
-pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &CheckpointState, keep: usize) -> Result<PathBuf, CheckpointError> {
+/// Checkpoints a run keeps when neither its session nor the checkpoint it resumes says.
+pub const DEFAULT_KEEP: usize = 2;
+
+/// Writes a checkpoint of `net` and `optim` at `state.step`; keeps the newest `state.keep`.
+pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &CheckpointState) -> Result<PathBuf, CheckpointError> {
     let root = checkpoints_dir(run);
     std::fs::create_dir_all(&root).map_err(|e| io(&root, e))?;
     let name = format!("step_{:08}", state.step);
@@ -76,8 +80,7 @@ pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &Chec
     let opt = tmp.join("optim.bpk");
     optim.save(&opt).map_err(|e| io(&opt, format!("{e:?}")))?;
     let json = tmp.join("state.json");
-    let state = CheckpointState { keep: Some(keep), ..state.clone() };
-    let text = serde_json::to_string_pretty(&state).map_err(|e| io(&json, e))?;
+    let text = serde_json::to_string_pretty(state).map_err(|e| io(&json, e))?;
     std::fs::write(&json, text).map_err(|e| io(&json, e))?;
     let dir = root.join(&name);
     let _ = std::fs::remove_dir_all(&dir);
@@ -86,7 +89,7 @@ pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &Chec
     let latest_tmp = root.join(".latest.tmp");
     std::fs::write(&latest_tmp, &name).map_err(|e| io(&latest_tmp, e))?;
     std::fs::rename(&latest_tmp, &latest).map_err(|e| io(&latest, e))?;
-    prune(&root, keep);
+    prune(&root, state.keep.unwrap_or(DEFAULT_KEEP));
     Ok(dir)
 }
 

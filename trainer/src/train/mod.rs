@@ -131,8 +131,9 @@ impl TrainConfig {
 pub struct Session {
     /// Write a checkpoint after this much time since the last one.
     pub checkpoint_every: Duration,
-    /// Checkpoints kept.
-    pub keep: usize,
+    /// Checkpoints kept (`None`: as many as the session that wrote the checkpoint this one
+    /// resumes kept, else [`checkpoint::DEFAULT_KEEP`]).
+    pub keep: Option<usize>,
     /// Validate every this many steps (0 = never) on `val_samples` fixed samples.
     pub val_every: u64,
     pub val_samples: usize,
@@ -177,7 +178,7 @@ impl Default for Session {
     fn default() -> Self {
         Self {
             checkpoint_every: Duration::from_secs(300),
-            keep: 2,
+            keep: None,
             val_every: 250,
             val_samples: 4,
             val_data: None,
@@ -426,6 +427,7 @@ fn run_loop(
     device: &Device,
 ) -> Result<Summary, TrainError> {
     std::fs::create_dir_all(run).map_err(|e| io_error(run, e))?;
+    state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let sampler = Sampler { source: Source::open(&state.data)?, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
     let val = val_samples(&state, session, &labels)?;
@@ -510,7 +512,7 @@ fn run_loop(
         let out_of_time = session.time_limit.is_some_and(|limit| session_start.elapsed() >= limit);
         let done = state.step >= state.config.steps;
         if last_checkpoint.elapsed() >= session.checkpoint_every || out_of_time || done {
-            checkpoint_dir = Some(checkpoint::save(run, &net, &optim, &state, session.keep)?);
+            checkpoint_dir = Some(checkpoint::save(run, &net, &optim, &state)?);
             let _ = log::draw_chart(&train_csv, &val_csv, &chart);
             last_checkpoint = Instant::now();
         }
