@@ -201,6 +201,10 @@ pub struct TrainArgs {
     /// (what inference names), added inside L_sem to L_sem on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
     direct_semantic_weight: f64,
+    /// L_sem on the furniture alone: the room shell's pixels (wall, floor, ceiling) are left out
+    /// of it, while L_ins still separates the shell's instances.
+    #[arg(long)]
+    semantic_objects_only: bool,
     /// Factor on the gradient the render losses send into the predicted depth through the
     /// Gaussians' centres: 1 trains end to end (the paper), 0 leaves depth to L_geom alone.
     #[arg(long, default_value_t = 1.0)]
@@ -298,6 +302,7 @@ impl TrainArgs {
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
             .with_direct_semantic_weight((self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight))
+            .with_semantic_objects_only(self.semantic_objects_only.then_some(true))
             .with_render_depth_gradient((self.render_depth_gradient != 1.0).then_some(self.render_depth_gradient))
             .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))

@@ -108,6 +108,11 @@ pub struct LossConfig {
     /// Gaussian's own L says. `None` (also what configs saved before this term existed read
     /// as) means 0.
     pub direct_semantic_weight: Option<f64>,
+    /// L_sem on the furniture alone: the pixels of the room's shell (instances labelled
+    /// `wall`, `floor` or `ceiling`) are left out of it, as the evaluation's scenes leave the
+    /// shell unlabelled, while L_ins still separates the shell's instances. `None` (also what
+    /// configs saved before this switch existed read as) names the shell too.
+    pub semantic_objects_only: Option<bool>,
     /// Factor on the gradient that the render losses send into the predicted depth through
     /// the Gaussians' centres (their values are unchanged): 1 is the paper's end-to-end
     /// training, 0 leaves the depth to L_geom alone (the offsets still follow the renders).

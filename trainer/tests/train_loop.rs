@@ -4,7 +4,8 @@
 //! checkpoint afterwards reproduces the run's own validation loss, the direct terms add L_ins
 //! and L_sem of the network's own embeddings and features, the contrastive L_sem with its
 //! direct term names one scene's objects out of the whole vocabulary, samples carry the label
-//! vocabulary of the contrastive L_sem (older configs read as without these), the prefetcher's
+//! vocabulary of the contrastive L_sem (older configs read as without these), L_sem on the
+//! furniture alone is L_sem of the scene with its shell unlabelled, the prefetcher's
 //! data threads hand out exactly the sampler's samples in order, and bad data folders and
 //! checkpoints are clear errors that name the path.
 
@@ -177,6 +178,32 @@ fn the_direct_semantic_term_adds_l_sem_of_the_networks_own_features() {
     let own = semantic_loss(features, own_ids, teacher, weight, bias, form).unwrap().into_scalar::<f32>();
     let zero = semantic(&renders.clone().with_direct_semantic_weight(Some(0.0)));
     assert_direct_term_adds_half("L_sem", own, semantic(&direct), semantic(&renders), zero);
+}
+
+#[test]
+fn l_sem_on_the_furniture_alone_leaves_the_shells_pixels_out() {
+    let sample = three_view_sample(4, 0);
+    // The shell's ids are exactly the instances whose teacher row is wall, floor or ceiling.
+    let shell_rows = label_cache().unwrap().embed(&["wall", "floor", "ceiling"]).unwrap();
+    let shown: std::collections::BTreeSet<u32> = sample.ids.iter().copied().filter(|&i| i != 0).collect();
+    for &id in &shown {
+        let row = &sample.teacher[id as usize * 384..(id as usize + 1) * 384];
+        let is_shell = shell_rows.iter().any(|r| r.as_slice() == row);
+        assert_eq!(sample.shell.contains(&id), is_shell, "instance {id}");
+    }
+    assert!(!sample.shell.is_empty() && shown.iter().any(|id| !sample.shell.contains(id)), "{shown:?} {:?}", sample.shell);
+
+    let device = Device::flex();
+    let net = seeded_init(&tiny_model(), 9, &device).unwrap();
+    let semantic = |s: &Sample, config: &LossConfig| objective(&net, s, config, &device).unwrap().values().semantic;
+    let all = LossConfig::new().with_semantic_temperature(Some(0.1)).with_direct_semantic_weight(Some(0.5));
+    let objects = all.clone().with_semantic_objects_only(Some(true));
+    // The same as the scene with its shell unlabelled: the render does not read the ids.
+    let mut bare = sample.clone();
+    bare.ids.iter_mut().filter(|id| sample.shell.contains(id)).for_each(|id| *id = 0);
+    let (with_shell, without) = (semantic(&sample, &all), semantic(&sample, &objects));
+    assert_eq!(without, semantic(&bare, &all));
+    assert!(without.is_finite() && without > 0.0 && without != with_shell, "{without} vs {with_shell}");
 }
 
 #[test]

@@ -24,6 +24,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::loss::camera_targets;
+use crate::synth::stats::SHELL_LABELS;
 use crate::synth::{self, Furniture, Split, Structure, SynthConfig};
 
 /// Where scenes come from. Serialized into checkpoints so that `--resume` reads the same data.
@@ -154,6 +155,8 @@ pub struct Sample {
     /// `[K, 384]`: the embeddings of every label the synthesizer can produce, the classes of
     /// the contrastive L_sem.
     pub vocabulary: Vec<f32>,
+    /// Instance ids labelled as the room's shell (`wall`, `floor`, `ceiling`).
+    pub shell: Vec<u32>,
 }
 
 impl Sample {
@@ -205,7 +208,8 @@ impl Sample {
         }
         let all: Vec<&str> = crate::synth::all_labels().into_iter().collect();
         let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
-        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary })
+        let shell = present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
+        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell })
     }
 }
 

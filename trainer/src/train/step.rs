@@ -11,6 +11,7 @@
 //! back-projection, which this mirrors: pixel centre lifted to its depth, camera-frame offset
 //! added, camera-frame rotation turned into the world frame).
 
+use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
 use burn::prelude::*;
@@ -195,9 +196,13 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), own_ids, config)?;
         instance = instance + own.total(config).mul_scalar(weight);
     }
-    let mut semantic = semantic_loss(semantic, &sample.ids, teacher.clone(), weight.clone(), bias.clone(), semantic_form)?;
+    let semantic_ids: Cow<[u32]> = match config.semantic_objects_only {
+        Some(true) => sample.ids.iter().map(|id| if sample.shell.contains(id) { 0 } else { *id }).collect(),
+        _ => Cow::Borrowed(&sample.ids),
+    };
+    let mut semantic = semantic_loss(semantic, &semantic_ids, teacher.clone(), weight.clone(), bias.clone(), semantic_form)?;
     if let Some(direct) = config.direct_semantic_weight.filter(|&w| w > 0.0) {
-        let own = semantic_loss(out.semantic.clone(), own_ids, teacher, weight, bias, semantic_form)?;
+        let own = semantic_loss(out.semantic.clone(), &semantic_ids[..inputs * pixels], teacher, weight, bias, semantic_form)?;
         semantic = semantic + own.mul_scalar(direct);
     }
     let terms = LossTerms {
