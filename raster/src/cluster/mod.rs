@@ -121,14 +121,15 @@ pub struct Clustering {
 }
 
 /// Clusters the scene's instance embeddings once in 3D and writes an id per Gaussian into
-/// `scene.instance_id`. Sampling is weighted by opacity · confidence.
+/// `scene.instance_id`. Sampling is weighted by opacity alone, so the sample spreads over the
+/// scene's surfaces as its Gaussians do. A merged Gaussian's confidence sums its members', and
+/// weighting by it as well drew most of the sample from what many pixels saw (the near, large
+/// surfaces): on 120 val-split scenes at 8 views, opacity alone scored T-mIoU +2.0 ± 0.6 and
+/// target-view instance mIoU +0.35 ± 0.29 against opacity · confidence (paired per scene).
 pub fn cluster_instances(scene: &mut GaussianScene, params: &ClusterParams) -> Result<Clustering, ClusterError> {
     scene.validate()?;
     let points: Vec<Embedding> = scene.instance_embedding.par_iter().map(|e| unit(*e)).collect();
-    let weights: Vec<f32> = (0..scene.len())
-        .into_par_iter()
-        .map(|i| sigmoid(scene.logit_opacity[i]) * scene.confidence[i].max(0.0))
-        .collect();
+    let weights: Vec<f32> = scene.logit_opacity.par_iter().map(|&o| sigmoid(o)).collect();
     let positions = normalized_positions(&scene.means);
     let clustering = cluster_points_at(&points, Some(&positions), &weights, params)?;
     scene.instance_id.clone_from(&clustering.ids);
