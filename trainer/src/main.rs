@@ -169,7 +169,22 @@ fn parse_range<T: std::str::FromStr + PartialOrd + Copy>(s: &str) -> Result<(T, 
     Ok((a, b))
 }
 
+/// Keeps freed memory in the process instead of handing it back to the kernel. A training
+/// step frees and allocates the same tensors of several megabytes each time; glibc serves
+/// those with fresh mappings (above its mmap threshold) or trims them off the heap, so every
+/// step faulted its pages in again and the kernel zeroed them. The largest buffers (the
+/// global attention's, over 32 MiB) stay mapped: glibc allows no higher threshold.
+fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; it is called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+    }
+}
+
 fn main() -> Result<()> {
+    keep_freed_memory();
     match Cli::parse().command {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),

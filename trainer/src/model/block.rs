@@ -7,9 +7,10 @@
 
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::gelu;
 use burn::tensor::module::attention;
 use burn::tensor::ops::AttentionModuleOptions;
+
+use super::gelu;
 
 /// Epsilon of every layer norm in the network (ONNX LayerNormalization gets the same).
 pub const LN_EPS: f64 = 1e-5;

@@ -18,10 +18,10 @@
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::activation::{gelu, sigmoid, softplus};
+use burn::tensor::activation::{sigmoid, softplus};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS};
 
-use super::{LN_EPS, ModelConfig};
+use super::{LN_EPS, ModelConfig, gelu};
 
 /// Raw output channels of the depth head (depth, confidence).
 pub const OUT_DEPTH: usize = 2;

@@ -14,6 +14,7 @@
 mod block;
 mod decoder;
 mod flops;
+mod gelu;
 
 use burn::module::Param;
 use burn::nn::{Initializer, Linear, LinearConfig};
@@ -21,6 +22,7 @@ use burn::prelude::*;
 use inssplat_proto::signature::TEXT_DIM;
 
 pub use block::{Block, KeyPooling, LN_EPS};
+pub use gelu::gelu;
 pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
     DESCRIPTOR_HIDDEN, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
