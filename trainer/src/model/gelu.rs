@@ -18,8 +18,9 @@ use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, Check
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
 use burn::backend::{
-    Autodiff, Backend, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy, TensorMetadata,
+    Autodiff, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy, TensorMetadata,
 };
+use burn::backend::ops::FloatTensorOps;
 use burn::prelude::*;
 use burn::tensor::DType;
 use rayon::prelude::*;
@@ -70,8 +71,8 @@ fn backward_host(x: &[f32], grad: &[f32]) -> Vec<f32> {
 pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     let ours = match (x.dtype(), x.device().gradient_checkpointing_strategy()) {
         (DType::F32, None) => untracked(&x),
-        (DType::F32, Some(GradientCheckpointingStrategy::Disabled)) => tracked::<Flex, NoCheckpointing, D>(&x),
-        (DType::F32, Some(GradientCheckpointingStrategy::Balanced)) => tracked::<Flex, BalancedCheckpointing, D>(&x),
+        (DType::F32, Some(GradientCheckpointingStrategy::Disabled)) => tracked::<NoCheckpointing, D>(&x),
+        (DType::F32, Some(GradientCheckpointingStrategy::Balanced)) => tracked::<BalancedCheckpointing, D>(&x),
         _ => None,
     };
     ours.unwrap_or_else(|| burn::tensor::activation::gelu(x))
@@ -84,41 +85,36 @@ fn untracked<const D: usize>(x: &Tensor<D>) -> Option<Tensor<D>> {
     Some(Tensor::from_data(TensorData::new(forward_host(&host), x.shape()), &x.device()))
 }
 
-/// The op in the graph of `Autodiff<B, C>`; `None` when `x` lives elsewhere.
-fn tracked<B, C, const D: usize>(x: &Tensor<D>) -> Option<Tensor<D>>
+/// The op in the graph of `Autodiff<Flex, C>`; `None` when `x` lives elsewhere.
+fn tracked<C: CheckpointStrategy, const D: usize>(x: &Tensor<D>) -> Option<Tensor<D>>
 where
-    B: Backend,
-    C: CheckpointStrategy,
-    DispatchTensor: DispatchKindConversion<B> + DispatchKindConversion<Autodiff<B, C>>,
+    DispatchTensor: DispatchKindConversion<Autodiff<Flex, C>>,
 {
-    let input = x.clone().try_into_primitive::<Autodiff<B, C>>().ok()?;
+    let input = x.clone().try_into_primitive::<Autodiff<Flex, C>>().ok()?;
     let host = Arc::new(x.to_data().try_into_vec::<f32>().ok()?);
-    let out = B::float_from_data(TensorData::new(forward_host(&host), x.shape()), &input.device());
+    let out = Flex::float_from_data(TensorData::new(forward_host(&host), x.shape()), &input.device());
     let result = match GeluBackward::<D>.prepare::<C>([input.node()]).compute_bound().stateful() {
         OpsKind::Tracked(prep) => prep.finish(host, out),
         OpsKind::UnTracked(prep) => prep.finish(out),
     };
-    Some(Tensor::from_primitive::<Autodiff<B, C>>(result))
+    Some(Tensor::from_primitive::<Autodiff<Flex, C>>(result))
 }
 
 #[derive(Debug)]
 struct GeluBackward<const D: usize>;
 
-impl<B: Backend, const D: usize> Backward<B, 1> for GeluBackward<D>
-where
-    DispatchTensor: DispatchKindConversion<B>,
-{
+impl<const D: usize> Backward<Flex, 1> for GeluBackward<D> {
     /// The input, on the host.
     type State = Arc<Vec<f32>>;
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
         let x = ops.state;
-        unary::<B, _>(ops.parents, ops.node, grads, |grad| {
+        unary::<Flex, _>(ops.parents, ops.node, grads, |grad| {
             let device = grad.device();
-            let grad = Tensor::<D>::from_primitive::<B>(grad);
+            let grad = Tensor::<D>::from_primitive::<Flex>(grad);
             let shape = grad.shape();
             let grad = grad.into_data().try_into_vec::<f32>().expect("the gradient of a float32 GELU is float32");
-            B::float_from_data(TensorData::new(backward_host(&x, &grad), shape), &device)
+            Flex::float_from_data(TensorData::new(backward_host(&x, &grad), shape), &device)
         });
     }
 }
