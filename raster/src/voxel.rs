@@ -97,6 +97,32 @@ impl Voxelized {
             .map(|&v| if v == DROPPED { 0 } else { self.scene.instance_id[v as usize] })
             .collect()
     }
+
+    /// The inverse of [`Voxelized::input_instance_ids`]: every merged Gaussian takes the id
+    /// that most of its input Gaussians carry in `input_ids` (one per input Gaussian; a tie
+    /// goes to the smaller id). Ids an input view's masks were corrected to (voted over the
+    /// photo's superpixels) so reach the Gaussians, and through them the views rendered anew.
+    pub fn adopt_member_majority(&mut self, input_ids: &[u32]) {
+        assert_eq!(input_ids.len(), self.voxel_of.len(), "one id per input Gaussian");
+        let mut pairs: Vec<(u32, u32)> =
+            self.voxel_of.iter().zip(input_ids).filter(|(v, _)| **v != DROPPED).map(|(&v, &id)| (v, id)).collect();
+        pairs.par_sort_unstable();
+        // Runs of one (merged Gaussian, id) pair, in order: the longest run of each Gaussian
+        // wins, and of equal runs the first, the smaller id.
+        let mut best: Vec<(u32, u32)> = vec![(0, 0); self.scene.len()];
+        for run in pairs.chunk_by(|a, b| a == b) {
+            let (v, id) = run[0];
+            let slot = &mut best[v as usize];
+            if run.len() as u32 > slot.0 {
+                *slot = (run.len() as u32, id);
+            }
+        }
+        for (id, &(count, winner)) in self.scene.instance_id.iter_mut().zip(&best) {
+            if count > 0 {
+                *id = winner;
+            }
+        }
+    }
 }
 
 /// What voxelization did.
@@ -517,5 +543,32 @@ mod tests {
         assert_eq!(voxelize(&s, &bad).unwrap_err(), VoxelError::Fraction(0.0));
         s.confidence.pop();
         assert!(matches!(voxelize(&s, &VoxelParams::default()), Err(VoxelError::Scene(_))));
+    }
+
+    #[test]
+    fn merged_gaussians_adopt_their_members_majority_id() {
+        let mut s = grid();
+        // Three members in voxel (20, 20, 20), two in (30, 30, 30), one dropped.
+        for x in [20.1, 20.4, 20.7] {
+            push(&mut s, [x, 20.5, 20.5], [-3.0; 3], 1.0, 1.0, 0.0);
+        }
+        for x in [30.2, 30.6] {
+            push(&mut s, [x, 30.5, 30.5], [-3.0; 3], 1.0, 1.0, 0.0);
+        }
+        push(&mut s, [f32::NAN, 0.0, 0.0], [0.0; 3], 1.0, 1.0, 0.0);
+        let params = VoxelParams { extent_fraction: 1.0 / 9.0, ..VoxelParams::default() };
+        let mut merged = voxelize(&s, &params).unwrap();
+        merged.scene.instance_id = vec![9; merged.scene.len()];
+        let (a, b) = (merged.voxel_of[100] as usize, merged.voxel_of[103] as usize);
+        assert_eq!((merged.voxel_of[102] as usize, merged.voxel_of[104] as usize, merged.voxel_of[105]), (a, b, DROPPED));
+        // The grid keeps its own ids; the triple votes 2 against 1 for id 5, the pair ties
+        // between 7 and 4 (the smaller wins), and the dropped member's vote counts nowhere.
+        let mut input: Vec<u32> = (0..100).map(|i| i % 3).collect();
+        input.extend([5, 3, 5, 7, 4, 1]);
+        merged.adopt_member_majority(&input);
+        assert_eq!((merged.scene.instance_id[a], merged.scene.instance_id[b]), (5, 4));
+        let ids = merged.input_instance_ids();
+        assert_eq!(&ids[..100], &input[..100], "a voxel of one member takes that member's id");
+        assert_eq!(&ids[100..], &[5, 5, 5, 4, 4, 0]);
     }
 }

@@ -229,7 +229,7 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
     // The refine stage only runs when asked for (`--refine-steps`).
     let refined = rows.iter().any(|r| r.stage_ms.contains_key("refine"));
-    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "label"]
+    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label"]
         .into_iter()
         .chain(refined.then_some("refine"))
         .chain(["masks"])
@@ -244,7 +244,7 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
     for s in &stages {
         out += &format!(" {s} |");
     }
-    out += " total | post / model | Gaussians in | kept | instances | 3D: cluster + masks | 2D: per-view render + cluster | render on CPU | render on GPU |\n|---|";
+    out += " total | post / model | Gaussians in | kept | instances | 3D: cluster + vote + masks | 2D: per-view render + cluster | render on CPU | render on GPU |\n|---|";
     out += &"---|".repeat(stages.len() + 9);
     out += "\n";
     for r in rows {
@@ -253,7 +253,7 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
             out += &format!(" {:.0} |", r.stage_ms.get(*s).copied().unwrap_or(f64::NAN));
         }
         let model = r.stage_ms.get("model").copied().unwrap_or(f64::NAN);
-        let three_d = r.stage_ms.get("cluster").copied().unwrap_or(0.0) + r.stage_ms.get("masks").copied().unwrap_or(0.0);
+        let three_d = ["cluster", "vote", "masks"].iter().map(|s| r.stage_ms.get(*s).copied().unwrap_or(0.0)).sum::<f64>();
         out += &format!(
             " {:.0} | {:.2} | {} | {} | {} | {three_d:.0} | {:.0} | {:.0} | {} |\n",
             r.total_ms,

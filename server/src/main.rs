@@ -10,7 +10,7 @@ use inssplat_raster::heading::HeadingParams;
 use inssplat_raster::superpixel::SuperpixelParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_raster::voxel::{OpacityMerge, VoxelParams};
-use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
+use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, VoteScope, reconstruct_with};
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
@@ -181,6 +181,11 @@ enum Command {
         /// maps and each pixel's own id as they are.
         #[arg(long, default_value_t = SuperpixelParams::default().scale)]
         superpixel_scale: f32,
+        /// What the input views' superpixel vote corrects: their masks alone, or the merged
+        /// Gaussians too (each takes the voted id of most of its pixels), which the target
+        /// views are rendered from.
+        #[arg(long, value_enum, default_value_t = PipelineConfig::default().vote)]
+        vote: VoteScope,
         /// Headings tried, over the full turn, for each group of views that registration
         /// could not link to the first photo (each is turned to the heading at which the
         /// linked views' Gaussians match its photos best); 0 keeps the continued poses.
@@ -435,6 +440,7 @@ fn main() -> anyhow::Result<()> {
             shape_weight,
             split_cell,
             superpixel_scale,
+            vote,
             heading_candidates,
             shape_examples,
             known_poses,
@@ -488,6 +494,7 @@ fn main() -> anyhow::Result<()> {
                     refine_steps,
                     superpixels: (superpixel_scale > 0.0).then(|| SuperpixelParams { scale: superpixel_scale, ..SuperpixelParams::default() }),
                     heading: (heading_candidates > 0).then(|| HeadingParams { candidates: heading_candidates, ..HeadingParams::default() }),
+                    vote,
                     ..PipelineConfig::default()
                 },
                 cluster,

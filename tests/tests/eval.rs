@@ -234,7 +234,7 @@ fn bench_times_every_stage_per_view_count() {
     assert_eq!(rows.iter().map(|r| r["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
     for r in rows {
         let stages = r["stage_ms"].as_object().unwrap();
-        for stage in ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "label", "masks"] {
+        for stage in ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label", "masks"] {
             assert!(stages[stage].as_f64().unwrap() >= 0.0, "{stage}");
         }
         assert!(r["render_cpu_ms"].as_f64().unwrap() > 0.0, "{r}");

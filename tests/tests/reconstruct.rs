@@ -43,7 +43,7 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
     assert_eq!(r.cameras.len(), 4);
     assert!(r.gaussians_kept > 0 && r.gaussians_kept <= r.gaussians_in && r.gaussians_in <= 4 * 32 * 32);
     let stages: Vec<&str> = r.timings.iter().map(|t| t.stage.as_str()).collect();
-    assert_eq!(stages, ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "label", "masks"]);
+    assert_eq!(stages, ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label", "masks"]);
 
     let ply = inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap()).unwrap();
     assert_eq!(ply.len(), r.gaussians_kept);

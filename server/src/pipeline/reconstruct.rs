@@ -1,7 +1,8 @@
 //! The reconstruct pipeline: photos → decode (parallel) → network → instance embeddings
 //! snapped to each photo's colour superpixels → register → the views no match links turned
 //! to the heading where the linked views' Gaussians match their photos → back-project →
-//! voxelize → cluster once in 3D → semantic prototypes, moved toward what the shape classifier makes
+//! voxelize → cluster once in 3D → each merged Gaussian given the id most of its pixels carry
+//! once every superpixel of an input view took its pixels' majority id → semantic prototypes, moved toward what the shape classifier makes
 //! of each instance's size and colour → text labels → (optionally) the Gaussians and cameras
 //! refined against the photos, ids and names kept → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
@@ -26,7 +27,7 @@ use inssplat_raster::refine::{RefineParams, RefineView, SceneRefinement, refine_
 use inssplat_raster::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
 use inssplat_raster::label::shape::{fuse, instance_descriptors};
 use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, voxelize};
+use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, Voxelized, voxelize};
 use inssplat_text::LabelCache;
 use rayon::prelude::*;
 
@@ -98,6 +99,19 @@ pub struct PipelineConfig {
     /// the heading at which the linked views' Gaussians match its photos best (stage
     /// "heading", [`inssplat_raster::heading`]; `None`: the continued poses stay).
     pub heading: Option<HeadingParams>,
+    /// What the superpixel vote corrects (with [`PipelineConfig::superpixels`] only).
+    pub vote: VoteScope,
+}
+
+/// Where the input views' superpixel vote (each superpixel takes the id most of its pixels
+/// carry) is applied.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VoteScope {
+    /// The input views' masks alone; the Gaussians keep the clustering's ids.
+    Masks,
+    /// The merged Gaussians too, before they are named: each takes the voted id that most
+    /// of the pixels merged into it carry, so the views rendered anew follow the vote too.
+    Gaussians,
 }
 
 impl Default for PipelineConfig {
@@ -113,6 +127,7 @@ impl Default for PipelineConfig {
             refine_steps: 0,
             superpixels: Some(SuperpixelParams::default()),
             heading: Some(HeadingParams::default()),
+            vote: VoteScope::Gaussians,
         }
     }
 }
@@ -355,6 +370,23 @@ pub fn reconstruct_with(
             Ok::<_, ClusterError>(())
         })
         .map_err(|e| stage_err("cluster")(&e))?;
+    // Each input view's mask read from the merged Gaussians, every superpixel given the id
+    // most of its pixels carry, so that the masks follow the photo's edges where merged
+    // Gaussians of two instances meet.
+    let voted_maps = |voxelized: &Voxelized| -> Vec<u32> {
+        let mut maps = per_pixel.to_pixels(&voxelized.input_instance_ids());
+        if let Some(segments) = &segments {
+            maps.chunks_exact_mut(pixels).zip(segments).for_each(|(ids, s)| vote(ids, s));
+        }
+        maps
+    };
+    if segments.is_some() && config.vote == VoteScope::Gaussians {
+        clock.time("vote", || {
+            let maps = voted_maps(&voxelized);
+            let input_ids: Vec<u32> = per_pixel.pixel.iter().map(|&p| maps[p as usize]).collect();
+            voxelized.adopt_member_majority(&input_ids);
+        });
+    }
     let scene = &mut voxelized.scene;
 
     let projection = SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias };
@@ -411,15 +443,7 @@ pub fn reconstruct_with(
     };
     let instances = instance_table(scene, &prototypes, &matches, vocabulary);
 
-    let id_maps: Vec<Vec<u32>> = clock.time("masks", || {
-        let mut maps: Vec<Vec<u32>> = per_pixel.to_pixels(&voxelized.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect();
-        if let Some(segments) = &segments {
-            // Each superpixel of an input view takes the id most of its pixels carry, so that
-            // the masks follow the photo's edges where merged Gaussians of two instances meet.
-            maps.iter_mut().zip(segments).for_each(|(ids, s)| vote(ids, s));
-        }
-        maps
-    });
+    let id_maps: Vec<Vec<u32>> = clock.time("masks", || voted_maps(&voxelized).chunks_exact(pixels).map(<[u32]>::to_vec).collect());
     let merged_into: Vec<u32> = voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
     let gaussian_maps = per_pixel.to_pixels(&merged_into);
     let views = decoded
