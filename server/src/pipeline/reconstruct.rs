@@ -2,8 +2,9 @@
 //! snapped to each photo's colour superpixels → register → the views no match links turned
 //! to the heading where the linked views' Gaussians match their photos → back-project →
 //! voxelize → cluster once in 3D → each merged Gaussian given the id most of its pixels carry
-//! once every superpixel of an input view took its pixels' majority id → semantic prototypes, moved toward what the shape classifier makes
-//! of each instance's size and colour → text labels → (optionally) the Gaussians and cameras
+//! once every superpixel of an input view took its pixels' majority id → semantic
+//! prototypes, moved toward what the shape classifier makes of each instance's size and
+//! colour → text labels → (optionally) the Gaussians and cameras
 //! refined against the photos, ids and names kept → per-view instance and label maps. An
 //! input view's maps need no rendering: each pixel's own Gaussian was merged into one clustered
 //! Gaussian, whose id it takes (exact at the pixel's own surface, and the same id in every
