@@ -38,7 +38,8 @@ pub struct BenchRow {
     pub gaussians_kept: usize,
     pub instances: usize,
     /// The paper's mode on the same views: render each view's feature map and cluster it in
-    /// 2D (median ms), against inssplat's cluster-once + input-view masks (`cluster` + `masks`).
+    /// 2D (median ms), against inssplat's cluster-once, superpixel vote and input-view masks
+    /// (`cluster` + `vote` + `masks`).
     pub cluster_2d_ms: f64,
     /// Rendering the clustered scene's id maps at the input cameras, as for novel views
     /// (`inssplat render`, eval's target views), on the CPU (median ms) ...
