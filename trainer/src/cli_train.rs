@@ -186,6 +186,11 @@ pub struct TrainArgs {
     /// Hidden channels of the point-map head that --point-map-weight adds.
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
+    /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
+    /// tokens (grown onto an --init-from network at zero). An experiment: such a network
+    /// does not export, the service has no cameras before the network runs.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    camera_rays: Option<u16>,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -277,7 +282,8 @@ impl TrainArgs {
             // A new network pools or not; --init-from passes 1 on to undo a source's pooling.
             .with_global_kv_pool(self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()))
             .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
-            .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)));
+            .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)))
+            .with_camera_rays(self.camera_rays.map(usize::from));
         let loss = LossConfig::new()
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
@@ -557,8 +563,9 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             args.samples
         );
         if args.matching {
-            let (_, _, m, descriptors) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
+            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
                 .with_context(|| format!("scoring the attention of {}", path.display()))?;
+            let m = matching.attention;
             println!(
                 "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",
                 m.tokens,
@@ -566,7 +573,8 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 100.0 * m.top1,
                 100.0 * m.within_one
             );
-            if let Some(d) = descriptors {
+            println!("  depth AbsRel at each sample's median scale: {:.4}", matching.depth_abs_rel);
+            if let Some(d) = matching.descriptors {
                 println!(
                     "  descriptor matching over {} sampled matches: most alike descriptor on the {}-pixel grid within {} pixels of the match {:.2}%",
                     d.samples,

@@ -142,3 +142,37 @@ impl ModuleVisitor for GradCheck<'_> {
         }
     }
 }
+
+/// `--camera-rays` grown onto a network: with the rays of real cameras it computes exactly
+/// what the source did (they join through a layer at zero), that layer still receives a
+/// gradient (so training moves it), rays are required by it and refused by a network without
+/// it, and the exporter refuses it (the signature has no camera input).
+#[test]
+fn camera_rays_join_at_zero_learn_and_are_checked() {
+    use glam::Vec3;
+    use inssplat_proto::{Camera, Intrinsics};
+    use inssplat_trainer::model::rays::{patch_rays, ray_channels};
+    let device = Device::flex().autodiff();
+    device.seed(3);
+    let source = small().init(&device).expect("config");
+    let grown = inssplat_trainer::train::grow(&source, small().with_camera_rays(Some(2)), 9, &device).expect("grow");
+    let k = Intrinsics::from_fov_y(32, 32, 1.1);
+    let cameras: Vec<Camera> = (0..3)
+        .map(|i| Camera::look_at(k, Vec3::new(0.4 * i as f32, 0.1, 0.0), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y))
+        .collect();
+    let rays = Tensor::<3>::from_data(TensorData::new(patch_rays(&cameras, 32, 8, 2, 2.5), [3, 16, ray_channels(2)]), &device);
+    let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let plain = source.forward(images.clone()).expect("forward");
+    let with = grown.forward_with_rays(images.clone(), Some(rays.clone())).expect("forward with rays");
+    assert_eq!(values(plain.depth), values(with.depth.clone()));
+    assert_eq!(values(plain.instance), values(with.instance.clone()));
+    let grads = (with.camera.sum() + with.depth.mean() + with.gaussians.mean() + with.instance.mean() + with.semantic.mean()).backward();
+    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
+    grown.visit(&mut visitor);
+    assert_eq!(visitor.without, 2, "the ray layer's weight and bias receive gradients like every tensor but Φ_sem's");
+    assert!(matches!(grown.forward(images.clone()), Err(ModelError::Rays(_))));
+    assert!(matches!(source.forward_with_rays(images, Some(rays)), Err(ModelError::Rays(_))));
+    let meta = inssplat_trainer::export::ExportMeta { model_version: "rays".into(), train_steps: 1, weights: inssplat_trainer::export::Weights::F32 };
+    let err = inssplat_trainer::export::to_model_proto(&grown.valid(), &meta).expect_err("no camera input to export");
+    assert!(err.to_string().contains("camera rays"), "{err}");
+}

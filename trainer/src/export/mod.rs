@@ -99,6 +99,9 @@ pub enum ExportError {
 
 /// Builds the ONNX model of `net` in memory.
 pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto, ExportError> {
+    if net.config().camera_rays.is_some() {
+        return Err(ExportError::Unsupported("a network that reads camera rays (the signature has no camera input)"));
+    }
     let mut g = Graph::default();
     g.int8 = meta.weights == Weights::Int8;
     net::network(&mut g, net)?;

@@ -15,6 +15,7 @@ mod block;
 mod decoder;
 mod flops;
 mod gelu;
+pub mod rays;
 
 use burn::module::Param;
 use burn::nn::{Initializer, Linear, LinearConfig};
@@ -89,6 +90,11 @@ pub struct ModelConfig {
     /// frame layers read every token. `None` (also what files saved before it existed read
     /// as): every token.
     pub global_kv_pool: Option<usize>,
+    /// Rays a patch side of the cameras given as input ([`rays`]): k × k Plücker rays of
+    /// each patch, in view 0's frame, added to its token through a layer that starts at zero
+    /// (so a network grown with it computes what it did). `None` (also what files saved
+    /// before it existed read as): the network sees the images alone.
+    pub camera_rays: Option<usize>,
 }
 
 impl ModelConfig {
@@ -143,8 +149,9 @@ impl ModelConfig {
             || self.image_skips == Some(0)
             || self.point_head == Some(0)
             || self.descriptor_head == Some(0)
+            || self.camera_rays == Some(0)
         {
-            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips, point_head and descriptor_head must be positive".into());
+            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips, point_head, descriptor_head and camera_rays must be positive".into());
         }
         if let Some(p) = self.global_kv_pool
             && (p < 2 || !self.grid().is_multiple_of(p))
@@ -173,6 +180,9 @@ impl ModelConfig {
             camera_head: CameraHead::new(self.dim, device),
             decoder: DenseDecoder::new(self, device),
             sem_proj: LinearConfig::new(self.sem_dim, TEXT_DIM).init(device),
+            ray_embed: self.camera_rays.map(|k| {
+                LinearConfig::new(rays::ray_channels(k), self.dim).with_initializer(Initializer::Zeros).init(device)
+            }),
             config: self.clone(),
         })
     }
@@ -185,6 +195,8 @@ pub enum ModelError {
     Config(String),
     #[error("images must be [N, 3, {size}, {size}] with N ≥ 1, got {got:?}")]
     InputShape { size: usize, got: [usize; 4] },
+    #[error("camera rays: {0}")]
+    Rays(String),
 }
 
 /// The network. Fields are crate-visible so that [`crate::export`] can walk them.
@@ -204,6 +216,8 @@ pub struct InsSplatNet {
     pub(crate) decoder: DenseDecoder,
     /// Φ_sem: compact semantic feature L (d_s) → text space (384).
     pub(crate) sem_proj: Linear,
+    /// Camera rays → token, only with [`ModelConfig::camera_rays`].
+    pub(crate) ray_embed: Option<Linear>,
     #[module(skip)]
     pub(crate) config: ModelConfig,
 }
@@ -263,9 +277,10 @@ impl InsSplatNet {
         self.sem_proj.forward(features)
     }
 
-    /// Token embedding: `[N, 3, H, W]` images in [0, 1] → `[N, 1 + tokens, dim]`, camera
-    /// token first, reference embedding on view 0.
-    fn embed(&self, images: Tensor<4>) -> Tensor<3> {
+    /// Token embedding: `[N, 3, H, W]` images in [0, 1] (and the views' camera rays, with
+    /// [`ModelConfig::camera_rays`]) → `[N, 1 + tokens, dim]`, camera token first, reference
+    /// embedding on view 0.
+    fn embed(&self, images: Tensor<4>, rays: Option<Tensor<3>>) -> Tensor<3> {
         let c = &self.config;
         let (p, g) = (c.patch, c.grid());
         let n = images.dims()[0];
@@ -273,7 +288,10 @@ impl InsSplatNet {
             .reshape([n, 3, g, p, g, p])
             .permute([0, 2, 4, 1, 3, 5])
             .reshape([n, g * g, 3 * p * p]);
-        let x = self.patch_embed.forward(patches) + self.pos_embed.val().unsqueeze_dim(0);
+        let mut x = self.patch_embed.forward(patches) + self.pos_embed.val().unsqueeze_dim(0);
+        if let (Some(embed), Some(rays)) = (&self.ray_embed, rays) {
+            x = x + embed.forward(rays);
+        }
         let cams = self.camera_tokens.val();
         let first = Tensor::cat(
             vec![
@@ -295,6 +313,13 @@ impl InsSplatNet {
 
     /// The forward pass. `images`: `[N, 3, H, W]`, RGB in [0, 1], N ≥ 1.
     pub fn forward(&self, images: Tensor<4>) -> Result<ModelOutput, ModelError> {
+        self.forward_with_rays(images, None)
+    }
+
+    /// The forward pass of a network that also reads the cameras: `rays` `[N, tokens,
+    /// 6·k²]` from [`rays::patch_rays`], required with [`ModelConfig::camera_rays`] and
+    /// refused without it.
+    pub fn forward_with_rays(&self, images: Tensor<4>, rays: Option<Tensor<3>>) -> Result<ModelOutput, ModelError> {
         let c = &self.config;
         let dims = images.dims();
         if dims[0] == 0 || dims[1] != 3 || dims[2] != c.image_size || dims[3] != c.image_size {
@@ -304,7 +329,16 @@ impl InsSplatNet {
             });
         }
         let n = dims[0];
-        let mut x = self.embed(images.clone());
+        let tokens = c.grid() * c.grid();
+        let expected = c.camera_rays.map(|k| [n, tokens, rays::ray_channels(k)]);
+        let got = rays.as_ref().map(|r| r.dims());
+        if got != expected {
+            return Err(ModelError::Rays(match expected {
+                Some(shape) => format!("this network reads its cameras as rays {shape:?}, given {got:?}"),
+                None => "this network reads no camera rays, and some were given".into(),
+            }));
+        }
+        let mut x = self.embed(images.clone(), rays);
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
         let mut keys = None;

@@ -36,7 +36,7 @@ use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use validation::{checkpoint_matching, validate_checkpoint};
+pub use validation::{Matching, checkpoint_matching, validate_checkpoint};
 use validation::{val_samples, validate};
 
 /// Everything that defines a run; saved in every checkpoint.
@@ -274,6 +274,7 @@ pub fn fine_tune(
         ("an image encoder", config.model.image_skips, &mut shape.image_skips),
         ("a point-map head", config.model.point_head, &mut shape.point_head),
         ("a descriptor head", config.model.descriptor_head, &mut shape.descriptor_head),
+        ("camera rays", config.model.camera_rays, &mut shape.camera_rays),
     ] {
         match (asked, *has) {
             (Some(asked), None) => *has = Some(asked),
@@ -314,9 +315,10 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
 
 /// `net` grown to `shape`, which may add an image encoder
 /// ([`crate::model::ModelConfig::image_skips`]), a point-map head
-/// ([`crate::model::ModelConfig::point_head`]) or a descriptor head
-/// ([`crate::model::ModelConfig::descriptor_head`]) that `net` lacks: every weight of `net` is
-/// kept and the new parts are drawn from `seed`. The image encoder joins the decoder through
+/// ([`crate::model::ModelConfig::point_head`]), a descriptor head
+/// ([`crate::model::ModelConfig::descriptor_head`]) or camera rays
+/// ([`crate::model::ModelConfig::camera_rays`]) that `net` lacks: every weight of `net` is
+/// kept and the new parts are drawn from `seed`. The image encoder and the rays join through
 /// layers that start at zero and each head has an output of its own, so the grown network
 /// computes exactly what `net` did.
 pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
@@ -330,6 +332,9 @@ pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -
     }
     if old.descriptor_head.is_none() && shape.descriptor_head.is_some() {
         new_parts.push("decoder.descriptor.");
+    }
+    if old.camera_rays.is_none() && shape.camera_rays.is_some() {
+        new_parts.push("ray_embed.");
     }
     let mut grown = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
     let result = grown.apply(net.collect(None, None, false), None, None, false);

@@ -37,22 +37,27 @@ pub fn validate_checkpoint(
 /// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]),
 /// whether or not it was trained with `--attention-match-weight`; and, for a network with a
 /// descriptor head, whether each pixel's most alike descriptor in another view is the one that
-/// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid).
+/// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
+/// depth's AbsRel, beside them.
 pub fn checkpoint_matching(
     from: &Path,
     samples: usize,
     val_data: Option<DataSpec>,
-) -> Result<(PathBuf, u64, crate::loss::MatchScores, Option<crate::loss::DescriptorScores>), TrainError> {
+) -> Result<(PathBuf, u64, Matching), TrainError> {
     let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
     let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
+    let mut depth_abs_rel = Vec::with_capacity(val.len());
     for s in &val {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let out = net.forward(images).map_err(|e| failed(e.into()))?;
+        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &device)).map_err(|e| failed(e.into()))?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
+        let predicted = out.depth.clone().into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: format!("{e:?}") }.into()))?;
+        let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
+        depth_abs_rel.extend(depth_scores.map(|d| d.abs_rel));
         let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(|e| failed(e.into()))?;
         let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
         scores = scores.merge(sample);
@@ -64,7 +69,17 @@ pub fn checkpoint_matching(
             descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
         }
     }
-    Ok((dir, state.step, scores, descriptor_scores))
+    let depth_abs_rel = depth_abs_rel.iter().sum::<f64>() / depth_abs_rel.len().max(1) as f64;
+    Ok((dir, state.step, Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel }))
+}
+
+/// What [`checkpoint_matching`] measures.
+pub struct Matching {
+    pub attention: crate::loss::MatchScores,
+    pub descriptors: Option<crate::loss::DescriptorScores>,
+    /// The network's depth AbsRel at each sample's median scale (all its input views at one
+    /// scale), the mean over the samples: what matching the views should lower.
+    pub depth_abs_rel: f64,
 }
 
 /// Matches per pair of views that validation scores the descriptors on.

@@ -1,0 +1,66 @@
+//! The cameras as the network's input ([`super::ModelConfig::camera_rays`]): each patch's
+//! Plücker rays in view 0's frame, the camera conditioning that lets global attention relate
+//! two views' tokens by their epipolar geometry (as in multi-view diffusion and LRM-style
+//! reconstruction networks). A ray through pixel (u, v) of a camera is its unit direction d
+//! and its moment o × d, o the camera's centre over `scale` (the scene's median depth, so
+//! that the input does not depend on the room's size); each patch gives the rays of k × k
+//! sub-patch centres, `6·k²` values a token.
+
+use inssplat_proto::Camera;
+
+/// Values a token gets from `k` × `k` rays.
+pub fn ray_channels(k: usize) -> usize {
+    6 * k * k
+}
+
+/// `[N, (size / patch)², 6·k²]`, row-major over the patches, of the cameras of the N input
+/// views (view 0's frame, as [`crate::train::Sample::cameras`]); `scale` > 0 divides the
+/// camera centres.
+pub fn patch_rays(cameras: &[Camera], size: usize, patch: usize, k: usize, scale: f32) -> Vec<f32> {
+    let grid = size / patch;
+    let mut out = Vec::with_capacity(cameras.len() * grid * grid * ray_channels(k));
+    for cam in cameras {
+        let origin = cam.center() / scale;
+        let rotation = cam.rotation.inverse();
+        for (py, px) in (0..grid).flat_map(|y| (0..grid).map(move |x| (y, x))) {
+            for (sy, sx) in (0..k).flat_map(|y| (0..k).map(move |x| (y, x))) {
+                let u = (px * patch) as f32 + (sx as f32 + 0.5) * patch as f32 / k as f32;
+                let v = (py * patch) as f32 + (sy as f32 + 0.5) * patch as f32 / k as f32;
+                let d = (rotation * cam.unproject(u, v, 1.0)).normalize();
+                let m = origin.cross(d);
+                out.extend([d.x, d.y, d.z, m.x, m.y, m.z]);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+    use inssplat_proto::camera::Intrinsics;
+
+    /// A point that two cameras both see lies on a ray of each: the rays' reciprocal product
+    /// d₁·m₂ + d₂·m₁ of two rays that meet is zero, and it is not for rays that miss.
+    #[test]
+    fn rays_through_one_point_meet_and_others_do_not() {
+        let k = Intrinsics::from_fov_y(16, 16, 1.0);
+        let a = Camera::look_at(k, Vec3::ZERO, Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y);
+        let b = Camera::look_at(k, Vec3::new(1.0, 0.2, 0.5), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y);
+        let rays = patch_rays(&[a, b], 16, 8, 2, 2.0);
+        assert_eq!(rays.len(), 2 * 4 * ray_channels(2));
+        // The centre of a's patch 0, sub-ray 0 (pixel 2, 2) at depth 2.5, seen by b.
+        let p = a.camera_to_world(a.unproject(2.0, 2.0, 2.5));
+        let (u, v) = b.project(b.world_to_camera(p));
+        let ray = |cam: &Camera, u: f32, v: f32| {
+            let d = (cam.rotation.inverse() * cam.unproject(u, v, 1.0)).normalize();
+            (d, (cam.center() / 2.0).cross(d))
+        };
+        let reciprocal = |(d1, m1): (Vec3, Vec3), (d2, m2): (Vec3, Vec3)| d1.dot(m2) + d2.dot(m1);
+        let ra = (Vec3::from_slice(&rays[0..3]), Vec3::from_slice(&rays[3..6]));
+        assert!(reciprocal(ra, ray(&b, u, v)).abs() < 1e-5);
+        assert!(reciprocal(ra, ray(&b, u + 3.0, v)).abs() > 1e-3);
+        assert!((ra.0 - ray(&a, 2.0, 2.0).0).length() < 1e-6, "sub-ray 0 of patch 0 passes pixel (2, 2)");
+    }
+}
