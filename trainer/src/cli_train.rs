@@ -542,12 +542,24 @@ pub struct ValidateArgs {
     /// view sees the same point (what `--descriptor-weight` trains).
     #[arg(long)]
     matching: bool,
+    /// With --matching: draw each sample's views from this many consecutive frames, so that
+    /// they overlap (as `train --view-window`; default: from the whole trajectory).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    view_window: Option<u16>,
+    /// With --matching: write each sample's depth AbsRel to this CSV (checkpoint, step,
+    /// sample, abs_rel), to pair checkpoints sample by sample.
+    #[arg(long)]
+    depth_csv: Option<PathBuf>,
 }
 
 pub fn run_validate(args: ValidateArgs) -> Result<()> {
     if args.samples == 0 {
         bail!("--samples must be at least 1");
     }
+    if !args.matching && (args.view_window.is_some() || args.depth_csv.is_some()) {
+        bail!("--view-window and --depth-csv go with --matching");
+    }
+    let mut csv = String::from("checkpoint,step,sample,abs_rel\n");
     for path in &args.checkpoints {
         let (dir, step, v) = train::validate_checkpoint(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
             .with_context(|| format!("validating {}", path.display()))?;
@@ -563,7 +575,8 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             args.samples
         );
         if args.matching {
-            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
+            let window = args.view_window.map(usize::from);
+            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder), window)
                 .with_context(|| format!("scoring the attention of {}", path.display()))?;
             let m = matching.attention;
             println!(
@@ -573,7 +586,14 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 100.0 * m.top1,
                 100.0 * m.within_one
             );
-            println!("  depth AbsRel at each sample's median scale: {:.4}", matching.depth_abs_rel);
+            if let Some(abs_rel) = matching.mean_depth_abs_rel() {
+                let views = args.view_window.map_or("the whole trajectory".into(), |w| format!("{w} consecutive frames"));
+                println!("  depth AbsRel at each sample's median scale (views from {views}): {abs_rel:.4}");
+            }
+            for (i, abs_rel) in matching.depth_abs_rel.iter().enumerate() {
+                let value = abs_rel.map_or(String::new(), |a| format!("{a:.6}"));
+                csv.push_str(&format!("{},{step},{i},{value}\n", dir.display()));
+            }
             if let Some(d) = matching.descriptors {
                 println!(
                     "  descriptor matching over {} sampled matches: most alike descriptor on the {}-pixel grid within {} pixels of the match {:.2}%",
@@ -584,6 +604,9 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 );
             }
         }
+    }
+    if let Some(path) = &args.depth_csv {
+        std::fs::write(path, csv).with_context(|| format!("writing --depth-csv {}", path.display()))?;
     }
     Ok(())
 }

@@ -349,18 +349,23 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
     // The attention's matching on the same samples: some tokens of views 1.. see view 0, and
     // an untrained head looks elsewhere (chance: 1 token in 64 right, 9 within one).
-    let (_, _, matching) = train::checkpoint_matching(run.path(), 2, None).unwrap();
+    let (_, _, matching) = train::checkpoint_matching(run.path(), 2, None, None).unwrap();
     let m = matching.attention;
     assert!(m.tokens > 0, "{m:?}");
     assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
     assert!(m.top1 <= m.within_one && m.within_one < 0.5, "{m:?}");
     assert!(matching.descriptors.is_none(), "a network without a descriptor head has no descriptor scores");
     // Two steps from random weights: a depth, but far from the truth.
-    assert!(matching.depth_abs_rel > 0.05 && matching.depth_abs_rel.is_finite(), "AbsRel {}", matching.depth_abs_rel);
+    assert_eq!(matching.depth_abs_rel.len(), 2, "one AbsRel a sample");
+    let abs_rel = matching.mean_depth_abs_rel().expect("synthesized rooms have true depth");
+    assert!(abs_rel > 0.05 && abs_rel.is_finite(), "AbsRel {abs_rel}");
+    // Views from 3 consecutive frames are other views, so another depth.
+    let (_, _, near) = train::checkpoint_matching(run.path(), 2, None, Some(3)).unwrap();
+    assert_ne!(near.depth_abs_rel, matching.depth_abs_rel);
     let empty = tempfile::tempdir().unwrap();
     let err = train::validate_checkpoint(empty.path(), 2, None).unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
-    assert!(train::checkpoint_matching(empty.path(), 2, None).is_err());
+    assert!(train::checkpoint_matching(empty.path(), 2, None, None).is_err());
 }
 
 #[test]

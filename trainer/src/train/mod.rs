@@ -435,7 +435,7 @@ fn run_loop(
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let sampler = Sampler { source: Source::open(&state.data)?, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
-    let val = val_samples(&state, session, &labels)?;
+    let val = val_samples(&state, session, &labels, None)?;
     let first_step = state.step;
     let (train_csv, val_csv, chart) = (run.join("train_log.csv"), run.join("val_log.csv"), run.join("loss.png"));
     let mut train_log = CsvLog::open(&train_csv, TRAIN_HEADER, first_step).map_err(|e| io_error(&train_csv, e))?;

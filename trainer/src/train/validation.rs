@@ -26,7 +26,7 @@ pub fn validate_checkpoint(
     val_data: Option<DataSpec>,
 ) -> Result<(PathBuf, u64, LossValues), TrainError> {
     let device = Device::flex().autodiff();
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, None, &device)?;
     let loss = validate(&net, &val, &state.config.loss, &device)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
     Ok((dir, state.step, loss))
@@ -43,9 +43,10 @@ pub fn checkpoint_matching(
     from: &Path,
     samples: usize,
     val_data: Option<DataSpec>,
+    window: Option<usize>,
 ) -> Result<(PathBuf, u64, Matching), TrainError> {
     let device = Device::flex();
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, &device)?;
+    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, window, &device)?;
     let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
@@ -57,7 +58,7 @@ pub fn checkpoint_matching(
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = out.depth.clone().into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: format!("{e:?}") }.into()))?;
         let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
-        depth_abs_rel.extend(depth_scores.map(|d| d.abs_rel));
+        depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
         let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(|e| failed(e.into()))?;
         let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
         scores = scores.merge(sample);
@@ -69,7 +70,6 @@ pub fn checkpoint_matching(
             descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
         }
     }
-    let depth_abs_rel = depth_abs_rel.iter().sum::<f64>() / depth_abs_rel.len().max(1) as f64;
     Ok((dir, state.step, Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel }))
 }
 
@@ -78,8 +78,17 @@ pub struct Matching {
     pub attention: crate::loss::MatchScores,
     pub descriptors: Option<crate::loss::DescriptorScores>,
     /// The network's depth AbsRel at each sample's median scale (all its input views at one
-    /// scale), the mean over the samples: what matching the views should lower.
-    pub depth_abs_rel: f64,
+    /// scale), sample by sample (`None`: no pixel with a true depth): what matching the views
+    /// should lower.
+    pub depth_abs_rel: Vec<Option<f64>>,
+}
+
+impl Matching {
+    /// The mean of [`Matching::depth_abs_rel`] over the samples that have one.
+    pub fn mean_depth_abs_rel(&self) -> Option<f64> {
+        let scored: Vec<f64> = self.depth_abs_rel.iter().flatten().copied().collect();
+        (!scored.is_empty()).then(|| scored.iter().sum::<f64>() / scored.len() as f64)
+    }
 }
 
 /// Matches per pair of views that validation scores the descriptors on.
@@ -88,18 +97,21 @@ const VALIDATION_DESCRIPTOR_SAMPLES: usize = 64;
 const REGISTRATION_STRIDE: usize = 4;
 
 /// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
-/// fixed validation samples of `val_data` (default: the val split at the run's size).
+/// fixed validation samples of `val_data` (default: the val split at the run's size), their
+/// views drawn from `window` consecutive frames ([`super::ViewPlan::window`]; `None`: the
+/// whole trajectory, as a run validates).
 fn checkpoint_with_samples(
     from: &Path,
     samples: usize,
     val_data: Option<DataSpec>,
+    window: Option<usize>,
     device: &Device,
 ) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
     let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
     let state = checkpoint::read_state(&dir)?;
     let net = checkpoint::load_model(&dir, &state, device)?;
     let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
-    let val = val_samples(&state, &session, &label_cache()?)?;
+    let val = val_samples(&state, &session, &label_cache()?, window)?;
     if val.is_empty() {
         return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
     }
@@ -118,7 +130,7 @@ pub(super) fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig,
     Ok(sum * (1.0 / samples.len().max(1) as f32))
 }
 
-pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>) -> Result<Vec<Sample>, TrainError> {
+pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>, window: Option<usize>) -> Result<Vec<Sample>, TrainError> {
     if session.val_every == 0 || session.val_samples == 0 {
         return Ok(Vec::new());
     }
@@ -133,7 +145,7 @@ pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &A
         },
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
-    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window: None };
+    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
 }
