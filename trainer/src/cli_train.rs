@@ -546,6 +546,11 @@ pub struct ValidateArgs {
     /// they overlap (as `train --view-window`; default: from the whole trajectory).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     view_window: Option<u16>,
+    /// With --matching, for a network trained with `--camera-rays`: turn every input view's
+    /// camera but the first by this many degrees about its centre (each about a random axis)
+    /// before it becomes rays, as registration's errors would.
+    #[arg(long, default_value_t = 0.0)]
+    ray_noise: f32,
     /// With --matching: write each sample's depth AbsRel to this CSV (checkpoint, step,
     /// sample, abs_rel), to pair checkpoints sample by sample.
     #[arg(long)]
@@ -556,8 +561,11 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
     if args.samples == 0 {
         bail!("--samples must be at least 1");
     }
-    if !args.matching && (args.view_window.is_some() || args.depth_csv.is_some()) {
-        bail!("--view-window and --depth-csv go with --matching");
+    if !args.matching && (args.view_window.is_some() || args.depth_csv.is_some() || args.ray_noise != 0.0) {
+        bail!("--view-window, --ray-noise and --depth-csv go with --matching");
+    }
+    if !(0.0..=180.0).contains(&args.ray_noise) {
+        bail!("--ray-noise {} must be between 0 and 180 degrees", args.ray_noise);
     }
     let mut csv = String::from("checkpoint,step,sample,abs_rel\n");
     for path in &args.checkpoints {
@@ -576,7 +584,7 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
         );
         if args.matching {
             let window = args.view_window.map(usize::from);
-            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder), window)
+            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder), window, args.ray_noise)
                 .with_context(|| format!("scoring the attention of {}", path.display()))?;
             let m = matching.attention;
             println!(

@@ -349,7 +349,7 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
     // The attention's matching on the same samples: some tokens of views 1.. see view 0, and
     // an untrained head looks elsewhere (chance: 1 token in 64 right, 9 within one).
-    let (_, _, matching) = train::checkpoint_matching(run.path(), 2, None, None).unwrap();
+    let (_, _, matching) = train::checkpoint_matching(run.path(), 2, None, None, 0.0).unwrap();
     let m = matching.attention;
     assert!(m.tokens > 0, "{m:?}");
     assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
@@ -360,12 +360,12 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     let abs_rel = matching.mean_depth_abs_rel().expect("synthesized rooms have true depth");
     assert!(abs_rel > 0.05 && abs_rel.is_finite(), "AbsRel {abs_rel}");
     // Views from 3 consecutive frames are other views, so another depth.
-    let (_, _, near) = train::checkpoint_matching(run.path(), 2, None, Some(3)).unwrap();
+    let (_, _, near) = train::checkpoint_matching(run.path(), 2, None, Some(3), 0.0).unwrap();
     assert_ne!(near.depth_abs_rel, matching.depth_abs_rel);
     let empty = tempfile::tempdir().unwrap();
     let err = train::validate_checkpoint(empty.path(), 2, None).unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
-    assert!(train::checkpoint_matching(empty.path(), 2, None, None).is_err());
+    assert!(train::checkpoint_matching(empty.path(), 2, None, None, 0.0).is_err());
 }
 
 #[test]

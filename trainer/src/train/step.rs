@@ -111,14 +111,15 @@ impl Objective {
     }
 }
 
-/// The input views' true cameras as rays, `[inputs, tokens, 6·k²]`, for a network that reads
-/// them ([`crate::model::ModelConfig::camera_rays`]): their centres over the inputs' median
-/// true depth, the scale every geometry term divides by.
-pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option<Tensor<3>> {
+/// The input views' cameras as rays, `[inputs, tokens, 6·k²]`, for a network that reads
+/// them ([`crate::model::ModelConfig::camera_rays`]): `cameras` (the sample's true ones, or
+/// others in their frame) with their centres over the inputs' median true depth, the scale
+/// every geometry term divides by.
+pub fn input_rays(net: &InsSplatNet, sample: &Sample, cameras: &[Camera], device: &Device) -> Option<Tensor<3>> {
     let k = net.config().camera_rays?;
     let (inputs, size, patch) = (sample.inputs, sample.size, net.config().patch);
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
-    let rays = crate::model::rays::patch_rays(&sample.cameras[..inputs], size, patch, k, scale);
+    let rays = crate::model::rays::patch_rays(&cameras[..inputs], size, patch, k, scale);
     let tokens = (size / patch) * (size / patch);
     Some(Tensor::from_data(TensorData::new(rays, [inputs, tokens, crate::model::rays::ray_channels(k)]), device))
 }
@@ -130,7 +131,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let t0 = Instant::now();
     let images: Tensor<4> = Tensor::from_data(TensorData::new(sample.images.clone(), [views, 3, size, size]), device);
     let input_images = images.clone().narrow(0, 0, inputs);
-    let mut out = net.forward_with_rays(input_images.clone(), input_rays(net, sample, device))?;
+    let mut out = net.forward_with_rays(input_images.clone(), input_rays(net, sample, &sample.cameras, device))?;
     if config.gaussians == GaussianTraining::Frozen {
         out.depth = out.depth.detach();
         out.depth_conf = out.depth_conf.detach();

@@ -6,7 +6,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::prelude::*;
+use glam::{Quat, Vec3};
+use inssplat_proto::Camera;
 use inssplat_text::LabelCache;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 use super::checkpoint::{self, CheckpointState};
 use super::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
@@ -44,6 +48,7 @@ pub fn checkpoint_matching(
     samples: usize,
     val_data: Option<DataSpec>,
     window: Option<usize>,
+    ray_noise_deg: f32,
 ) -> Result<(PathBuf, u64, Matching), TrainError> {
     let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, window, &device)?;
@@ -51,10 +56,11 @@ pub fn checkpoint_matching(
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     let mut depth_abs_rel = Vec::with_capacity(val.len());
-    for s in &val {
+    for (i, s) in val.iter().enumerate() {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &device)).map_err(|e| failed(e.into()))?;
+        let cameras = turned(&s.cameras, ray_noise_deg, i as u64);
+        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &cameras, &device)).map_err(|e| failed(e.into()))?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = out.depth.clone().into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: format!("{e:?}") }.into()))?;
         let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
@@ -71,6 +77,27 @@ pub fn checkpoint_matching(
         }
     }
     Ok((dir, state.step, Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel }))
+}
+
+/// `cameras` with every one after the first turned by `degrees` about its own centre, each
+/// about an axis drawn from `seed` (the first, the world frame, stays): the camera errors a
+/// network that reads its cameras ([`crate::model::ModelConfig::camera_rays`]) would get from
+/// registration.
+pub fn turned(cameras: &[Camera], degrees: f32, seed: u64) -> Vec<Camera> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut out = cameras.to_vec();
+    if degrees == 0.0 {
+        return out;
+    }
+    for cam in out.iter_mut().skip(1) {
+        let (z, phi): (f32, f32) = (rng.random_range(-1.0..1.0), rng.random_range(0.0..std::f32::consts::TAU));
+        let r = (1.0 - z * z).sqrt();
+        let turn = Quat::from_axis_angle(Vec3::new(r * phi.cos(), r * phi.sin(), z), degrees.to_radians());
+        let centre = cam.center();
+        cam.rotation = turn * cam.rotation;
+        cam.translation = -(cam.rotation * centre);
+    }
+    out
 }
 
 /// What [`checkpoint_matching`] measures.
@@ -148,4 +175,26 @@ pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &A
     let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use inssplat_proto::Intrinsics;
+
+    /// Every camera but the first turns by the angle asked, about its own centre.
+    #[test]
+    fn turned_cameras_keep_their_centres_and_turn_by_the_angle() {
+        let k = Intrinsics::from_fov_y(16, 16, 1.0);
+        let cameras: Vec<Camera> = (0..4)
+            .map(|i| Camera::look_at(k, Vec3::new(i as f32, 0.3, -1.0), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y))
+            .collect();
+        let out = turned(&cameras, 7.0, 5);
+        assert_eq!(out[0], cameras[0]);
+        for (a, b) in cameras.iter().zip(&out).skip(1) {
+            assert!((a.center() - b.center()).length() < 1e-5);
+            assert!((a.rotation.angle_between(b.rotation).to_degrees() - 7.0).abs() < 1e-2);
+        }
+        assert_eq!(turned(&cameras, 0.0, 5), cameras);
+    }
 }
