@@ -536,41 +536,44 @@ pub struct ValidateArgs {
     /// Folder of validation scenes (default: the val split, synthesized at the run's size).
     #[arg(long)]
     val_data: Option<PathBuf>,
-    /// Also score whether the last global layer's first attention head looks at the view-0
-    /// token that sees the same point (what `--attention-match-weight` trains), and, for a
-    /// network with a descriptor head, whether each pixel's most alike descriptor in another
-    /// view sees the same point (what `--descriptor-weight` trains).
-    #[arg(long)]
-    matching: bool,
-    /// With --matching: draw each sample's views from this many consecutive frames, so that
-    /// they overlap (as `train --view-window`; default: from the whole trajectory).
+    /// Draw each sample's views from this many consecutive frames, so that they overlap (as
+    /// `train --view-window`; default: from the whole trajectory, as a run validates).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     view_window: Option<u16>,
-    /// With --matching, for a network trained with `--camera-rays`: turn every input view's
-    /// camera but the first by this many degrees about its centre (each about a random axis)
-    /// before it becomes rays, as registration's errors would.
+    /// For a network trained with `--camera-rays`: turn every input view's camera but the
+    /// first by this many degrees about its centre (each about a random axis) before it
+    /// becomes rays, as registration's errors would.
     #[arg(long, default_value_t = 0.0)]
     ray_noise: f32,
-    /// With --matching: write each sample's depth AbsRel to this CSV (checkpoint, step,
-    /// sample, abs_rel), to pair checkpoints sample by sample.
+    /// Also score whether the last global layer's first attention head looks at the view-0
+    /// token that sees the same point (what `--attention-match-weight` trains), the depth's
+    /// AbsRel, and, for a network with a descriptor head, whether each pixel's most alike
+    /// descriptor in another view sees the same point (what `--descriptor-weight` trains).
     #[arg(long)]
-    depth_csv: Option<PathBuf>,
+    matching: bool,
+    /// Write each sample's loss terms (and its depth AbsRel, with --matching) to this CSV, to
+    /// pair checkpoints sample by sample (`scripts/analysis/paired_samples.py`).
+    #[arg(long)]
+    csv: Option<PathBuf>,
 }
 
 pub fn run_validate(args: ValidateArgs) -> Result<()> {
     if args.samples == 0 {
         bail!("--samples must be at least 1");
     }
-    if !args.matching && (args.view_window.is_some() || args.depth_csv.is_some() || args.ray_noise != 0.0) {
-        bail!("--view-window, --ray-noise and --depth-csv go with --matching");
-    }
     if !(0.0..=180.0).contains(&args.ray_noise) {
         bail!("--ray-noise {} must be between 0 and 180 degrees", args.ray_noise);
     }
-    let mut csv = String::from("checkpoint,step,sample,abs_rel\n");
+    let set = train::ValidationSet {
+        samples: args.samples,
+        data: args.val_data.clone().map(DataSpec::Folder),
+        window: args.view_window.map(usize::from),
+        ray_noise_deg: args.ray_noise,
+    };
+    let mut csv = String::from("checkpoint,step,sample,total,rgb,geometry,instance,semantic,boundary,abs_rel\n");
     for path in &args.checkpoints {
-        let (dir, step, v) = train::validate_checkpoint(path, args.samples, args.val_data.clone().map(DataSpec::Folder))
-            .with_context(|| format!("validating {}", path.display()))?;
+        let (dir, step, losses) = train::validate_checkpoint(path, &set).with_context(|| format!("validating {}", path.display()))?;
+        let v = train::mean_loss(&losses);
         println!(
             "{} (step {step}): val loss {:.4} (rgb {:.4}, geom {:.4}, ins {:.4}, sem {:.4}, bd {:.4}) over {} samples",
             dir.display(),
@@ -582,10 +585,9 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             v.boundary,
             args.samples
         );
+        let mut abs_rel = vec![None; losses.len()];
         if args.matching {
-            let window = args.view_window.map(usize::from);
-            let (_, _, matching) = train::checkpoint_matching(path, args.samples, args.val_data.clone().map(DataSpec::Folder), window, args.ray_noise)
-                .with_context(|| format!("scoring the attention of {}", path.display()))?;
+            let (_, _, matching) = train::checkpoint_matching(path, &set).with_context(|| format!("scoring the attention of {}", path.display()))?;
             let m = matching.attention;
             println!(
                 "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",
@@ -594,14 +596,10 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 100.0 * m.top1,
                 100.0 * m.within_one
             );
-            if let Some(abs_rel) = matching.mean_depth_abs_rel() {
-                let views = args.view_window.map_or("the whole trajectory".into(), |w| format!("{w} consecutive frames"));
-                println!("  depth AbsRel at each sample's median scale (views from {views}): {abs_rel:.4}");
+            if let Some(mean) = matching.mean_depth_abs_rel() {
+                println!("  depth AbsRel at each sample's median scale: {mean:.4}");
             }
-            for (i, abs_rel) in matching.depth_abs_rel.iter().enumerate() {
-                let value = abs_rel.map_or(String::new(), |a| format!("{a:.6}"));
-                csv.push_str(&format!("{},{step},{i},{value}\n", dir.display()));
-            }
+            abs_rel = matching.depth_abs_rel;
             if let Some(d) = matching.descriptors {
                 println!(
                     "  descriptor matching over {} sampled matches: most alike descriptor on the {}-pixel grid within {} pixels of the match {:.2}%",
@@ -612,9 +610,22 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
                 );
             }
         }
+        for (i, (l, a)) in losses.iter().zip(&abs_rel).enumerate() {
+            let a = a.map_or(String::new(), |a| format!("{a:.6}"));
+            csv.push_str(&format!(
+                "{},{step},{i},{},{},{},{},{},{},{a}\n",
+                dir.display(),
+                l.total,
+                l.rgb,
+                l.geometry,
+                l.instance,
+                l.semantic,
+                l.boundary
+            ));
+        }
     }
-    if let Some(path) = &args.depth_csv {
-        std::fs::write(path, csv).with_context(|| format!("writing --depth-csv {}", path.display()))?;
+    if let Some(path) = &args.csv {
+        std::fs::write(path, csv).with_context(|| format!("writing --csv {}", path.display()))?;
     }
     Ok(())
 }

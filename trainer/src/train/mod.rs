@@ -36,7 +36,7 @@ use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use validation::{Matching, checkpoint_matching, turned, validate_checkpoint};
+pub use validation::{Matching, ValidationSet, checkpoint_matching, mean_loss, turned, validate_checkpoint};
 use validation::{val_samples, validate};
 
 /// Everything that defines a run; saved in every checkpoint.

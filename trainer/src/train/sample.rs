@@ -157,6 +157,9 @@ pub struct Sample {
     pub vocabulary: Vec<f32>,
     /// Instance ids labelled as the room's shell (`wall`, `floor`, `ceiling`).
     pub shell: Vec<u32>,
+    /// The input views' cameras that a network trained with `--camera-rays` reads, where
+    /// they are not the true ones (validation with `--ray-noise`); `None`: the true ones.
+    pub ray_cameras: Option<Vec<Camera>>,
 }
 
 impl Sample {
@@ -209,7 +212,7 @@ impl Sample {
         let all: Vec<&str> = crate::synth::all_labels().into_iter().collect();
         let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
         let shell = present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
-        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell })
+        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell, ray_cameras: None })
     }
 }
 

@@ -112,10 +112,11 @@ impl Objective {
 }
 
 /// The input views' cameras as rays, `[inputs, tokens, 6·k²]`, for a network that reads
-/// them ([`crate::model::ModelConfig::camera_rays`]): `cameras` (the sample's true ones, or
-/// others in their frame) with their centres over the inputs' median true depth, the scale
-/// every geometry term divides by.
-pub fn input_rays(net: &InsSplatNet, sample: &Sample, cameras: &[Camera], device: &Device) -> Option<Tensor<3>> {
+/// them ([`crate::model::ModelConfig::camera_rays`]): [`Sample::ray_cameras`] (by default the
+/// true ones) with their centres over the inputs' median true depth, the scale every geometry
+/// term divides by.
+pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option<Tensor<3>> {
+    let cameras = sample.ray_cameras.as_deref().unwrap_or(&sample.cameras);
     let k = net.config().camera_rays?;
     let (inputs, size, patch) = (sample.inputs, sample.size, net.config().patch);
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
@@ -131,7 +132,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let t0 = Instant::now();
     let images: Tensor<4> = Tensor::from_data(TensorData::new(sample.images.clone(), [views, 3, size, size]), device);
     let input_images = images.clone().narrow(0, 0, inputs);
-    let mut out = net.forward_with_rays(input_images.clone(), input_rays(net, sample, &sample.cameras, device))?;
+    let mut out = net.forward_with_rays(input_images.clone(), input_rays(net, sample, device))?;
     if config.gaussians == GaussianTraining::Frozen {
         out.depth = out.depth.detach();
         out.depth_conf = out.depth_conf.detach();

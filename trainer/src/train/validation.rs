@@ -19,21 +19,35 @@ use super::{Session, TrainError, label_cache};
 use crate::loss::LossConfig;
 use crate::model::InsSplatNet;
 
+/// Which fixed samples [`validate_checkpoint`] and [`checkpoint_matching`] score: the first
+/// `samples` of `data` (default: the val split at the run's size), 4 views each, drawn from
+/// `window` consecutive frames ([`ViewPlan::window`]; `None`: the whole trajectory, as a run
+/// validates), the cameras a network trained with `--camera-rays` reads turned by
+/// `ray_noise_deg` ([`turned`]).
+#[derive(Debug, Clone, Default)]
+pub struct ValidationSet {
+    pub samples: usize,
+    pub data: Option<DataSpec>,
+    pub window: Option<usize>,
+    pub ray_noise_deg: f32,
+}
+
 /// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
-/// `samples` fixed samples of `val_data` (default: the val split at the run's size) — the
-/// samples a run validates on while it trains, and as many more as asked: model selection
-/// between runs and checkpoints on more samples than a run spends while training. Returns
-/// the checkpoint folder, its step and the mean loss.
-pub fn validate_checkpoint(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-) -> Result<(PathBuf, u64, LossValues), TrainError> {
+/// `set` — by default the samples a run validates on while it trains, and as many more as
+/// asked: model selection between runs and checkpoints on more samples than a run spends
+/// while training. Returns the checkpoint folder, its step and each sample's loss (their
+/// mean: [`mean_loss`]).
+pub fn validate_checkpoint(from: &Path, set: &ValidationSet) -> Result<(PathBuf, u64, Vec<LossValues>), TrainError> {
     let device = Device::flex().autodiff();
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, None, &device)?;
-    let loss = validate(&net, &val, &state.config.loss, &device)
+    let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
+    let losses = validate_each(&net, &val, &state.config.loss, &device)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
-    Ok((dir, state.step, loss))
+    Ok((dir, state.step, losses))
+}
+
+/// The mean of per-sample losses (zero for none).
+pub fn mean_loss(losses: &[LossValues]) -> LossValues {
+    losses.iter().fold(LossValues::default(), |sum, l| sum + *l) * (1.0 / losses.len().max(1) as f32)
 }
 
 /// Whether the network matches the views, over the same samples as [`validate_checkpoint`]:
@@ -43,24 +57,17 @@ pub fn validate_checkpoint(
 /// descriptor head, whether each pixel's most alike descriptor in another view is the one that
 /// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
 /// depth's AbsRel, beside them.
-pub fn checkpoint_matching(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-    window: Option<usize>,
-    ray_noise_deg: f32,
-) -> Result<(PathBuf, u64, Matching), TrainError> {
+pub fn checkpoint_matching(from: &Path, set: &ValidationSet) -> Result<(PathBuf, u64, Matching), TrainError> {
     let device = Device::flex();
-    let (dir, state, net, val) = checkpoint_with_samples(from, samples, val_data, window, &device)?;
+    let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
     let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     let mut depth_abs_rel = Vec::with_capacity(val.len());
-    for (i, s) in val.iter().enumerate() {
+    for s in &val {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let cameras = turned(&s.cameras, ray_noise_deg, i as u64);
-        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &cameras, &device)).map_err(|e| failed(e.into()))?;
+        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &device)).map_err(|e| failed(e.into()))?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = out.depth.clone().into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: format!("{e:?}") }.into()))?;
         let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
@@ -123,22 +130,19 @@ const VALIDATION_DESCRIPTOR_SAMPLES: usize = 64;
 /// The grid registration compares descriptors on, in pixels.
 const REGISTRATION_STRIDE: usize = 4;
 
-/// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with `samples`
-/// fixed validation samples of `val_data` (default: the val split at the run's size), their
-/// views drawn from `window` consecutive frames ([`super::ViewPlan::window`]; `None`: the
-/// whole trajectory, as a run validates).
-fn checkpoint_with_samples(
-    from: &Path,
-    samples: usize,
-    val_data: Option<DataSpec>,
-    window: Option<usize>,
-    device: &Device,
-) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
+/// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with the
+/// samples of `set`.
+fn checkpoint_with_samples(from: &Path, set: &ValidationSet, device: &Device) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
     let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
     let state = checkpoint::read_state(&dir)?;
     let net = checkpoint::load_model(&dir, &state, device)?;
-    let session = Session { val_every: 1, val_samples: samples, val_data, ..Session::default() };
-    let val = val_samples(&state, &session, &label_cache()?, window)?;
+    let session = Session { val_every: 1, val_samples: set.samples, val_data: set.data.clone(), ..Session::default() };
+    let mut val = val_samples(&state, &session, &label_cache()?, set.window)?;
+    if set.ray_noise_deg != 0.0 {
+        for (i, s) in val.iter_mut().enumerate() {
+            s.ray_cameras = Some(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
+        }
+    }
     if val.is_empty() {
         return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
     }
@@ -148,13 +152,14 @@ fn checkpoint_with_samples(
 /// The validation loss: mean over fixed samples, without gradients (`device`: the training
 /// device, whose inner device runs it).
 pub(super) fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
+    Ok(mean_loss(&validate_each(net, samples, loss, device)?))
+}
+
+/// Each sample's loss, as [`validate`].
+fn validate_each(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<Vec<LossValues>, StepError> {
     let plain = net.valid();
     let device = device.clone().inner();
-    let mut sum = LossValues::default();
-    for s in samples {
-        sum = sum + objective(&plain, s, loss, &device)?.values();
-    }
-    Ok(sum * (1.0 / samples.len().max(1) as f32))
+    samples.iter().map(|s| Ok(objective(&plain, s, loss, &device)?.values())).collect()
 }
 
 pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>, window: Option<usize>) -> Result<Vec<Sample>, TrainError> {
