@@ -334,7 +334,7 @@ impl InsSplatNet {
         let got = rays.as_ref().map(|r| r.dims());
         if got != expected {
             return Err(ModelError::Rays(match expected {
-                Some(shape) => format!("this network reads its cameras as rays {shape:?}, given {got:?}"),
+                Some(shape) => format!("this network reads its cameras as rays {shape:?}, given {}", got.map_or("none".into(), |g| format!("{g:?}"))),
                 None => "this network reads no camera rays, and some were given".into(),
             }));
         }

@@ -1,6 +1,8 @@
 //! Validation: the fixed val-split samples a run validates on, their mean loss without
-//! gradients, and the scores of a saved checkpoint on them (its validation loss, and whether
-//! its global attention matches the views), for choosing between runs and checkpoints.
+//! gradients, and the scores of a saved checkpoint on them (its validation loss sample by
+//! sample, whether its global attention matches the views, and its depth's AbsRel; on views
+//! that overlap, and with the cameras a `--camera-rays` network reads turned, if asked), for
+//! choosing between runs and checkpoints.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
