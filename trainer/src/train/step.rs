@@ -116,8 +116,8 @@ impl Objective {
 /// true ones) with their centres over the inputs' median true depth, the scale every geometry
 /// term divides by.
 pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option<Tensor<3>> {
-    let cameras = sample.ray_cameras.as_deref().unwrap_or(&sample.cameras);
     let k = net.config().camera_rays?;
+    let cameras = sample.ray_cameras.as_deref().unwrap_or(&sample.cameras);
     let (inputs, size, patch) = (sample.inputs, sample.size, net.config().patch);
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
     let rays = crate::model::rays::patch_rays(&cameras[..inputs], size, patch, k, scale);

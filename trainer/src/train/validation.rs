@@ -71,7 +71,7 @@ pub fn checkpoint_matching(from: &Path, set: &ValidationSet) -> Result<(PathBuf,
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
         let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &device)).map_err(|e| failed(e.into()))?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
-        let predicted = out.depth.clone().into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: format!("{e:?}") }.into()))?;
+        let predicted = crate::loss::host("depth", &out.depth).map_err(|e| failed(e.into()))?;
         let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
         depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
         let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(|e| failed(e.into()))?;
