@@ -28,7 +28,7 @@ enum Command {
     Train(Box<cli_train::TrainArgs>),
     /// The validation loss of a run's newest checkpoint (or a checkpoint) on fixed val samples,
     /// for choosing between runs and checkpoints.
-    Validate(cli_train::ValidateArgs),
+    Validate(cli_validate::ValidateArgs),
     /// Export a checkpoint's network to ONNX for the server.
     Export(cli_train::ExportArgs),
     /// Write an exported model with int8 weights in its linear layers (ONNX Runtime's dynamic
@@ -58,6 +58,7 @@ enum Command {
 mod cli_fit;
 mod cli_shapes;
 mod cli_train;
+mod cli_validate;
 
 #[derive(Clone, Copy, ValueEnum)]
 enum StructureArg {
@@ -188,7 +189,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
-        Command::Validate(args) => cli_train::run_validate(args),
+        Command::Validate(args) => cli_validate::run_validate(args),
         Command::Export(args) => cli_train::run_export(args),
         Command::Quantize(args) => cli_train::run_quantize(args),
         Command::PoolKeys(args) => cli_train::run_pool_keys(args),
