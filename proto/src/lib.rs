@@ -7,6 +7,7 @@
 pub mod camera;
 pub mod gaussian;
 pub mod ply;
+pub mod rays;
 
 pub use camera::{Camera, CameraError, Intrinsics};
 pub use gaussian::{GaussianScene, INSTANCE_DIM};

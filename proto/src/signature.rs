@@ -46,6 +46,11 @@ const fn f32_tensor(name: &'static str, shape: &'static str, rank: usize, meanin
 pub const INPUT_IMAGES: TensorSpec =
     f32_tensor("images", "[N, 3, H, W]", 4, "RGB in [0, 1], letterboxed to the model resolution");
 
+/// Optional: read only by networks trained with the cameras as input (the trainer's
+/// `--camera-rays K`); the service gives it the known cameras ([`crate::rays::patch_rays`]).
+pub const INPUT_RAYS: TensorSpec =
+    f32_tensor("rays", "[N, T, 6·K²]", 3, "each patch's K×K Plücker rays (direction, moment) in view 0's frame, centres over the scene's median depth");
+
 pub const OUTPUT_CAMERA: TensorSpec = f32_tensor(
     "camera",
     "[N, 9]",

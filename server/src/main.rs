@@ -212,6 +212,11 @@ enum Command {
         /// (the ablation of registration).
         #[arg(long)]
         no_register: bool,
+        /// With a network that reads its cameras as rays: keep its first pass (every ray
+        /// zero) instead of running it again on the registered cameras (the ablation of stage
+        /// "rays").
+        #[arg(long)]
+        no_ray_pass: bool,
         /// Keep the camera head's field of view in registration instead of measuring one
         /// focal length for all views from the matches (the ablation of that estimate).
         #[arg(long)]
@@ -442,6 +447,7 @@ fn main() -> anyhow::Result<()> {
             superpixel_scale,
             vote,
             heading_candidates,
+            no_ray_pass,
             shape_examples,
             known_poses,
             known_depth,
@@ -495,6 +501,7 @@ fn main() -> anyhow::Result<()> {
                     superpixels: (superpixel_scale > 0.0).then(|| SuperpixelParams { scale: superpixel_scale, ..SuperpixelParams::default() }),
                     heading: (heading_candidates > 0).then(|| HeadingParams { candidates: heading_candidates, ..HeadingParams::default() }),
                     vote,
+                    ray_pass: !no_ray_pass,
                     ..PipelineConfig::default()
                 },
                 cluster,

@@ -67,6 +67,40 @@ pub struct Model {
     /// Whether the network has the optional descriptor head (a `descriptors` output), which
     /// every run then reads into [`ModelOutput::descriptors`].
     pub has_descriptors: bool,
+    /// The camera rays the network reads, when it has the optional `rays` input.
+    pub rays: Option<RayInput>,
+}
+
+/// The optional `rays` input ([`signature::INPUT_RAYS`]): each view's `tokens` patches get
+/// `k` × `k` rays ([`inssplat_proto::rays::patch_rays`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RayInput {
+    pub tokens: usize,
+    pub k: usize,
+}
+
+impl RayInput {
+    /// Of a `rays` input of `shape` `[N, T, 6·k²]` for a square grid of T patches.
+    fn of_shape(path: &Path, shape: &[i64], resolution: usize) -> Result<Self, RuntimeError> {
+        let err = |problem: String| RuntimeError::Signature { path: path.to_path_buf(), tensor: signature::INPUT_RAYS.name.into(), problem };
+        let [_, t, c] = *shape else { return Err(err(format!("shape {shape:?}, expected {}", signature::INPUT_RAYS.shape))) };
+        let side = (t.max(0) as f64).sqrt().round() as usize;
+        let k = ((c.max(0) / 6) as f64).sqrt().round() as usize;
+        if side == 0 || side * side != t as usize || resolution % side != 0 || k == 0 || inssplat_proto::rays::ray_channels(k) != c as usize {
+            return Err(err(format!("shape {shape:?}: expected [N, T, 6·K²] with T a square number of patches that tile {resolution}²")));
+        }
+        Ok(Self { tokens: t as usize, k })
+    }
+
+    /// Pixels on a side of one patch at `resolution`.
+    pub fn patch(&self, resolution: usize) -> usize {
+        resolution / (self.tokens as f64).sqrt().round() as usize
+    }
+
+    /// Values of the input for `views` views.
+    pub fn len(&self, views: usize) -> usize {
+        views * self.tokens * inssplat_proto::rays::ray_channels(self.k)
+    }
 }
 
 /// Default place of the library unpacked by scripts/setup, relative to the workspace.
@@ -132,6 +166,14 @@ impl Model {
             let outputs = session.outputs().iter().map(|o| (o.name(), o.dtype()));
             check_tensors(path, "output", &[signature::OUTPUT_DESCRIPTORS], outputs)?;
         }
+        let rays_input = session.inputs().iter().find(|o| o.name() == signature::INPUT_RAYS.name).map(|o| (o.name(), o.dtype()));
+        let rays_shape = match rays_input {
+            Some(input) => {
+                check_tensors(path, "input", &[signature::INPUT_RAYS], std::iter::once(input))?;
+                input.1.tensor_shape().map(|s| s.to_vec())
+            }
+            None => None,
+        };
         let meta = session.metadata().map_err(load_err)?;
         let get = |key: &'static str| {
             meta.custom(key)
@@ -169,21 +211,35 @@ impl Model {
                 problem: e.to_string(),
             })?;
         drop(meta);
-        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes, has_descriptors };
+        let rays = rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
+        let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes, has_descriptors, rays };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
-        model.run(&warm, 2)?;
+        let warm_rays = rays.map(|r| vec![0.0f32; r.len(2)]);
+        model.run(&warm, 2, warm_rays.as_deref())?;
         Ok(model)
     }
 
-    /// Runs the network on `views` images, `images` planar `[views][3][res][res]` in [0, 1].
-    pub fn run(&mut self, images: &[f32], views: usize) -> Result<ModelOutput, RuntimeError> {
+    /// Runs the network on `views` images, `images` planar `[views][3][res][res]` in [0, 1],
+    /// and their cameras' `rays` ([`RayInput`]), which a network with the `rays` input needs
+    /// and one without refuses.
+    pub fn run(&mut self, images: &[f32], views: usize, rays: Option<&[f32]>) -> Result<ModelOutput, RuntimeError> {
         let r = self.resolution;
         assert_eq!(images.len(), views * 3 * r * r, "image batch size");
-        let input = TensorRef::from_array_view(([views, 3, r, r], images)).map_err(|e| RuntimeError::Run(e.to_string()))?;
-        let outputs = self
-            .session
-            .run(ort::inputs![signature::INPUT_IMAGES.name => input])
-            .map_err(|e| RuntimeError::Run(e.to_string()))?;
+        let run_err = |e: ort::Error| RuntimeError::Run(e.to_string());
+        let mut inputs = vec![(signature::INPUT_IMAGES.name, TensorRef::from_array_view(([views, 3, r, r], images)).map_err(run_err)?)];
+        match (self.rays, rays) {
+            (None, None) => {}
+            (Some(input), Some(rays)) if rays.len() == input.len(views) => {
+                let shape = [views, input.tokens, inssplat_proto::rays::ray_channels(input.k)];
+                inputs.push((signature::INPUT_RAYS.name, TensorRef::from_array_view((shape, rays)).map_err(run_err)?));
+            }
+            (Some(input), given) => {
+                let given = given.map_or("none".to_string(), |g| format!("{} values", g.len()));
+                return Err(RuntimeError::Run(format!("this network reads its cameras as rays ({} values for {views} views), given {given}", input.len(views))));
+            }
+            (None, Some(_)) => return Err(RuntimeError::Run("this network reads no camera rays, and some were given".into())),
+        }
+        let outputs = self.session.run(inputs).map_err(run_err)?;
         let take = |spec: &TensorSpec| -> Result<Vec<f32>, RuntimeError> {
             let (_, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
             Ok(data.to_vec())

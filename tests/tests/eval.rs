@@ -15,6 +15,28 @@ use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
 use serde_json::Value;
 use crate::support::{self, s};
 
+/// A network that reads its cameras as rays runs twice by default (stage "rays", on the
+/// registered cameras), once with `--no-ray-pass`, and with `--known-poses` once on the true
+/// cameras' rays.
+#[test]
+fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = support::tiny_rays_model(dir.path());
+    let data = dir.path().join("test");
+    support::test_scene(&data, 0);
+    let stages = |extra: &[&str]| {
+        let out_dir = dir.path().join(format!("eval{}", extra.concat()));
+        let out = inssplat(&[&["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--out", s(&out_dir), "--json"], extra].concat());
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+        report["scenes"][0]["stage_ms"].as_object().unwrap().clone()
+    };
+    assert!(stages(&[])["rays"].as_f64().unwrap() > 0.0);
+    assert!(!stages(&["--no-ray-pass"]).contains_key("rays"));
+    let known = stages(&["--known-poses"]);
+    assert!(!known.contains_key("rays") && !known.contains_key("register"), "{known:?}");
+}
+
 #[test]
 fn eval_reports_every_metric_per_view_count() {
     let dir = tempfile::tempdir().unwrap();

@@ -12,7 +12,7 @@ use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNega
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, describe};
-use inssplat_trainer::train::{self, Compute, Session, TrainConfig, checkpoint};
+use inssplat_trainer::train::{self, Compute, RayPlan, Session, TrainConfig, checkpoint};
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
@@ -188,10 +188,18 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
     point_head: u16,
     /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
-    /// tokens (grown onto an --init-from network at zero). An experiment: such a network
-    /// does not export, the service has no cameras before the network runs.
+    /// tokens (grown onto an --init-from network at zero). Its exported file has a `rays`
+    /// input, which `inssplat eval --known-poses` fills from the true cameras.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     camera_rays: Option<u16>,
+    /// With --camera-rays: the share of samples whose rays are all zero, so that the network
+    /// also runs before any camera is known.
+    #[arg(long, default_value_t = 0.0)]
+    ray_dropout: f32,
+    /// With --camera-rays: turn every input camera but view 0's about its centre by an angle
+    /// up to this many degrees (uniform; a random axis each), as registration errs.
+    #[arg(long, default_value_t = 0.0)]
+    ray_noise: f32,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -328,6 +336,7 @@ impl TrainArgs {
             .with_view_window(self.view_window.map(usize::from))
             .with_seed(self.seed)
             .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
+            .with_rays((self.ray_dropout > 0.0 || self.ray_noise > 0.0).then_some(RayPlan { dropout: self.ray_dropout, noise_deg: self.ray_noise }))
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {

@@ -131,6 +131,15 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
     );
     let input = OrtTensor::from_array(([views, 3, size, size], to_vec(images.clone())))
         .expect("input tensor");
+    // A network that reads camera rays gets random ones, the same on both sides.
+    let rays = net.config().camera_rays.map(|k| {
+        let grid = size / net.config().patch;
+        Tensor::<3>::random([views, grid * grid, inssplat_proto::rays::ray_channels(k)], Distribution::Uniform(-1.0, 1.0), device)
+    });
+    let mut inputs = vec![(sig::INPUT_IMAGES.name, input)];
+    if let Some(r) = &rays {
+        inputs.push((sig::INPUT_RAYS.name, OrtTensor::from_array((r.dims(), to_vec(r.clone()))).expect("rays tensor")));
+    }
     let ModelOutput {
         camera,
         depth,
@@ -141,11 +150,9 @@ fn check_views(views: usize, net: &InsSplatNet, session: &mut Session, device: &
         point_map,
         descriptors,
         ..
-    } = net.forward(images).expect("forward");
+    } = net.forward_with_rays(images, rays).expect("forward");
     let (w, b) = net.sem_proj();
-    let outputs = session
-        .run(ort::inputs![sig::INPUT_IMAGES.name => input])
-        .expect("ORT run");
+    let outputs = session.run(inputs).expect("ORT run");
     let point_map = point_map.map(|p| (sig::OUTPUT_POINT_MAP.name, p.dims().to_vec(), to_vec(p)));
     let descriptors = descriptors.map(|d| (sig::OUTPUT_DESCRIPTORS.name, d.dims().to_vec(), to_vec(d)));
     let ours = [
@@ -228,6 +235,23 @@ fn export_matches_burn_forward_at_2_and_5_views() {
     );
     assert_eq!(metadata.custom(sig::META_SEM_DIM).as_deref(), Some("16"));
     assert_eq!(metadata.custom(sig::META_TRAIN_STEPS).as_deref(), Some("0"));
+}
+
+/// A network that reads its cameras exports them as the optional `rays` input, its ray layer
+/// (grown at zero, then moved off it) computed as in the trainer's forward.
+#[test]
+fn a_network_that_reads_camera_rays_exports_with_parity() {
+    let device = Device::flex();
+    let source = network(&device);
+    let shape = small_config().with_image_skips(Some(4)).with_camera_rays(Some(2));
+    let net = inssplat_trainer::train::grow(&source, shape, 5, &device).expect("grow").map(&mut Perturb { std: 0.15 });
+    let meta = ExportMeta { model_version: "parity-rays".into(), train_steps: 0, weights: Weights::F32 };
+    let mut session = session_of(&inssplat_trainer::export::to_onnx_bytes(&net, &meta).expect("export"));
+    let rays = session.inputs().iter().find(|i| i.name() == sig::INPUT_RAYS.name).expect("a rays input");
+    assert_eq!(rays.dtype().tensor_shape().map(|s| s.to_vec()), Some(vec![-1, 16, 24]));
+    for views in [2, 3] {
+        check_views(views, &net, &mut session, &device, Tol::Exact);
+    }
 }
 
 /// A network with an image encoder after three real training steps (synthesized scenes, every

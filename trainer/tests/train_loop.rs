@@ -374,8 +374,11 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
 
 /// A network trained with `--camera-rays` reads the cameras: validated with them turned
 /// (`--ray-noise`) its loss moves, while the same turn leaves a network without rays as it was.
+/// It trains with rays dropped and turned too (`--ray-dropout`, `--ray-noise`), which a network
+/// without rays refuses by name.
 #[test]
 fn ray_noise_moves_only_a_network_that_reads_rays() {
+    let plan = train::RayPlan { dropout: 0.5, noise_deg: 10.0 };
     let losses = |rays: Option<usize>, noise: f32| {
         let run = tempfile::tempdir().unwrap();
         let config = TrainConfig::new(tiny_model().with_camera_rays(rays), LossConfig::new()).with_steps(3).with_warmup(0).with_lr(1e-2).with_max_views(3).with_seed(2);
@@ -385,6 +388,14 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
     };
     assert_ne!(losses(Some(1), 0.0), losses(Some(1), 30.0));
     assert_eq!(losses(None, 0.0), losses(None, 30.0));
+    let run = tempfile::tempdir().unwrap();
+    let config = TrainConfig::new(tiny_model().with_camera_rays(Some(1)), LossConfig::new()).with_steps(3).with_max_views(3).with_rays(Some(plan));
+    let summary = train::train(run.path(), config, tiny_data(), &quiet_session()).unwrap();
+    let state = checkpoint::read_state(&summary.checkpoint.unwrap()).unwrap();
+    assert_eq!(state.config.rays, Some(plan), "the plan is kept for a resume");
+    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1).with_rays(Some(plan));
+    let err = train::train(&run.path().join("plain"), config, tiny_data(), &quiet_session()).unwrap_err();
+    assert!(err.to_string().contains("--camera-rays"), "{err}");
 }
 
 #[test]

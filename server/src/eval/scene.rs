@@ -224,7 +224,11 @@ pub fn evaluate_scene_keeping(
             false => None,
             true => Some(context.iter().map(|&i| scene.frames[i].depth.as_deref().ok_or_else(|| bad(format!("frame {i} has no depth (--known-depth needs it)")))).collect::<Result<Vec<_>, _>>()?.concat()),
         };
-        known = PipelineConfig { known_poses: poses, known_depth: depth, ..settings.pipeline.clone() };
+        let median_depth = match (settings.known_poses, model.rays) {
+            (true, Some(_)) => Some(median_true_depth(scene, &context).ok_or_else(|| bad("the context frames have no depth (a network that reads camera rays needs the scene's scale with --known-poses)".into()))?),
+            _ => None,
+        };
+        known = PipelineConfig { known_poses: poses, known_depth: depth, known_median_depth: median_depth, ..settings.pipeline.clone() };
         &known
     } else {
         settings.pipeline
@@ -256,6 +260,13 @@ pub fn evaluate_scene_keeping(
     }
     let names = images.into_iter().map(|i| i.name).collect();
     Ok((s, rec, names))
+}
+
+/// The median of the true depth over the surface pixels of the `context` frames, the scale
+/// the trainer divides camera rays by.
+fn median_true_depth(scene: &Scene, context: &[usize]) -> Option<f32> {
+    let depth: Vec<f32> = context.iter().filter_map(|&i| scene.frames[i].depth.as_deref()).flatten().copied().collect();
+    inssplat_proto::rays::median_depth(&depth)
 }
 
 /// Depth, cameras and cross-view consistency on the context views (in 2D mode each view's

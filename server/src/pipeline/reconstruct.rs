@@ -32,6 +32,8 @@ use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, Voxelized, voxel
 use inssplat_text::LabelCache;
 use rayon::prelude::*;
 
+use inssplat_proto::rays::{median_depth, patch_rays};
+
 use super::decode::{DecodeError, Letterbox, decode};
 use crate::runtime::{Model, ModelOutput, RuntimeError};
 
@@ -49,6 +51,8 @@ pub enum PipelineError {
     Poses { given: usize, views: usize },
     #[error("{given} known depth values for {views} views of {pixels} pixels; give one per pixel of every view at the model resolution")]
     Depth { given: usize, views: usize, pixels: usize },
+    #[error("this network reads its cameras as rays: known camera poses need the scene's median depth in their units beside them")]
+    RaysNeedScale,
     #[error("{stage}: {message}")]
     Stage { stage: &'static str, message: String },
 }
@@ -82,6 +86,14 @@ pub struct PipelineConfig {
     /// depth is read (registration, back-projection); the network's per-pixel offsets,
     /// Gaussians and features are kept. `None`: the predicted depth.
     pub known_depth: Option<Vec<f32>>,
+    /// The median depth of the input views in the units of [`PipelineConfig::known_poses`],
+    /// which a network that reads its cameras as rays ([`crate::runtime::RayInput`]) needs
+    /// with them (it divides the camera centres).
+    pub known_median_depth: Option<f32>,
+    /// With a network that reads its cameras as rays and no known poses: run it a second
+    /// time on the rays of the registered cameras (stage "rays") and take its instance and
+    /// semantic features from that pass; `false`: its first pass, with every ray zero, is all.
+    pub ray_pass: bool,
     /// Weight of the shape classifier's text-space direction added to each instance's
     /// semantic prototype before naming (0, or a model without a classifier, names by the
     /// semantic features alone).
@@ -124,6 +136,8 @@ impl Default for PipelineConfig {
             register: Some(RegisterParams::default()),
             known_poses: None,
             known_depth: None,
+            known_median_depth: None,
+            ray_pass: true,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
             refine_steps: 0,
             superpixels: Some(SuperpixelParams::default()),
@@ -269,7 +283,14 @@ pub fn reconstruct_with(
         images.par_iter().map(|i| decode(&i.name, &i.bytes, res as u32, detail)).collect::<Result<Vec<_>, _>>()
     })?;
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
-    let mut out = clock.time("model", || model.run(&batch, images.len()))?;
+    // A network that reads rays gets the known cameras', else none (zero) before registration.
+    let rays = match (model.rays, &config.known_poses, config.known_median_depth) {
+        (None, _, _) => None,
+        (Some(input), None, _) => Some(vec![0.0; input.len(images.len())]),
+        (Some(input), Some(poses), Some(scale)) if scale > 0.0 => Some(patch_rays(poses, res, input.patch(res), input.k, scale)),
+        (Some(_), Some(_), _) => return Err(PipelineError::RaysNeedScale),
+    };
+    let mut out = clock.time("model", || model.run(&batch, images.len(), rays.as_deref()))?;
     let pixels = out.height * out.width;
     if let Some(known) = &config.known_depth {
         if known.len() != out.depth.len() {
@@ -328,7 +349,7 @@ pub fn reconstruct_with(
         Some(poses) => return Err(PipelineError::Poses { given: poses.len(), views: images.len() }),
     };
 
-    let outputs = |cameras: &[Camera], views: &[usize]| -> Result<BackProjected, PipelineError> {
+    let outputs = |out: &ModelOutput, cameras: &[Camera], views: &[usize]| -> Result<BackProjected, PipelineError> {
         let views: Vec<ViewOutputs<'_>> = views
             .iter()
             .map(|&v| ViewOutputs {
@@ -351,13 +372,27 @@ pub fn reconstruct_with(
             // back-projection error is named by the stage "backproject" right after.
             let stride = params.factor as u32;
             let gaussians = |cameras: &[Camera], views: &[usize]| {
-                outputs(cameras, views).map_or_else(|_| GaussianScene::with_sem_dim(0), |b| b.thinned(out.width as u32, out.height as u32, stride))
+                outputs(&out, cameras, views).map_or_else(|_| GaussianScene::with_sem_dim(0), |b| b.thinned(out.width as u32, out.height as u32, stride))
             };
             place_by_heading(&mut cameras, component, &photos, &depths, params, &gaussians).map_err(|e| stage_err("heading")(&e))?;
             Ok(())
         })?;
     }
-    let per_pixel = clock.time("backproject", || outputs(&cameras, &(0..out.views).collect::<Vec<_>>()));
+    if let Some(input) = model.rays.filter(|_| config.known_poses.is_none() && config.ray_pass) {
+        clock.time("rays", || -> Result<(), PipelineError> {
+            // The registered cameras are in the depth's units, as the true ones are in the
+            // true depth's when the network learns.
+            let scale = median_depth(&out.depth).unwrap_or(1.0);
+            let second = model.run(&batch, out.views, Some(&patch_rays(&cameras, res, input.patch(res), input.k, scale)))?;
+            out.instance = second.instance;
+            out.semantic = second.semantic;
+            if let Some(segments) = &segments {
+                out.instance.par_chunks_exact_mut(INSTANCE_DIM * pixels).zip(segments).for_each(|(map, s)| snap(map, s));
+            }
+            Ok(())
+        })?;
+    }
+    let per_pixel = clock.time("backproject", || outputs(&out, &cameras, &(0..out.views).collect::<Vec<_>>()));
     let per_pixel = per_pixel?;
     let mut voxelized =
         clock.time("voxelize", || voxelize(&per_pixel.scene, &config.voxel)).map_err(|e| stage_err("voxelize")(&e))?;

@@ -14,17 +14,23 @@ use inssplat_trainer::train::seeded_init;
 
 /// Exports a tiny random 32×32 network (always the same weights) to `dir/tiny.onnx`.
 pub fn tiny_model(dir: &Path) -> PathBuf {
-    let config = ModelConfig::new()
-        .with_image_size(32)
-        .with_dim(32)
-        .with_depth(2)
-        .with_heads(2)
-        .with_decoder_dim(32)
-        .with_decoder_min_dim(16);
+    export_tiny(tiny_config(), &dir.join("tiny.onnx"))
+}
+
+/// [`tiny_model`] reading its cameras as 1 × 1 rays a patch (the optional `rays` input), at
+/// `dir/tiny-rays.onnx`.
+pub fn tiny_rays_model(dir: &Path) -> PathBuf {
+    export_tiny(tiny_config().with_camera_rays(Some(1)), &dir.join("tiny-rays.onnx"))
+}
+
+fn tiny_config() -> ModelConfig {
+    ModelConfig::new().with_image_size(32).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32).with_decoder_min_dim(16)
+}
+
+fn export_tiny(config: ModelConfig, model: &Path) -> PathBuf {
     let net = seeded_init(&config, 7, &Device::flex()).unwrap();
-    let model = dir.join("tiny.onnx");
-    export_onnx(&net, &model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0, weights: Weights::F32 }).unwrap();
-    model
+    export_onnx(&net, model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0, weights: Weights::F32 }).unwrap();
+    model.to_path_buf()
 }
 
 /// Writes test-split scene `index` (32×32, primitives, 3–5 objects, eval context/target sets)

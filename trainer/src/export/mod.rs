@@ -99,9 +99,6 @@ pub enum ExportError {
 
 /// Builds the ONNX model of `net` in memory.
 pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto, ExportError> {
-    if net.config().camera_rays.is_some() {
-        return Err(ExportError::Unsupported("a network that reads camera rays (the signature has no camera input)"));
-    }
     let mut g = Graph::default();
     g.int8 = meta.weights == Weights::Int8;
     net::network(&mut g, net)?;
@@ -135,16 +132,17 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         ),
     ];
     debug_assert_eq!(outputs.len(), sig::OUTPUTS.len());
+    let tokens = (c.grid() * c.grid()) as i64;
+    let rays = c.camera_rays.map(|k| (sig::INPUT_RAYS.name, vec![n(), F(tokens), F(inssplat_proto::rays::ray_channels(k) as i64)]));
     let point_map = c.point_head.map(|_| (sig::OUTPUT_POINT_MAP.name, vec![n(), F(3), F(hw), F(hw)]));
     let descriptors = c.descriptor_head.map(|d| (sig::OUTPUT_DESCRIPTORS.name, vec![n(), F(d as i64), F(hw), F(hw)]));
     let graph = GraphProto {
         node: g.nodes,
         name: Some("inssplat".into()),
         initializer: g.initializers,
-        input: vec![value_info(
-            sig::INPUT_IMAGES.name,
-            &[n(), F(3), F(hw), F(hw)],
-        )],
+        input: std::iter::once(value_info(sig::INPUT_IMAGES.name, &[n(), F(3), F(hw), F(hw)]))
+            .chain(rays.iter().map(|(name, dims)| value_info(name, dims)))
+            .collect(),
         output: outputs
             .iter()
             .chain(point_map.iter())

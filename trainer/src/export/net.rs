@@ -164,7 +164,11 @@ fn embed(
     let x = g.reshape(&x, &[-1, gr * gr, 3 * p * p]);
     let x = linear(g, "patch_embed", &net.patch_embed, &x)?;
     let pos = g.param("pos_embed", net.pos_embed.val())?;
-    let x = g.op("Add", &[&x, &pos], vec![]);
+    let mut x = g.op("Add", &[&x, &pos], vec![]);
+    if let Some(embed) = &net.ray_embed {
+        let rays = linear(g, "ray_embed", embed, sig::INPUT_RAYS.name)?;
+        x = g.op("Add", &[&x, &rays], vec![]);
+    }
     let cams = net.camera_tokens.val();
     let cam0 = g.weight(
         "camera_token.reference",

@@ -63,17 +63,7 @@ pub fn camera_targets(cameras: &[Camera]) -> Vec<CameraTarget> {
         .collect()
 }
 
-/// Median of the positive values of `depth` (the valid ground truth), `None` if there are
-/// none.
-pub fn median_depth(depth: &[f32]) -> Option<f32> {
-    let mut valid: Vec<f32> = depth.iter().copied().filter(|d| *d > 0.0 && d.is_finite()).collect();
-    if valid.is_empty() {
-        return None;
-    }
-    let mid = valid.len() / 2;
-    let (_, median, _) = valid.select_nth_unstable_by(mid, f32::total_cmp);
-    Some(*median)
-}
+pub use inssplat_proto::rays::median_depth;
 
 /// The weight of each pixel in L_depth: 0 without ground truth in `target`, else
 /// (1 − `balance`)/|Ω| + `balance`/(n·|Ω_i|) for a pixel of instance `ids[p]` = i (id 0 counts

@@ -46,7 +46,7 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
         f += 2 * n * hw * (last + 3) * hidden as u64;
     }
     if let Some(k) = c.camera_rays {
-        f += 2 * n * tokens * super::rays::ray_channels(k) as u64 * d;
+        f += 2 * n * tokens * inssplat_proto::rays::ray_channels(k) as u64 * d;
     }
     if let Some(dim) = c.descriptor_head {
         f += 2 * n * hw * (last + dim as u64) * super::DESCRIPTOR_HIDDEN as u64;

@@ -15,7 +15,7 @@ mod block;
 mod decoder;
 mod flops;
 mod gelu;
-pub mod rays;
+use inssplat_proto::rays;
 
 use burn::module::Param;
 use burn::nn::{Initializer, Linear, LinearConfig};

@@ -13,6 +13,7 @@ pub mod batch;
 pub mod checkpoint;
 pub mod labels;
 pub mod log;
+mod ray_errors;
 pub mod sample;
 pub mod schedule;
 pub mod step;
@@ -36,7 +37,8 @@ use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use validation::{Matching, ValidationSet, checkpoint_matching, mean_loss, turned, validate_checkpoint};
+pub use ray_errors::{RayPlan, turned};
+pub use validation::{Matching, ValidationSet, checkpoint_matching, mean_loss, validate_checkpoint};
 use validation::{val_samples, validate};
 
 /// Everything that defines a run; saved in every checkpoint.
@@ -86,6 +88,9 @@ pub struct TrainConfig {
     /// gradients averaged; sample i of the run is step i / k's (i mod k)-th. `None` (also what
     /// configs saved before this existed read as) means 1.
     pub samples_per_step: Option<usize>,
+    /// The rays a network that reads its cameras gets ([`RayPlan`]); `None` (also what configs
+    /// saved before this existed read as): always the true cameras'.
+    pub rays: Option<RayPlan>,
 }
 
 impl TrainConfig {
@@ -115,6 +120,14 @@ impl TrainConfig {
         }
         if self.loss.descriptor_weight.is_some_and(|w| w > 0.0) && self.model.descriptor_head.is_none() {
             return Err(TrainError::Config("a descriptor weight needs a network with a descriptor head".into()));
+        }
+        if let Some(plan) = self.rays {
+            if self.model.camera_rays.is_none() {
+                return Err(TrainError::Config("ray dropout or noise needs a network that reads camera rays (--camera-rays)".into()));
+            }
+            if !(0.0..=1.0).contains(&plan.dropout) || !(0.0..=180.0).contains(&plan.noise_deg) {
+                return Err(TrainError::Config(format!("ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180", plan.dropout, plan.noise_deg)));
+            }
         }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
@@ -458,7 +471,11 @@ fn run_loop(
         for _ in 0..k {
             let Some((index, sample)) = prefetch.next() else { break };
             step = index / k;
-            samples.push(sample?);
+            let mut sample = sample?;
+            if let Some(plan) = &state.config.rays {
+                plan.apply(&mut sample, index);
+            }
+            samples.push(sample);
         }
         if samples.is_empty() {
             break;

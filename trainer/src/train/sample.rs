@@ -157,9 +157,21 @@ pub struct Sample {
     pub vocabulary: Vec<f32>,
     /// Instance ids labelled as the room's shell (`wall`, `floor`, `ceiling`).
     pub shell: Vec<u32>,
-    /// The input views' cameras that a network trained with `--camera-rays` reads, where
-    /// they are not the true ones (validation with `--ray-noise`); `None`: the true ones.
-    pub ray_cameras: Option<Vec<Camera>>,
+    /// The input views' cameras that a network trained with `--camera-rays` reads
+    /// ([`super::ray_errors`]).
+    pub ray_cameras: RayCameras,
+}
+
+/// The cameras a network that reads them gets as rays.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum RayCameras {
+    /// The true ones, [`Sample::cameras`].
+    #[default]
+    True,
+    /// The input views' cameras, erring as given.
+    Given(Vec<Camera>),
+    /// None: every ray zero, the network's input before registration.
+    Dropped,
 }
 
 impl Sample {
@@ -212,7 +224,7 @@ impl Sample {
         let all: Vec<&str> = crate::synth::all_labels().into_iter().collect();
         let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
         let shell = present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
-        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell, ray_cameras: None })
+        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell, ray_cameras: RayCameras::True })
     }
 }
 

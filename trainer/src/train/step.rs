@@ -17,10 +17,11 @@ use std::time::{Duration, Instant};
 use burn::prelude::*;
 use glam::Quat;
 use inssplat_proto::Camera;
+use inssplat_proto::rays;
 use inssplat_proto::signature::TEXT_DIM;
 use inssplat_raster::render::RenderOptions;
 
-use super::sample::Sample;
+use super::sample::{RayCameras, Sample};
 use crate::loss::descriptor::DEFAULT_SAMPLES as DESCRIPTOR_SAMPLES;
 use crate::loss::{
     GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
@@ -113,16 +114,19 @@ impl Objective {
 
 /// The input views' cameras as rays, `[inputs, tokens, 6·k²]`, for a network that reads
 /// them ([`crate::model::ModelConfig::camera_rays`]): [`Sample::ray_cameras`] (by default the
-/// true ones) with their centres over the inputs' median true depth, the scale every geometry
-/// term divides by.
+/// true ones; zero where dropped) with their centres over the inputs' median true depth, the
+/// scale every geometry term divides by.
 pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option<Tensor<3>> {
     let k = net.config().camera_rays?;
-    let cameras = sample.ray_cameras.as_deref().unwrap_or(&sample.cameras);
     let (inputs, size, patch) = (sample.inputs, sample.size, net.config().patch);
+    let shape = [inputs, (size / patch) * (size / patch), rays::ray_channels(k)];
+    let cameras = match &sample.ray_cameras {
+        RayCameras::Dropped => return Some(Tensor::zeros(shape, device)),
+        RayCameras::Given(cameras) => cameras,
+        RayCameras::True => &sample.cameras,
+    };
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
-    let rays = crate::model::rays::patch_rays(&cameras[..inputs], size, patch, k, scale);
-    let tokens = (size / patch) * (size / patch);
-    Some(Tensor::from_data(TensorData::new(rays, [inputs, tokens, crate::model::rays::ray_channels(k)]), device))
+    Some(Tensor::from_data(TensorData::new(rays::patch_rays(&cameras[..inputs], size, patch, k, scale), shape), device))
 }
 
 /// Evaluates the objective of `sample` for `net` on `device` (an autodiff device to train).

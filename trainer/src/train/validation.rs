@@ -8,14 +8,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::prelude::*;
-use glam::{Quat, Vec3};
-use inssplat_proto::Camera;
 use inssplat_text::LabelCache;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
 use super::checkpoint::{self, CheckpointState};
-use super::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
+use super::ray_errors::turned;
+use super::sample::{DataSpec, RayCameras, Sample, Sampler, Source, ViewPlan};
 use super::step::{LossValues, StepError, objective};
 use super::{Session, TrainError, label_cache};
 use crate::loss::LossConfig;
@@ -88,27 +85,6 @@ pub fn checkpoint_matching(from: &Path, set: &ValidationSet) -> Result<(PathBuf,
     Ok((dir, state.step, Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel }))
 }
 
-/// `cameras` with every one after the first turned by `degrees` about its own centre, each
-/// about an axis drawn from `seed` (the first, the world frame, stays): the camera errors a
-/// network that reads its cameras ([`crate::model::ModelConfig::camera_rays`]) would get from
-/// registration.
-pub fn turned(cameras: &[Camera], degrees: f32, seed: u64) -> Vec<Camera> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut out = cameras.to_vec();
-    if degrees == 0.0 {
-        return out;
-    }
-    for cam in out.iter_mut().skip(1) {
-        let (z, phi): (f32, f32) = (rng.random_range(-1.0..1.0), rng.random_range(0.0..std::f32::consts::TAU));
-        let r = (1.0 - z * z).sqrt();
-        let turn = Quat::from_axis_angle(Vec3::new(r * phi.cos(), r * phi.sin(), z), degrees.to_radians());
-        let centre = cam.center();
-        cam.rotation = turn * cam.rotation;
-        cam.translation = -(cam.rotation * centre);
-    }
-    out
-}
-
 /// What [`checkpoint_matching`] measures.
 pub struct Matching {
     pub attention: crate::loss::MatchScores,
@@ -142,7 +118,7 @@ fn checkpoint_with_samples(from: &Path, set: &ValidationSet, device: &Device) ->
     let mut val = val_samples(&state, &session, &label_cache()?, set.window)?;
     if set.ray_noise_deg != 0.0 {
         for (i, s) in val.iter_mut().enumerate() {
-            s.ray_cameras = Some(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
+            s.ray_cameras = RayCameras::Given(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
         }
     }
     if val.is_empty() {
@@ -182,26 +158,4 @@ pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &A
     let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use inssplat_proto::Intrinsics;
-
-    /// Every camera but the first turns by the angle asked, about its own centre.
-    #[test]
-    fn turned_cameras_keep_their_centres_and_turn_by_the_angle() {
-        let k = Intrinsics::from_fov_y(16, 16, 1.0);
-        let cameras: Vec<Camera> = (0..4)
-            .map(|i| Camera::look_at(k, Vec3::new(i as f32, 0.3, -1.0), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y))
-            .collect();
-        let out = turned(&cameras, 7.0, 5);
-        assert_eq!(out[0], cameras[0]);
-        for (a, b) in cameras.iter().zip(&out).skip(1) {
-            assert!((a.center() - b.center()).length() < 1e-5);
-            assert!((a.rotation.angle_between(b.rotation).to_degrees() - 7.0).abs() < 1e-2);
-        }
-        assert_eq!(turned(&cameras, 0.0, 5), cameras);
-    }
 }

@@ -1,4 +1,4 @@
-//! The cameras as the network's input ([`super::ModelConfig::camera_rays`]): each patch's
+//! The cameras as a network's input (the trainer's `--camera-rays`): each patch's
 //! Plücker rays in view 0's frame, the camera conditioning that lets global attention relate
 //! two views' tokens by their epipolar geometry (as in multi-view diffusion and LRM-style
 //! reconstruction networks). A ray through pixel (u, v) of a camera is its unit direction d
@@ -6,7 +6,7 @@
 //! that the input does not depend on the room's size); each patch gives the rays of k × k
 //! sub-patch centres, `6·k²` values a token.
 
-use inssplat_proto::Camera;
+use crate::Camera;
 
 /// Values a token gets from `k` × `k` rays.
 pub fn ray_channels(k: usize) -> usize {
@@ -14,14 +14,15 @@ pub fn ray_channels(k: usize) -> usize {
 }
 
 /// `[N, (size / patch)², 6·k²]`, row-major over the patches, of the cameras of the N input
-/// views (view 0's frame, as [`crate::train::Sample::cameras`]); `scale` > 0 divides the
-/// camera centres.
+/// views in the frame of the first (whatever frame they are given in); `scale` > 0 divides
+/// the camera centres.
 pub fn patch_rays(cameras: &[Camera], size: usize, patch: usize, k: usize, scale: f32) -> Vec<f32> {
     let grid = size / patch;
     let mut out = Vec::with_capacity(cameras.len() * grid * grid * ray_channels(k));
+    let Some(reference) = cameras.first() else { return out };
     for cam in cameras {
-        let origin = cam.center() / scale;
-        let rotation = cam.rotation.inverse();
+        let origin = reference.world_to_camera(cam.center()) / scale;
+        let rotation = reference.rotation * cam.rotation.inverse();
         for (py, px) in (0..grid).flat_map(|y| (0..grid).map(move |x| (y, x))) {
             for (sy, sx) in (0..k).flat_map(|y| (0..k).map(move |x| (y, x))) {
                 let u = (px * patch) as f32 + (sx as f32 + 0.5) * patch as f32 / k as f32;
@@ -35,11 +36,23 @@ pub fn patch_rays(cameras: &[Camera], size: usize, patch: usize, k: usize, scale
     out
 }
 
+/// Median of the positive values of `depth` (the valid ground truth), `None` if there are
+/// none.
+pub fn median_depth(depth: &[f32]) -> Option<f32> {
+    let mut valid: Vec<f32> = depth.iter().copied().filter(|d| *d > 0.0 && d.is_finite()).collect();
+    if valid.is_empty() {
+        return None;
+    }
+    let mid = valid.len() / 2;
+    let (_, median, _) = valid.select_nth_unstable_by(mid, f32::total_cmp);
+    Some(*median)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use glam::Vec3;
-    use inssplat_proto::camera::Intrinsics;
+    use crate::camera::Intrinsics;
 
     /// A point that two cameras both see lies on a ray of each: the rays' reciprocal product
     /// d₁·m₂ + d₂·m₁ of two rays that meet is zero, and it is not for rays that miss.
@@ -62,5 +75,24 @@ mod tests {
         assert!(reciprocal(ra, ray(&b, u, v)).abs() < 1e-5);
         assert!(reciprocal(ra, ray(&b, u + 3.0, v)).abs() > 1e-3);
         assert!((ra.0 - ray(&a, 2.0, 2.0).0).length() < 1e-6, "sub-ray 0 of patch 0 passes pixel (2, 2)");
+    }
+
+    /// The rays are the same whatever world frame the cameras are given in: they are
+    /// re-expressed in the first camera's frame.
+    #[test]
+    fn rays_do_not_depend_on_the_world_frame() {
+        let k = Intrinsics::from_fov_y(16, 16, 1.0);
+        let a = Camera::look_at(k, Vec3::new(0.3, -0.2, 0.1), Vec3::new(0.5, 0.0, 3.0), Vec3::NEG_Y);
+        let b = Camera::look_at(k, Vec3::new(1.0, 0.2, 0.5), Vec3::new(0.0, 0.4, 3.0), Vec3::NEG_Y);
+        let turn = glam::Quat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2);
+        let shift = Vec3::new(4.0, -1.0, 2.5);
+        // The world moved by p ↦ turn·p + shift: each camera's world→camera map composes with its inverse.
+        let moved = |c: &Camera| Camera { intrinsics: c.intrinsics, rotation: c.rotation * turn.inverse(), translation: c.translation - c.rotation * turn.inverse() * shift };
+        assert!((moved(&a).center() - (turn * a.center() + shift)).length() < 1e-5);
+        let here = patch_rays(&[a, b], 16, 8, 2, 2.0);
+        let there = patch_rays(&[moved(&a), moved(&b)], 16, 8, 2, 2.0);
+        let worst = here.iter().zip(&there).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
+        assert!(worst < 1e-5, "rays moved by {worst}");
+        assert!(here[..ray_channels(2)].chunks(6).all(|r| r[3..].iter().all(|m| m.abs() < 1e-6)), "view 0's rays pass its centre, the origin");
     }
 }
