@@ -49,9 +49,9 @@ pub struct BenchRow {
 }
 
 impl BenchRow {
-    /// Everything after the network.
+    /// Everything after the network (and its second pass, stage "rays").
     pub fn post_ms(&self) -> f64 {
-        self.stage_ms.iter().filter(|(s, _)| !matches!(s.as_str(), "decode" | "model")).map(|(_, v)| v).sum()
+        self.stage_ms.iter().filter(|(s, _)| !matches!(s.as_str(), "decode" | "model" | "rays")).map(|(_, v)| v).sum()
     }
 }
 
@@ -228,11 +228,14 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 
 /// The table and the growth ratios, in markdown.
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
-    // The refine stage only runs when asked for (`--refine-steps`).
-    let refined = rows.iter().any(|r| r.stage_ms.contains_key("refine"));
-    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label"]
+    // The refine stage only runs when asked for (`--refine-steps`), the rays stage only for a
+    // network that reads its cameras.
+    let ran = |stage: &str| rows.iter().any(|r| r.stage_ms.contains_key(stage));
+    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading"]
         .into_iter()
-        .chain(refined.then_some("refine"))
+        .chain(ran("rays").then_some("rays"))
+        .chain(["backproject", "voxelize", "cluster", "vote", "label"])
+        .chain(ran("refine").then_some("refine"))
         .chain(["masks"])
         .collect();
     let mut out = format!(
