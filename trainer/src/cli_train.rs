@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use inssplat_trainer::export::{ExportMeta, Weights, average_file, export_onnx, pool_keys_file, quantize_file};
+use inssplat_trainer::export::{ExportMeta, Weights, average_file, export_keeping_metadata, export_onnx, pool_keys_file, quantize_file};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::synth::{self, Furniture, Split, Structure};
@@ -420,6 +420,10 @@ pub struct ExportArgs {
     /// Model version recorded in the ONNX metadata (default: the run folder's name and step).
     #[arg(long)]
     model_version: Option<String>,
+    /// Keep this ONNX file's metadata that the exporter does not write itself (its shape
+    /// classifier), for a network of another shape than the file's (`average` needs one shape).
+    #[arg(long)]
+    metadata_from: Option<PathBuf>,
 }
 
 pub fn run_export(args: ExportArgs) -> Result<()> {
@@ -432,7 +436,11 @@ pub fn run_export(args: ExportArgs) -> Result<()> {
         format!("inssplat-{}+{run}.{}", env!("CARGO_PKG_VERSION"), state.step)
     });
     let meta = ExportMeta { model_version: version.clone(), train_steps: state.step, weights: Weights::F32 };
-    export_onnx(&net, &args.out, &meta).with_context(|| format!("exporting to {}", args.out.display()))?;
+    match &args.metadata_from {
+        None => export_onnx(&net, &args.out, &meta).with_context(|| format!("exporting to {}", args.out.display()))?,
+        Some(from) => export_keeping_metadata(&net, &meta, from, &args.out)
+            .with_context(|| format!("exporting to {} with the metadata of --metadata-from {}", args.out.display(), from.display()))?,
+    }
     println!("wrote {} ({version}, {} steps, {:.1} MB)", args.out.display(), state.step, std::fs::metadata(&args.out)?.len() as f64 / 1e6);
     Ok(())
 }

@@ -1,6 +1,6 @@
 //! `inssplat-train average`: the mean of real checkpoints' weights, written into a copy of a
 //! model file whose metadata it keeps; checkpoints of another shape, and a step filter that
-//! leaves none, are refused by name.
+//! leaves none, are refused by name; `export --metadata-from` keeps another file's metadata.
 
 use burn::prelude::*;
 use burn::store::ModuleSnapshot;
@@ -90,4 +90,15 @@ fn average_writes_the_mean_of_the_checkpoints_into_the_base_file() {
     let err = String::from_utf8_lossy(&empty.stderr);
     assert!(!empty.status.success() && err.contains("neither a run with checkpoints nor a checkpoint") && err.contains("other"), "{err}");
     assert!(!refused.exists());
+
+    // What `average` refuses, `export --metadata-from` does: the checkpoint's own network
+    // with the other file's metadata.
+    let kept = dir.path().join("kept.onnx");
+    let args: Vec<&std::ffi::OsStr> = vec!["export".as_ref(), "--checkpoint".as_ref(), run_a.as_os_str(), "--out".as_ref(), kept.as_os_str(), "--metadata-from".as_ref(), other_base.as_os_str()];
+    let done = trainer(&args);
+    assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    let (net, _) = import_onnx(&kept, &Device::flex()).expect("reads back");
+    assert_eq!(parameters(&net), pa, "the checkpoint's weights");
+    let session = session_of(&std::fs::read(&kept).expect("the file"));
+    assert_eq!(session.metadata().expect("metadata").custom("inssplat.extra").as_deref(), Some("kept"));
 }

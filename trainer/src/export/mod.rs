@@ -31,7 +31,7 @@ use graph::Graph;
 pub use average::{AverageError, average_file, average_networks};
 pub use import::{ImportError, import_onnx};
 pub use int8::quantize_file;
-pub use rewrite::{RewriteError, pool_keys_file};
+pub use rewrite::{RewriteError, export_keeping_metadata, pool_keys_file};
 use onnx_pb::{
     DATA_TYPE_FLOAT, GraphProto, ModelProto, OperatorSetIdProto, StringStringEntryProto,
     TensorShapeProto, TypeProto, ValueInfoProto, tensor_shape_proto::Dimension,

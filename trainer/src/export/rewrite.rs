@@ -2,7 +2,8 @@
 //! run, and written again with every metadata entry of the input that the exporter does not
 //! write itself (the shape classifier) kept. `inssplat-train quantize` ([`super::int8`]),
 //! `inssplat-train pool-keys` ([`pool_keys_file`]) and `inssplat-train average`
-//! ([`super::average`]) are such rewrites.
+//! ([`super::average`]) are such rewrites; `inssplat-train export --metadata-from`
+//! ([`export_keeping_metadata`]) writes a new network with another file's entries.
 
 use std::path::Path;
 
@@ -10,7 +11,7 @@ use burn::prelude::*;
 use prost::Message;
 
 use super::import::{import_model, read_model};
-use super::{ExportError, ExportMeta, ImportError, to_model_proto};
+use super::{ExportError, ExportMeta, ImportError, onnx_pb, to_model_proto};
 use crate::model::{InsSplatNet, ModelError};
 
 /// Why a file could not be rewritten.
@@ -37,11 +38,22 @@ pub(super) fn rewrite_file(
     let original = read_model(input)?;
     let (net, meta) = import_model(input, &original, &Device::flex())?;
     let (net, meta) = change(net, meta)?;
-    let mut model = to_model_proto(&net, &meta)?;
+    write_keeping(&net, &meta, original, output)?;
+    Ok(meta)
+}
+
+/// Writes `net` to `output` as the exporter does, with every metadata entry of the ONNX file
+/// `from` that the exporter does not write itself (its shape classifier).
+pub fn export_keeping_metadata(net: &InsSplatNet, meta: &ExportMeta, from: &Path, output: &Path) -> Result<(), RewriteError> {
+    write_keeping(net, meta, read_model(from)?, output)
+}
+
+fn write_keeping(net: &InsSplatNet, meta: &ExportMeta, original: onnx_pb::ModelProto, output: &Path) -> Result<(), RewriteError> {
+    let mut model = to_model_proto(net, meta)?;
     let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
     model.metadata_props.extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
     std::fs::write(output, model.encode_to_vec()).map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
-    Ok(meta)
+    Ok(())
 }
 
 /// Writes the network of `input` to `output` with its global layers reading keys and values
