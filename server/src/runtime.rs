@@ -2,7 +2,8 @@
 //! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
 //! `proto::signature` (an error names the file and the tensor), reads the shape classifier the
 //! file may carry, notes whether the network has the optional descriptor head (read on every
-//! run when it does), sets intra-op threads from the
+//! run when it does) and the optional `rays` input (then required on every run), sets
+//! intra-op threads from the
 //! core count, warms up, and runs batches of views into planar output arrays.
 
 use std::path::{Path, PathBuf};
@@ -98,7 +99,7 @@ impl RayInput {
     }
 
     /// Values of the input for `views` views.
-    pub fn len(&self, views: usize) -> usize {
+    pub fn values(&self, views: usize) -> usize {
         views * self.tokens * inssplat_proto::rays::ray_channels(self.k)
     }
 }
@@ -214,7 +215,7 @@ impl Model {
         let rays = rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
         let mut model = Self { session, path: path.to_path_buf(), resolution, sem_dim, model_version, shapes, has_descriptors, rays };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
-        let warm_rays = rays.map(|r| vec![0.0f32; r.len(2)]);
+        let warm_rays = rays.map(|r| vec![0.0f32; r.values(2)]);
         model.run(&warm, 2, warm_rays.as_deref())?;
         Ok(model)
     }
@@ -229,13 +230,13 @@ impl Model {
         let mut inputs = vec![(signature::INPUT_IMAGES.name, TensorRef::from_array_view(([views, 3, r, r], images)).map_err(run_err)?)];
         match (self.rays, rays) {
             (None, None) => {}
-            (Some(input), Some(rays)) if rays.len() == input.len(views) => {
+            (Some(input), Some(rays)) if rays.len() == input.values(views) => {
                 let shape = [views, input.tokens, inssplat_proto::rays::ray_channels(input.k)];
                 inputs.push((signature::INPUT_RAYS.name, TensorRef::from_array_view((shape, rays)).map_err(run_err)?));
             }
             (Some(input), given) => {
                 let given = given.map_or("none".to_string(), |g| format!("{} values", g.len()));
-                return Err(RuntimeError::Run(format!("this network reads its cameras as rays ({} values for {views} views), given {given}", input.len(views))));
+                return Err(RuntimeError::Run(format!("this network reads its cameras as rays ({} values for {views} views), given {given}", input.values(views))));
             }
             (None, Some(_)) => return Err(RuntimeError::Run("this network reads no camera rays, and some were given".into())),
         }
@@ -313,6 +314,21 @@ fn check_tensors<'a>(
 #[cfg(test)]
 mod tests {
     use std::path::Path;
+
+    use super::RayInput;
+
+    /// A `rays` input is read as its patch grid and rays a patch; a shape that is no square
+    /// grid tiling the resolution, or no 6·K² channels, is named.
+    #[test]
+    fn a_rays_input_is_read_from_its_shape_or_named() {
+        let path = Path::new("m.onnx");
+        let input = RayInput::of_shape(path, &[-1, 256, 24], 128).expect("16×16 patches of 8 pixels, 2×2 rays");
+        assert_eq!((input.tokens, input.k, input.patch(128), input.values(3)), (256, 2, 8, 3 * 256 * 24));
+        for bad in [&[-1, 255, 24][..], &[-1, 256, 25], &[-1, 256], &[-1, 49, 6]] {
+            let err = RayInput::of_shape(path, bad, 128).expect_err("refused").to_string();
+            assert!(err.contains("m.onnx") && err.contains("`rays`"), "{err}");
+        }
+    }
 
     use super::descriptor_dim;
 

@@ -17,6 +17,7 @@ use glam::{Quat, Vec2, Vec3};
 use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::{DESCRIPTOR, label_cosines};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS, MAX_VIEWS, MIN_VIEWS};
+use inssplat_proto::rays::{median_depth, patch_rays};
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM, Intrinsics};
 use inssplat_raster::backproject::{BackProjected, ViewOutputs, backproject};
 use inssplat_raster::heading::{HeadingParams, place_by_heading};
@@ -31,8 +32,6 @@ use inssplat_raster::label::{InstancePrototype, SemanticProjection, assign_label
 use inssplat_raster::voxel::{DROPPED, VoxelParams, VoxelReport, Voxelized, voxelize};
 use inssplat_text::LabelCache;
 use rayon::prelude::*;
-
-use inssplat_proto::rays::{median_depth, patch_rays};
 
 use super::decode::{DecodeError, Letterbox, decode};
 use crate::runtime::{Model, ModelOutput, RuntimeError};
@@ -286,7 +285,7 @@ pub fn reconstruct_with(
     // A network that reads rays gets the known cameras', else none (zero) before registration.
     let rays = match (model.rays, &config.known_poses, config.known_median_depth) {
         (None, _, _) => None,
-        (Some(input), None, _) => Some(vec![0.0; input.len(images.len())]),
+        (Some(input), None, _) => Some(vec![0.0; input.values(images.len())]),
         (Some(input), Some(poses), Some(scale)) if scale > 0.0 => Some(patch_rays(poses, res, input.patch(res), input.k, scale)),
         (Some(_), Some(_), _) => return Err(PipelineError::RaysNeedScale),
     };
