@@ -324,7 +324,8 @@ fn decoder(
     Ok(())
 }
 
-/// Emits the whole network into `g`, reading `images` and writing every signature output.
+/// Emits the whole network into `g`, reading `images` (and `rays`, for a network that reads
+/// its cameras) and writing every signature output.
 pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     let c = net.config();
     let d = c.dim as i64;
