@@ -55,7 +55,8 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
     };
     let mut csv = String::from("checkpoint,step,sample,total,rgb,geometry,instance,semantic,boundary,abs_rel\n");
     for path in &args.checkpoints {
-        let (dir, step, losses) = train::validate_checkpoint(path, &set).with_context(|| format!("validating {}", path.display()))?;
+        let train::CheckpointScores { dir, step, losses, matching } =
+            train::score_checkpoint(path, &set, args.matching).with_context(|| format!("validating {}", path.display()))?;
         let v = train::mean_loss(&losses);
         println!(
             "{} (step {step}): val loss {:.4} (rgb {:.4}, geom {:.4}, ins {:.4}, sem {:.4}, bd {:.4}) over {} samples",
@@ -69,8 +70,7 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             args.samples
         );
         let mut abs_rel = vec![None; losses.len()];
-        if args.matching {
-            let (_, _, matching) = train::checkpoint_matching(path, &set).with_context(|| format!("scoring the attention of {}", path.display()))?;
+        if let Some(matching) = matching {
             let m = matching.attention;
             println!(
                 "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",

@@ -342,18 +342,20 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     let s = train::train(run.path(), config, tiny_data(), &session).unwrap();
     let logged = s.last_val.expect("validated at step 2").total;
     let set = |samples: usize| train::ValidationSet { samples, ..Default::default() };
-    let (dir, step, each) = train::validate_checkpoint(run.path(), &set(2)).unwrap();
+    let train::CheckpointScores { dir, step, losses: each, matching } = train::score_checkpoint(run.path(), &set(2), true).unwrap();
     assert_eq!((dir, step, each.len()), (s.checkpoint.unwrap(), 2, 2));
     let v = train::mean_loss(&each);
     assert!((v.total - logged).abs() <= 1e-5 * logged.abs().max(1.0), "validate {} against the run's {logged}", v.total);
     // More samples: the first two are the run's, so the mean moves but stays a loss.
-    let (_, _, more) = train::validate_checkpoint(run.path(), &set(6)).unwrap();
+    let more = train::score_checkpoint(run.path(), &set(6), false).unwrap();
+    assert!(more.matching.is_none(), "matching scored only when asked");
+    let more = more.losses;
     assert_eq!(&more[..2], &each[..], "the first two samples are the same");
     let more = train::mean_loss(&more);
     assert!(more.total.is_finite() && more.total != v.total, "{} vs {}", more.total, v.total);
     // The attention's matching on the same samples: some tokens of views 1.. see view 0, and
     // an untrained head looks elsewhere (chance: 1 token in 64 right, 9 within one).
-    let (_, _, matching) = train::checkpoint_matching(run.path(), &set(2)).unwrap();
+    let matching = matching.expect("asked for");
     let m = matching.attention;
     assert!(m.tokens > 0, "{m:?}");
     assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
@@ -364,12 +366,11 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     let abs_rel = matching.mean_depth_abs_rel().expect("synthesized rooms have true depth");
     assert!(abs_rel > 0.05 && abs_rel.is_finite(), "AbsRel {abs_rel}");
     // Views from 3 consecutive frames are other views, so another depth.
-    let (_, _, near) = train::checkpoint_matching(run.path(), &train::ValidationSet { window: Some(3), ..set(2) }).unwrap();
-    assert_ne!(near.depth_abs_rel, matching.depth_abs_rel);
+    let near = train::score_checkpoint(run.path(), &train::ValidationSet { window: Some(3), ..set(2) }, true).unwrap();
+    assert_ne!(near.matching.expect("asked for").depth_abs_rel, matching.depth_abs_rel);
     let empty = tempfile::tempdir().unwrap();
-    let err = train::validate_checkpoint(empty.path(), &set(2)).unwrap_err();
+    let err = train::score_checkpoint(empty.path(), &set(2), true).err().expect("no checkpoint");
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
-    assert!(train::checkpoint_matching(empty.path(), &set(2)).is_err());
 }
 
 /// A network trained with `--camera-rays` reads the cameras: validated with them turned
@@ -384,7 +385,7 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
         let config = TrainConfig::new(tiny_model().with_camera_rays(rays), LossConfig::new()).with_steps(3).with_warmup(0).with_lr(1e-2).with_max_views(3).with_seed(2);
         train::train(run.path(), config, tiny_data(), &quiet_session()).unwrap();
         let set = train::ValidationSet { samples: 2, ray_noise_deg: noise, ..Default::default() };
-        train::validate_checkpoint(run.path(), &set).unwrap().2
+        train::score_checkpoint(run.path(), &set, false).unwrap().losses
     };
     assert_ne!(losses(Some(1), 0.0), losses(Some(1), 30.0));
     assert_eq!(losses(None, 0.0), losses(None, 30.0));

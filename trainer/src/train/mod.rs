@@ -38,7 +38,7 @@ use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
 pub use ray_errors::{RayPlan, turned};
-pub use validation::{Matching, ValidationSet, checkpoint_matching, mean_loss, validate_checkpoint};
+pub use validation::{CheckpointScores, Matching, ValidationSet, mean_loss, score_checkpoint};
 use validation::{val_samples, validate};
 
 /// Everything that defines a run; saved in every checkpoint.

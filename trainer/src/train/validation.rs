@@ -18,7 +18,7 @@ use super::{Session, TrainError, label_cache};
 use crate::loss::LossConfig;
 use crate::model::InsSplatNet;
 
-/// Which fixed samples [`validate_checkpoint`] and [`checkpoint_matching`] score: the first
+/// Which fixed samples [`score_checkpoint`] scores: the first
 /// `samples` of `data` (default: the val split at the run's size), 4 views each, drawn from
 /// `window` consecutive frames ([`ViewPlan::window`]; `None`: the whole trajectory, as a run
 /// validates), the cameras a network trained with `--camera-rays` reads turned by
@@ -31,17 +31,32 @@ pub struct ValidationSet {
     pub ray_noise_deg: f32,
 }
 
+/// What [`score_checkpoint`] measured of one checkpoint.
+pub struct CheckpointScores {
+    /// The checkpoint folder and its step.
+    pub dir: PathBuf,
+    pub step: u64,
+    /// Each sample's validation loss (their mean: [`mean_loss`]).
+    pub losses: Vec<LossValues>,
+    /// With `matching`: whether the network matches the views ([`Matching`]).
+    pub matching: Option<Matching>,
+}
+
 /// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
 /// `set` — by default the samples a run validates on while it trains, and as many more as
 /// asked: model selection between runs and checkpoints on more samples than a run spends
-/// while training. Returns the checkpoint folder, its step and each sample's loss (their
-/// mean: [`mean_loss`]).
-pub fn validate_checkpoint(from: &Path, set: &ValidationSet) -> Result<(PathBuf, u64, Vec<LossValues>), TrainError> {
+/// while training — and, with `matching`, on the same samples and weights (loaded and
+/// synthesized once), whether it matches the views ([`Matching`]).
+pub fn score_checkpoint(from: &Path, set: &ValidationSet, matching: bool) -> Result<CheckpointScores, TrainError> {
     let device = Device::flex().autodiff();
     let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
     let losses = validate_each(&net, &val, &state.config.loss, &device)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
-    Ok((dir, state.step, losses))
+    let matching = matching
+        .then(|| matching_scores(&net.valid(), &val))
+        .transpose()
+        .map_err(|source| TrainError::Step { step: state.step, scene: "matching".into(), source })?;
+    Ok(CheckpointScores { dir, step: state.step, losses, matching })
 }
 
 /// The mean of per-sample losses (zero for none).
@@ -49,43 +64,41 @@ pub fn mean_loss(losses: &[LossValues]) -> LossValues {
     losses.iter().fold(LossValues::default(), |sum, l| sum + *l) * (1.0 / losses.len().max(1) as f32)
 }
 
-/// Whether the network matches the views, over the same samples as [`validate_checkpoint`]:
+/// Whether `net` matches the views of `val`:
 /// whether the last global layer's first attention head looks, from each patch token of a
 /// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]),
 /// whether or not it was trained with `--attention-match-weight`; and, for a network with a
 /// descriptor head, whether each pixel's most alike descriptor in another view is the one that
 /// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
 /// depth's AbsRel, beside them.
-pub fn checkpoint_matching(from: &Path, set: &ValidationSet) -> Result<(PathBuf, u64, Matching), TrainError> {
+fn matching_scores(net: &InsSplatNet, val: &[Sample]) -> Result<Matching, StepError> {
     let device = Device::flex();
-    let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
-    let failed = |source: StepError| TrainError::Step { step: state.step, scene: "matching".into(), source };
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     let mut depth_abs_rel = Vec::with_capacity(val.len());
-    for s in &val {
+    for s in val {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let out = net.forward_with_rays(images, super::step::input_rays(&net, s, &device)).map_err(|e| failed(e.into()))?;
+        let out = net.forward_with_rays(images, super::step::input_rays(net, s, &device)).map_err(StepError::from)?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
-        let predicted = crate::loss::host("depth", &out.depth).map_err(|e| failed(e.into()))?;
-        let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| failed(crate::loss::LossError::Read { what: "depth", message: e.to_string() }.into()))?;
+        let predicted = crate::loss::host("depth", &out.depth).map_err(StepError::from)?;
+        let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| StepError::from(crate::loss::LossError::Read { what: "depth", message: e.to_string() }))?;
         depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
-        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(|e| failed(e.into()))?;
-        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(|e| failed(e.into()))?;
+        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(StepError::from)?;
+        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(StepError::from)?;
         scores = scores.merge(sample);
         if let Some(descriptors) = out.descriptors {
-            let matches = crate::loss::descriptor_matches(cameras, depth, s.size, VALIDATION_DESCRIPTOR_SAMPLES).map_err(|e| failed(e.into()))?;
+            let matches = crate::loss::descriptor_matches(cameras, depth, s.size, VALIDATION_DESCRIPTOR_SAMPLES).map_err(StepError::from)?;
             let dims = descriptors.dims();
-            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| failed(crate::loss::LossError::Read { what: "descriptors", message: format!("{e:?}") }.into()))?;
+            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| StepError::from(crate::loss::LossError::Read { what: "descriptors", message: format!("{e:?}") }))?;
             let sample = crate::loss::descriptor_scores(&host, dims, &matches, REGISTRATION_STRIDE);
             descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
         }
     }
-    Ok((dir, state.step, Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel }))
+    Ok(Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel })
 }
 
-/// What [`checkpoint_matching`] measures.
+/// What [`score_checkpoint`] measures of the matching.
 pub struct Matching {
     pub attention: crate::loss::MatchScores,
     pub descriptors: Option<crate::loss::DescriptorScores>,
