@@ -200,6 +200,10 @@ pub struct TrainArgs {
     /// up to this many degrees (uniform; a random axis each), as registration errs.
     #[arg(long, default_value_t = 0.0)]
     ray_noise: f32,
+    /// With --camera-rays: train the ray layer alone, every other weight kept (so that with
+    /// zero rays the network computes what its --init-from source did).
+    #[arg(long)]
+    train_rays_only: bool,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -336,6 +340,7 @@ impl TrainArgs {
             .with_view_window(self.view_window.map(usize::from))
             .with_seed(self.seed)
             .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
+            .with_rays_only(self.train_rays_only.then_some(true))
             .with_rays((self.ray_dropout > 0.0 || self.ray_noise > 0.0).then_some(RayPlan { dropout: self.ray_dropout, noise_deg: self.ray_noise }))
     }
 

@@ -399,6 +399,33 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
     assert!(err.to_string().contains("--camera-rays"), "{err}");
 }
 
+/// `--train-rays-only`: a fine-tune with rays grown onto a network moves the ray layer and no
+/// other weight; a network without rays refuses it by name.
+#[test]
+fn training_the_ray_layer_alone_keeps_every_other_weight() {
+    use burn::store::ModuleSnapshot;
+    let named = |dir: &Path| -> std::collections::HashMap<String, Vec<u8>> {
+        let state = checkpoint::read_state(dir).unwrap();
+        let net = checkpoint::load_model(dir, &state, &Device::flex()).unwrap();
+        net.collect(None, None, false).into_iter().map(|t| t.into_parts().map(|(name, _, _, _, bytes)| (name, bytes.to_vec())).unwrap()).collect()
+    };
+    let source = tempfile::tempdir().unwrap();
+    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(4);
+    let source_dir = train::train(source.path(), config, tiny_data(), &quiet_session()).unwrap().checkpoint.unwrap();
+    let rays_only = |model| TrainConfig::new(model, LossConfig::new()).with_steps(2).with_warmup(0).with_lr(1e-2).with_max_views(3).with_rays_only(Some(true));
+    let tuned = tempfile::tempdir().unwrap();
+    let tuned_dir = train::fine_tune(tuned.path(), rays_only(tiny_model().with_camera_rays(Some(1))), tiny_data(), source.path(), &quiet_session()).unwrap().checkpoint.unwrap();
+    let (before, after) = (named(&source_dir), named(&tuned_dir));
+    assert_eq!(after.len(), before.len() + 2, "the ray layer's weight and bias are new");
+    for (name, bytes) in &before {
+        assert!(after[name] == *bytes, "{name} moved");
+    }
+    let ray_weight = after.iter().find(|(name, _)| name.starts_with("ray_embed") && name.ends_with("weight")).expect("a ray layer").1;
+    assert!(ray_weight.iter().any(|&b| b != 0), "the ray layer left zero");
+    let err = train::train(&tuned.path().join("plain"), rays_only(tiny_model()), tiny_data(), &quiet_session()).unwrap_err();
+    assert!(err.to_string().contains("--camera-rays"), "{err}");
+}
+
 #[test]
 fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
     let source = tempfile::tempdir().unwrap();

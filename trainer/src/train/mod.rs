@@ -91,6 +91,10 @@ pub struct TrainConfig {
     /// The rays a network that reads its cameras gets ([`RayPlan`]); `None` (also what configs
     /// saved before this existed read as): always the true cameras'.
     pub rays: Option<RayPlan>,
+    /// Train the ray layer alone ([`crate::model::ModelConfig::camera_rays`]), every other
+    /// weight kept, so that with zero rays the network stays its source. `None` (also what
+    /// configs saved before this existed read as): every weight trains.
+    pub rays_only: Option<bool>,
 }
 
 impl TrainConfig {
@@ -120,6 +124,9 @@ impl TrainConfig {
         }
         if self.loss.descriptor_weight.is_some_and(|w| w > 0.0) && self.model.descriptor_head.is_none() {
             return Err(TrainError::Config("a descriptor weight needs a network with a descriptor head".into()));
+        }
+        if self.rays_only == Some(true) && self.model.camera_rays.is_none() {
+            return Err(TrainError::Config("training the ray layer alone needs a network that reads camera rays (--camera-rays)".into()));
         }
         if let Some(plan) = self.rays {
             if self.model.camera_rays.is_none() {
@@ -399,7 +406,8 @@ fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
 
 /// One optimizer update of `net` with `grads` (see [`batch::gradients`]): the transformer
 /// blocks at `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the
-/// output layer of the dense decoder and Φ_sem move.
+/// output layer of the dense decoder and Φ_sem move, and with [`TrainConfig::rays_only`] only
+/// the ray layer.
 pub fn update(
     net: InsSplatNet,
     optim: &mut ModuleOptimizer,
@@ -407,6 +415,11 @@ pub fn update(
     lr: f64,
     config: &TrainConfig,
 ) -> InsSplatNet {
+    if let (Some(true), Some(layer)) = (config.rays_only, &net.ray_embed) {
+        let mut rays = GradientsParams::new();
+        batch::move_gradients(layer, &mut grads, &mut rays);
+        return optim.step(lr, net, rays);
+    }
     if config.loss.gaussians == GaussianTraining::Frozen {
         let mut heads = GradientsParams::new();
         batch::move_gradients(&net.decoder.out, &mut grads, &mut heads);
