@@ -17,7 +17,7 @@ use crate::support::{self, s};
 
 /// A network that reads its cameras as rays runs twice by default (stage "rays", on the
 /// registered cameras), once with `--no-ray-pass`, and with `--known-poses` once on the true
-/// cameras' rays.
+/// cameras' rays; the protocol line says which.
 #[test]
 fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
     let dir = tempfile::tempdir().unwrap();
@@ -29,12 +29,16 @@ fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
         let out = inssplat(&[&["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--out", s(&out_dir), "--json"], extra].concat());
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
-        report["scenes"][0]["stage_ms"].as_object().unwrap().clone()
+        (report["scenes"][0]["stage_ms"].as_object().unwrap().clone(), report["protocol"].as_str().unwrap().to_string())
     };
-    assert!(stages(&[])["rays"].as_f64().unwrap() > 0.0);
-    assert!(!stages(&["--no-ray-pass"]).contains_key("rays"));
-    let known = stages(&["--known-poses"]);
+    let (twice, protocol) = stages(&[]);
+    assert!(twice["rays"].as_f64().unwrap() > 0.0);
+    assert!(protocol.contains("again on the registered cameras' rays"), "{protocol}");
+    let (once, protocol) = stages(&["--no-ray-pass"]);
+    assert!(!once.contains_key("rays") && protocol.contains("--no-ray-pass"), "{protocol}");
+    let (known, protocol) = stages(&["--known-poses"]);
     assert!(!known.contains_key("rays") && !known.contains_key("register"), "{known:?}");
+    assert!(protocol.contains("true context cameras as rays"), "{protocol}");
 }
 
 #[test]

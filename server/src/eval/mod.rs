@@ -329,7 +329,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}",
+             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -372,6 +372,12 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 ),
                 (Some(_), None, false) => "; the views no match links kept where the camera's motion continues (--heading-candidates 0)".to_string(),
                 _ => String::new(),
+            },
+            match (model.rays, req.known_poses, req.pipeline.ray_pass) {
+                (None, _, _) => "",
+                (Some(_), true, _) => "; the network given the true context cameras as rays (over the context frames' median true depth)",
+                (Some(_), false, true) => "; the network run first with zero camera rays, then again on the registered cameras' rays for the instance and semantic features (stage `rays`)",
+                (Some(_), false, false) => "; the network run once, with zero camera rays (--no-ray-pass)",
             }
         ),
     })
