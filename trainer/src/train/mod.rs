@@ -37,7 +37,7 @@ use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use ray_errors::{RayPlan, turned};
+pub use ray_errors::RayPlan;
 pub use validation::{CheckpointScores, Matching, ValidationSet, mean_loss, score_checkpoint};
 use validation::{val_samples, validate};
 

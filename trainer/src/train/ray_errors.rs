@@ -37,7 +37,7 @@ impl RayPlan {
 /// `cameras` with every one after the first turned by `degrees` about its own centre, each
 /// about an axis drawn from `seed` (the first, the world frame, stays): the camera errors a
 /// network that reads its cameras would get from registration.
-pub fn turned(cameras: &[Camera], degrees: f32, seed: u64) -> Vec<Camera> {
+pub(super) fn turned(cameras: &[Camera], degrees: f32, seed: u64) -> Vec<Camera> {
     if degrees == 0.0 {
         return cameras.to_vec();
     }

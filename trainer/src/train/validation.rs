@@ -48,12 +48,12 @@ pub struct CheckpointScores {
 /// while training — and, with `matching`, on the same samples and weights (loaded and
 /// synthesized once), whether it matches the views ([`Matching`]).
 pub fn score_checkpoint(from: &Path, set: &ValidationSet, matching: bool) -> Result<CheckpointScores, TrainError> {
-    let device = Device::flex().autodiff();
+    let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
     let losses = validate_each(&net, &val, &state.config.loss, &device)
         .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
     let matching = matching
-        .then(|| matching_scores(&net.valid(), &val))
+        .then(|| matching_scores(&net, &val, &device))
         .transpose()
         .map_err(|source| TrainError::Step { step: state.step, scene: "matching".into(), source })?;
     Ok(CheckpointScores { dir, step: state.step, losses, matching })
@@ -71,15 +71,14 @@ pub fn mean_loss(losses: &[LossValues]) -> LossValues {
 /// descriptor head, whether each pixel's most alike descriptor in another view is the one that
 /// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
 /// depth's AbsRel, beside them.
-fn matching_scores(net: &InsSplatNet, val: &[Sample]) -> Result<Matching, StepError> {
-    let device = Device::flex();
+fn matching_scores(net: &InsSplatNet, val: &[Sample], device: &Device) -> Result<Matching, StepError> {
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     let mut depth_abs_rel = Vec::with_capacity(val.len());
     for s in val {
         let pixels = s.size * s.size;
-        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), &device);
-        let out = net.forward_with_rays(images, super::step::input_rays(net, s, &device)).map_err(StepError::from)?;
+        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), device);
+        let out = net.forward_with_rays(images, super::step::input_rays(net, s, device)).map_err(StepError::from)?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = crate::loss::host("depth", &out.depth).map_err(StepError::from)?;
         let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| StepError::from(crate::loss::LossError::Read { what: "depth", message: e.to_string() }))?;
@@ -143,14 +142,12 @@ fn checkpoint_with_samples(from: &Path, set: &ValidationSet, device: &Device) ->
 /// The validation loss: mean over fixed samples, without gradients (`device`: the training
 /// device, whose inner device runs it).
 pub(super) fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
-    Ok(mean_loss(&validate_each(net, samples, loss, device)?))
+    Ok(mean_loss(&validate_each(&net.valid(), samples, loss, &device.clone().inner())?))
 }
 
-/// Each sample's loss, as [`validate`].
+/// Each sample's loss for `net` on `device` (not an autodiff one: no gradients are kept).
 fn validate_each(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<Vec<LossValues>, StepError> {
-    let plain = net.valid();
-    let device = device.clone().inner();
-    samples.iter().map(|s| Ok(objective(&plain, s, loss, &device)?.values())).collect()
+    samples.iter().map(|s| Ok(objective(net, s, loss, device)?.values())).collect()
 }
 
 pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>, window: Option<usize>) -> Result<Vec<Sample>, TrainError> {
