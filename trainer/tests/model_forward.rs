@@ -169,7 +169,7 @@ fn camera_rays_join_at_zero_learn_and_are_checked() {
     let grads = (with.camera.sum() + with.depth.mean() + with.gaussians.mean() + with.instance.mean() + with.semantic.mean()).backward();
     let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
     grown.visit(&mut visitor);
-    assert_eq!(visitor.without, 2, "the ray layer's weight and bias receive gradients like every tensor but Φ_sem's");
+    assert_eq!(visitor.without, 2, "the ray layer's weight receives a gradient like every tensor but Φ_sem's two");
     assert!(matches!(grown.forward(images.clone()), Err(ModelError::Rays(_))));
     assert!(matches!(source.forward_with_rays(images, Some(rays)), Err(ModelError::Rays(_))));
 }

@@ -400,10 +400,13 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
 }
 
 /// `--train-rays-only`: a fine-tune with rays grown onto a network moves the ray layer and no
-/// other weight; a network without rays refuses it by name.
+/// other weight, and with every ray zero the tuned network computes exactly what the source
+/// does (the layer has no bias to move the tokens); a network without rays refuses it by name.
 #[test]
 fn training_the_ray_layer_alone_keeps_every_other_weight() {
     use burn::store::ModuleSnapshot;
+    use burn::tensor::Distribution;
+    use inssplat_proto::rays::ray_channels;
     let named = |dir: &Path| -> std::collections::HashMap<String, Vec<u8>> {
         let state = checkpoint::read_state(dir).unwrap();
         let net = checkpoint::load_model(dir, &state, &Device::flex()).unwrap();
@@ -416,14 +419,28 @@ fn training_the_ray_layer_alone_keeps_every_other_weight() {
     let tuned = tempfile::tempdir().unwrap();
     let tuned_dir = train::fine_tune(tuned.path(), rays_only(tiny_model().with_camera_rays(Some(1))), tiny_data(), source.path(), &quiet_session()).unwrap().checkpoint.unwrap();
     let (before, after) = (named(&source_dir), named(&tuned_dir));
-    assert_eq!(after.len(), before.len() + 2, "the ray layer's weight and bias are new");
+    assert_eq!(after.len(), before.len() + 1, "the ray layer's weight is new");
     for (name, bytes) in &before {
         assert!(after[name] == *bytes, "{name} moved");
     }
     let ray_weight = after.iter().find(|(name, _)| name.starts_with("ray_embed") && name.ends_with("weight")).expect("a ray layer").1;
     assert!(ray_weight.iter().any(|&b| b != 0), "the ray layer left zero");
+    let load = |dir: &Path| checkpoint::load_model(dir, &checkpoint::read_state(dir).unwrap(), &Device::flex()).unwrap();
+    let (plain, tuned_net) = (load(&source_dir), load(&tuned_dir));
+    let c = tuned_net.config();
+    let images = Tensor::<4>::random([3, 3, c.image_size, c.image_size], Distribution::Uniform(0.0, 1.0), &Device::flex());
+    let zero_rays = Tensor::<3>::zeros([3, c.grid() * c.grid(), ray_channels(1)], &Device::flex());
+    let (a, b) = (plain.forward(images.clone()).unwrap(), tuned_net.forward_with_rays(images, Some(zero_rays)).unwrap());
+    for (x, y) in [(a.depth, b.depth), (a.instance, b.instance), (a.semantic, b.semantic), (a.gaussians, b.gaussians)] {
+        assert_eq!(x.into_data().try_into_vec_as::<f32>().unwrap(), y.into_data().try_into_vec_as::<f32>().unwrap(), "zero rays moved an output");
+    }
     let err = train::train(&tuned.path().join("plain"), rays_only(tiny_model()), tiny_data(), &quiet_session()).unwrap_err();
     assert!(err.to_string().contains("--camera-rays"), "{err}");
+    // Read as a network without rays, the checkpoint is refused, naming the tensor it would drop.
+    let mut state = checkpoint::read_state(&tuned_dir).unwrap();
+    state.config.model.camera_rays = None;
+    let err = checkpoint::load_model(&tuned_dir, &state, &Device::flex()).err().expect("an unread tensor");
+    assert!(err.to_string().contains("ray_embed.weight") && err.to_string().contains("model.bpk"), "{err}");
 }
 
 #[test]

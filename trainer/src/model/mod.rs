@@ -91,8 +91,9 @@ pub struct ModelConfig {
     /// as): every token.
     pub global_kv_pool: Option<usize>,
     /// Rays a patch side of the cameras given as input ([`rays`]): k × k Plücker rays of
-    /// each patch, in view 0's frame, added to its token through a layer that starts at zero
-    /// (so a network grown with it computes what it did). `None` (also what files saved
+    /// each patch, in view 0's frame, added to its token through a layer without bias that
+    /// starts at zero (so a network grown with it computes what it did, and zero rays
+    /// always compute what it does without them). `None` (also what files saved
     /// before it existed read as): the network sees the images alone.
     pub camera_rays: Option<usize>,
 }
@@ -181,7 +182,9 @@ impl ModelConfig {
             decoder: DenseDecoder::new(self, device),
             sem_proj: LinearConfig::new(self.sem_dim, TEXT_DIM).init(device),
             ray_embed: self.camera_rays.map(|k| {
-                LinearConfig::new(rays::ray_channels(k), self.dim).with_initializer(Initializer::Zeros).init(device)
+                // No bias: zero rays add nothing to a token however the layer trains, so the
+                // pipeline's first pass (every ray zero) runs the network as it is without rays.
+                LinearConfig::new(rays::ray_channels(k), self.dim).with_bias(false).with_initializer(Initializer::Zeros).init(device)
             }),
             config: self.clone(),
         })

@@ -165,10 +165,12 @@ pub fn load_model(dir: &Path, state: &CheckpointState, device: &Device) -> Resul
     let result = net
         .load_from(&mut BurnpackStore::from_file(&model))
         .map_err(|e| CheckpointError::Incompatible { path: model.clone(), problem: e.to_string() })?;
-    if !result.errors.is_empty() || !result.missing.is_empty() {
+    // A tensor the network does not read (a ray layer's bias saved before the layer lost it)
+    // would be dropped without a word, and the network would compute something else.
+    if !result.errors.is_empty() || !result.missing.is_empty() || !result.unused.is_empty() {
         return Err(CheckpointError::Incompatible {
             path: model,
-            problem: format!("tensors missing {:?}, errors {:?}", result.missing, result.errors),
+            problem: format!("tensors missing {:?}, not read by this network {:?}, errors {:?}", result.missing, result.unused, result.errors),
         });
     }
     Ok(net.fork(device))
