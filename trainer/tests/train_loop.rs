@@ -407,9 +407,8 @@ fn training_the_ray_layer_alone_keeps_every_other_weight() {
     use burn::store::ModuleSnapshot;
     use burn::tensor::Distribution;
     use inssplat_proto::rays::ray_channels;
-    let named = |dir: &Path| -> std::collections::HashMap<String, Vec<u8>> {
-        let state = checkpoint::read_state(dir).unwrap();
-        let net = checkpoint::load_model(dir, &state, &Device::flex()).unwrap();
+    let load = |dir: &Path| checkpoint::load_model(dir, &checkpoint::read_state(dir).unwrap(), &Device::flex()).unwrap();
+    let named = |net: &inssplat_trainer::model::InsSplatNet| -> std::collections::HashMap<String, Vec<u8>> {
         net.collect(None, None, false).into_iter().map(|t| t.into_parts().map(|(name, _, _, _, bytes)| (name, bytes.to_vec())).unwrap()).collect()
     };
     let source = tempfile::tempdir().unwrap();
@@ -418,15 +417,14 @@ fn training_the_ray_layer_alone_keeps_every_other_weight() {
     let rays_only = |model| TrainConfig::new(model, LossConfig::new()).with_steps(2).with_warmup(0).with_lr(1e-2).with_max_views(3).with_rays_only(Some(true));
     let tuned = tempfile::tempdir().unwrap();
     let tuned_dir = train::fine_tune(tuned.path(), rays_only(tiny_model().with_camera_rays(Some(1))), tiny_data(), source.path(), &quiet_session()).unwrap().checkpoint.unwrap();
-    let (before, after) = (named(&source_dir), named(&tuned_dir));
+    let (plain, tuned_net) = (load(&source_dir), load(&tuned_dir));
+    let (before, after) = (named(&plain), named(&tuned_net));
     assert_eq!(after.len(), before.len() + 1, "the ray layer's weight is new");
     for (name, bytes) in &before {
         assert!(after[name] == *bytes, "{name} moved");
     }
     let ray_weight = after.iter().find(|(name, _)| name.starts_with("ray_embed") && name.ends_with("weight")).expect("a ray layer").1;
     assert!(ray_weight.iter().any(|&b| b != 0), "the ray layer left zero");
-    let load = |dir: &Path| checkpoint::load_model(dir, &checkpoint::read_state(dir).unwrap(), &Device::flex()).unwrap();
-    let (plain, tuned_net) = (load(&source_dir), load(&tuned_dir));
     let c = tuned_net.config();
     let images = Tensor::<4>::random([3, 3, c.image_size, c.image_size], Distribution::Uniform(0.0, 1.0), &Device::flex());
     let zero_rays = Tensor::<3>::zeros([3, c.grid() * c.grid(), ray_channels(1)], &Device::flex());
