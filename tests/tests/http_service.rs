@@ -38,6 +38,7 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!(rec.cameras.len(), 4);
     assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
     assert!(rec.refinement.is_none() && rec.timings.iter().all(|t| t.stage != "refine"), "refined unasked: {:?}", rec.timings);
+    assert!(rec.timings.iter().any(|t| t.stage == "rays"), "the shipped network reads the registered cameras: {:?}", rec.timings);
     assert!(rec.instances.iter().all(|i| ["chair", "table", "lamp", "wall", "floor", "unknown"].contains(&i.label.as_str())), "{:?}", rec.instances);
 
     let base = format!("/v1/scenes/{}", rec.scene_id);
@@ -200,4 +201,14 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
 
     let code = server.terminate(Duration::from_secs(30));
     assert!(code.success(), "SIGTERM ends the service cleanly: {code:?}\n{}", server.log_text());
+}
+
+/// `serve --no-ray-pass` answers with the first pass of a network that reads its cameras.
+#[test]
+fn a_server_told_so_runs_the_network_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = support::test_scene(dir.path(), 3);
+    let server = Server::start(&shipped_model(), &dir.path().join("data"), &["--no-ray-pass"]);
+    let rec = reconstruct(&server, &scene_photos(&scene)[..2], ("vocab", b"chair"));
+    assert!(rec.timings.iter().any(|t| t.stage == "model") && rec.timings.iter().all(|t| t.stage != "rays"), "{:?}", rec.timings);
 }

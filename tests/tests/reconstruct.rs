@@ -61,6 +61,25 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
     assert!(out.join("preview.png").is_file() && out.join("instances.json").is_file());
 }
 
+/// A network that reads its cameras as rays runs again on the registered cameras (stage
+/// "rays", after the cameras are placed), and once with `--no-ray-pass`.
+#[test]
+fn a_network_that_reads_rays_runs_twice_unless_told_not_to() {
+    let (dir, _, scene) = fixtures();
+    let model = support::tiny_rays_model(dir.path());
+    let stages = |extra: &[&str]| -> Vec<String> {
+        let out = dir.path().join(format!("rays-out{}", extra.concat()));
+        let (ok, stdout, stderr) = run(&[&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--json"], extra].concat());
+        assert!(ok, "{stderr}");
+        let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+        r.timings.into_iter().map(|t| t.stage).collect()
+    };
+    let twice = stages(&[]);
+    assert_eq!(twice.iter().position(|t| t == "rays"), twice.iter().position(|t| t == "heading").map(|h| h + 1), "{twice:?}");
+    let once = stages(&["--no-ray-pass"]);
+    assert_eq!(once, twice.iter().filter(|t| *t != "rays").cloned().collect::<Vec<_>>());
+}
+
 #[test]
 fn refuses_a_single_view() {
     let (dir, model, scene) = fixtures();
