@@ -11,6 +11,7 @@ use inssplat_raster::superpixel::SuperpixelParams;
 use inssplat_raster::register::RegisterParams;
 use inssplat_raster::voxel::{OpacityMerge, VoxelParams};
 use inssplat_server::pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, VoteScope, reconstruct_with};
+use inssplat_server::pipeline::switches::PipelineSwitches;
 use inssplat_raster::render::{Backend, GpuRenderer};
 use inssplat_server::runtime::Model;
 use inssplat_server::{bench, check, eval, inputs, output, query, render_view, saved, vocab};
@@ -53,17 +54,8 @@ enum Command {
         /// beside the semantic features when naming instances; 0 names by the features alone.
         #[arg(long, default_value_t = DEFAULT_SHAPE_WEIGHT)]
         shape_weight: f32,
-        /// Refine the Gaussians and the input cameras against the input photos for this many
-        /// Adam steps after the network (test-time optimization, one view a step, about 50 ms a
-        /// step at 8 views on two cores; 0, the default, is the feed-forward pipeline). At 8
-        /// views new viewpoints gain up to about 200 steps and little more after.
-        #[arg(long, default_value_t = 0, value_name = "STEPS")]
-        refine_steps: usize,
-        /// With a network that reads its cameras as rays (the shipped one since 0.12): keep
-        /// its first pass instead of running it again on the registered cameras, for about
-        /// 0.7× the time and the instances of that pass (stage "rays" left out).
-        #[arg(long, env = "INSSPLAT_NO_RAY_PASS")]
-        no_ray_pass: bool,
+        #[command(flatten)]
+        switches: PipelineSwitches,
         /// Print the result as JSON on stdout.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
@@ -217,11 +209,6 @@ enum Command {
         /// (the ablation of registration).
         #[arg(long)]
         no_register: bool,
-        /// With a network that reads its cameras as rays: keep its first pass (every ray
-        /// zero) instead of running it again on the registered cameras (the ablation of stage
-        /// "rays").
-        #[arg(long)]
-        no_ray_pass: bool,
         /// Keep the camera head's field of view in registration instead of measuring one
         /// focal length for all views from the matches (the ablation of that estimate).
         #[arg(long)]
@@ -248,11 +235,8 @@ enum Command {
         /// without an instance, instead of filled from around it as `render` fills a new view.
         #[arg(long)]
         no_fill: bool,
-        /// Refine the Gaussians and the input cameras against the input photos for this many
-        /// Adam steps after the network (test-time optimization, one view a step, about 50 ms a
-        /// step at 8 views on two cores; 0, the default, is the feed-forward pipeline).
-        #[arg(long, default_value_t = 0, value_name = "STEPS")]
-        refine_steps: usize,
+        #[command(flatten)]
+        switches: PipelineSwitches,
         /// Refine each target camera's pose against its photo for this many Adam steps before
         /// scoring it, the Gaussians frozen (the test-time pose optimization of pose-free
         /// novel-view evaluations; 0, the default, scores at the mapped camera). The protocol
@@ -334,7 +318,7 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Reconstruct { inputs, out, model, vocab, shape_weight, refine_steps, no_ray_pass, json, threads } => {
+        Command::Reconstruct { inputs, out, model, vocab, shape_weight, switches, json, threads } => {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
@@ -344,7 +328,7 @@ fn main() -> anyhow::Result<()> {
             bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
-            let config = PipelineConfig { shape_weight, refine_steps, ray_pass: !no_ray_pass, ..PipelineConfig::default() };
+            let config = switches.apply(PipelineConfig { shape_weight, ..PipelineConfig::default() });
             let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
                 bar.set_message(format!("{views} views: {stage}"))
             });
@@ -452,7 +436,6 @@ fn main() -> anyhow::Result<()> {
             superpixel_scale,
             vote,
             heading_candidates,
-            no_ray_pass,
             shape_examples,
             known_poses,
             known_depth,
@@ -464,7 +447,7 @@ fn main() -> anyhow::Result<()> {
             no_learned_matches,
             no_aggregation,
             no_fill,
-            refine_steps,
+            switches,
             target_pose_steps,
             query_rules,
             perturb,
@@ -491,7 +474,7 @@ fn main() -> anyhow::Result<()> {
             let request = eval::EvalRequest {
                 views,
                 extra_vocab: extra,
-                pipeline: PipelineConfig {
+                pipeline: switches.apply(PipelineConfig {
                     register: (!no_register).then(|| RegisterParams {
                         estimate_focal: !keep_focal,
                         use_descriptors: !no_learned_matches,
@@ -502,13 +485,11 @@ fn main() -> anyhow::Result<()> {
                     split: (split_cell > 0.0).then(|| SplitParams { cell_voxels: split_cell, ..SplitParams::default() }),
                     shape_weight,
                     voxel: VoxelParams { opacity: merge_opacity.into(), ..VoxelParams::default() },
-                    refine_steps,
                     superpixels: (superpixel_scale > 0.0).then(|| SuperpixelParams { scale: superpixel_scale, ..SuperpixelParams::default() }),
                     heading: (heading_candidates > 0).then(|| HeadingParams { candidates: heading_candidates, ..HeadingParams::default() }),
                     vote,
-                    ray_pass: !no_ray_pass,
                     ..PipelineConfig::default()
-                },
+                }),
                 cluster,
                 known_poses,
                 known_depth,

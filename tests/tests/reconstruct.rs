@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 
 use crate::support::{self, s};
 
-use inssplat_e2e::inssplat;
+use inssplat_e2e::{inssplat, inssplat_bin};
 use inssplat_proto::api::ReconstructResponse;
 use inssplat_proto::dataset::TransformsJson;
 use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
@@ -62,22 +62,25 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
 }
 
 /// A network that reads its cameras as rays runs again on the registered cameras (stage
-/// "rays", after the cameras are placed), and once with `--no-ray-pass`.
+/// "rays", after the cameras are placed), and once with `--no-ray-pass` or its environment
+/// variable.
 #[test]
 fn a_network_that_reads_rays_runs_twice_unless_told_not_to() {
     let (dir, _, scene) = fixtures();
     let model = support::tiny_rays_model(dir.path());
-    let stages = |extra: &[&str]| -> Vec<String> {
-        let out = dir.path().join(format!("rays-out{}", extra.concat()));
-        let (ok, stdout, stderr) = run(&[&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--json"], extra].concat());
-        assert!(ok, "{stderr}");
-        let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
+    let stages = |extra: &[&str], env: &[(&str, &str)]| -> Vec<String> {
+        let out = dir.path().join(format!("rays-out{}{}", extra.concat(), env.len()));
+        let args = [&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--json"], extra].concat();
+        let output = std::process::Command::new(inssplat_bin()).args(&args).envs(env.iter().copied()).output().unwrap();
+        assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+        let r: ReconstructResponse = serde_json::from_slice(&output.stdout).unwrap();
         r.timings.into_iter().map(|t| t.stage).collect()
     };
-    let twice = stages(&[]);
+    let twice = stages(&[], &[]);
     assert_eq!(twice.iter().position(|t| t == "rays"), twice.iter().position(|t| t == "heading").map(|h| h + 1), "{twice:?}");
-    let once = stages(&["--no-ray-pass"]);
+    let once = stages(&["--no-ray-pass"], &[]);
     assert_eq!(once, twice.iter().filter(|t| *t != "rays").cloned().collect::<Vec<_>>());
+    assert_eq!(stages(&[], &[("INSSPLAT_NO_RAY_PASS", "true")]), once);
 }
 
 #[test]

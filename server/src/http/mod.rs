@@ -34,6 +34,7 @@ use crate::jobs::JobStore;
 use crate::jobs::sqlite::SqliteStore;
 use crate::metrics::Metrics;
 use crate::pipeline::reconstruct::PipelineConfig;
+use crate::pipeline::switches::PipelineSwitches;
 use crate::scene_store::SceneStore;
 use crate::worker::{Pool, Shared, WorkerConfig};
 
@@ -73,17 +74,8 @@ pub struct ServeArgs {
     /// Default label vocabulary (file or comma-separated list) for requests that send none.
     #[arg(long, env = "INSSPLAT_VOCAB")]
     pub vocab: Option<String>,
-    /// Refine every scene's Gaussians and cameras against its photos for this many Adam steps
-    /// (test-time optimization, one view a step, about 50 ms a step at 8 views on two cores;
-    /// 0, the default, answers with the feed-forward reconstruction). A request or job may set
-    /// its own with a `refine_steps` form field.
-    #[arg(long, env = "INSSPLAT_REFINE_STEPS", default_value_t = 0, value_name = "STEPS")]
-    pub refine_steps: usize,
-    /// With a network that reads its cameras as rays (the shipped one since 0.12): answer
-    /// with its first pass instead of running it again on the registered cameras, for about
-    /// 0.7× the time and the instances of that pass.
-    #[arg(long, env = "INSSPLAT_NO_RAY_PASS")]
-    pub no_ray_pass: bool,
+    #[command(flatten)]
+    pub pipeline: PipelineSwitches,
     /// Require `Authorization: Bearer <key>` on /v1 routes (the key is never logged).
     #[arg(long, env = "INSSPLAT_API_KEY", hide_env_values = true)]
     pub api_key: Option<String>,
@@ -135,7 +127,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let shared = Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let threads = args.threads.unwrap_or((cores / args.workers).max(1));
-    let pipeline = PipelineConfig { refine_steps: args.refine_steps, ray_pass: !args.no_ray_pass, ..PipelineConfig::default() };
+    let pipeline = args.pipeline.apply(PipelineConfig::default());
     let config = WorkerConfig { model: args.model.clone(), threads, workers: args.workers, queue: args.queue, pipeline };
     let (pool, startup) = Pool::start(config, shared.clone());
     let (stop_tx, shutdown) = watch::channel(false);
