@@ -12,11 +12,11 @@ import math
 import sys
 
 DEFAULT = [
-    "instance_miou", "instance_acc25", "t_miou", "t_sr50", "context_instance_miou", "semantic_miou",
+    "instance_miou", "instance_acc25", "instance_pq", "t_miou", "t_sr50", "context_instance_miou", "semantic_miou",
     "query_iou", "psnr", "ssim", "depth_abs_rel", "rotation_deg", "instances_found", "seconds",
 ]
 # Metrics reported in [0, 1] that the card gives in points.
-POINTS = {"instance_miou", "instance_acc25", "t_miou", "t_sr50", "context_instance_miou",
+POINTS = {"instance_miou", "instance_acc25", "instance_pq", "t_miou", "t_sr50", "context_instance_miou",
           "context_ceiling_miou", "semantic_miou", "semantic_macc", "query_iou"}
 
 

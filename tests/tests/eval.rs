@@ -68,6 +68,7 @@ fn eval_reports_every_metric_per_view_count() {
             "semantic_macc",
             "instance_miou",
             "instance_acc25",
+            "instance_pq",
             "context_instance_miou",
             "context_ceiling_miou",
             "t_miou",

@@ -4,6 +4,10 @@
 //!   truth is [`NO_LABEL`] are ignored; mAcc is the mean per-class recall.
 //! - Instance mIoU / Acc@0.25 (OpenGaussian/LERF protocol): for each ground-truth instance
 //!   (id ≠ 0) the best IoU over predicted ids ≠ 0; Acc@0.25 = share with IoU > 0.25.
+//! - Instance PQ (panoptic quality, class-agnostic): a prediction and a ground-truth instance
+//!   match when their IoU exceeds ½, which makes every match unique; PQ = Σ IoU over matches /
+//!   (matches + ½ unmatched predictions + ½ unmatched instances). Unlike instance mIoU it
+//!   charges an object split into pieces, and a prediction with no object.
 //! - T-mIoU / T-SR@0.5 (IGGT): each ground-truth instance gets ONE predicted id for all views,
 //!   the one with the largest total overlap; T-mIoU = mean over instances of the mean IoU of
 //!   that id over the views where the instance is visible; T-SR@0.5 = share of instances with
@@ -103,6 +107,34 @@ pub struct InstanceScores {
     pub acc_25: f64,
     /// Per ground-truth instance, in id order.
     pub matches: Vec<InstanceMatch>,
+    pub panoptic: PanopticCounts,
+}
+
+/// What panoptic quality is computed from; counts of several views add up before [`Self::pq`]
+/// (COCO's PQ pools its images the same way). An unmatched prediction lying mostly on
+/// unlabelled pixels (ground truth 0) is no false positive, as in COCO.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PanopticCounts {
+    /// Sum of the IoUs of the matched pairs.
+    pub matched_iou: f64,
+    pub true_positives: usize,
+    pub false_positives: usize,
+    pub false_negatives: usize,
+}
+
+impl PanopticCounts {
+    pub fn add(&mut self, other: &Self) {
+        self.matched_iou += other.matched_iou;
+        self.true_positives += other.true_positives;
+        self.false_positives += other.false_positives;
+        self.false_negatives += other.false_negatives;
+    }
+
+    /// PQ in [0, 1]; `None` when neither side has a segment.
+    pub fn pq(&self) -> Option<f64> {
+        let denominator = self.true_positives as f64 + 0.5 * (self.false_positives + self.false_negatives) as f64;
+        (denominator > 0.0).then(|| self.matched_iou / denominator)
+    }
 }
 
 /// Instance mIoU and Acc@0.25; `None` when the ground truth has no instance.
@@ -131,8 +163,30 @@ pub fn instance_scores(pred: &[u32], gt: &[u32]) -> Result<Option<InstanceScores
     Ok(Some(InstanceScores {
         miou: matches.iter().map(|m| m.iou).sum::<f64>() / n,
         acc_25: matches.iter().filter(|m| m.iou > 0.25).count() as f64 / n,
+        panoptic: panoptic_counts(&o, &matches),
         matches,
     }))
+}
+
+/// Above IoU ½ a ground-truth instance's best prediction is its only possible match and
+/// that prediction's only one, so the best matches are the panoptic matches.
+fn panoptic_counts(o: &Overlap, best: &[InstanceMatch]) -> PanopticCounts {
+    let matched: Vec<&InstanceMatch> = best.iter().filter(|m| m.iou > 0.5).collect();
+    let mut labelled: HashMap<u32, u64> = HashMap::new();
+    for (&(p, _), &n) in &o.inter {
+        *labelled.entry(p).or_default() += n;
+    }
+    let false_positives = o
+        .pred
+        .iter()
+        .filter(|&(p, &size)| !matched.iter().any(|m| m.pred == *p) && 2 * labelled.get(p).copied().unwrap_or(0) >= size)
+        .count();
+    PanopticCounts {
+        matched_iou: matched.iter().map(|m| m.iou).sum(),
+        true_positives: matched.len(),
+        false_positives,
+        false_negatives: best.len() - matched.len(),
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -224,7 +278,30 @@ mod tests {
         assert!((m[0].iou - 0.75).abs() < 1e-12 && (m[1].iou - 0.5).abs() < 1e-12 && m[2].iou == 0.0, "{m:?}");
         assert!((s.miou - 1.25 / 3.0).abs() < 1e-12);
         assert!((s.acc_25 - 2.0 / 3.0).abs() < 1e-12);
+        // Only (7, 1) is above ½; pred 8 (3 of 4 px labelled) is a false positive, gts 2 and 3
+        // false negatives: PQ = 0.75 / (1 + ½·1 + ½·2).
+        let p = s.panoptic;
+        assert_eq!((p.true_positives, p.false_positives, p.false_negatives), (1, 1, 2), "{p:?}");
+        assert!((p.pq().unwrap() - 0.75 / 2.5).abs() < 1e-12, "{p:?}");
         assert_eq!(instance_scores(&[1, 2], &[0, 0]).unwrap(), None);
+    }
+
+    #[test]
+    fn panoptic_quality_charges_an_object_split_in_pieces_where_miou_does_not() {
+        // One object of 8 px. Whole: PQ 1. Split 5 + 3: its best piece has IoU 5/8 either way,
+        // so mIoU is 5/8 in both, but the split's second piece is a false positive.
+        let gt = [1; 8];
+        let split = instance_scores(&[4, 4, 4, 4, 4, 9, 9, 9], &gt).unwrap().unwrap();
+        assert!((split.miou - 0.625).abs() < 1e-12);
+        assert!((split.panoptic.pq().unwrap() - 0.625 / 1.5).abs() < 1e-12, "{:?}", split.panoptic);
+        let whole = instance_scores(&[4; 8], &gt).unwrap().unwrap();
+        assert_eq!(whole.panoptic.pq(), Some(1.0));
+        // A prediction mostly on unlabelled pixels is no false positive; counts of views add.
+        let mut both = instance_scores(&[4, 4, 5, 5, 5], &[1, 1, 0, 0, 1]).unwrap().unwrap().panoptic;
+        assert_eq!((both.true_positives, both.false_positives, both.false_negatives), (1, 0, 0), "{both:?}");
+        both.add(&split.panoptic);
+        assert_eq!((both.true_positives, both.false_positives, both.false_negatives), (2, 1, 0));
+        assert_eq!(PanopticCounts::default().pq(), None);
     }
 
     #[test]

@@ -58,17 +58,18 @@ pub fn markdown(r: &Report) -> String {
         notes += " Target views scored on their raw renders (--no-fill).";
     }
     let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
-    out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
-    out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | inst PQ | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
+    out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summaries {
         let m = |k: &str| s.metrics.get(k);
         out += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.0} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.0} |\n",
             s.views,
             pct(m("semantic_miou")),
             pct(m("semantic_macc")),
             pct(m("instance_miou")),
             pct(m("instance_acc25")),
+            pct(m("instance_pq")),
             pct(m("query_iou")),
             pct(m("t_miou")),
             pct(m("t_sr50")),

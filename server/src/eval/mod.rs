@@ -103,11 +103,12 @@ pub struct Report {
     pub protocol: String,
 }
 
-const METRICS: [&str; 19] = [
+const METRICS: [&str; 20] = [
     "semantic_miou",
     "semantic_macc",
     "instance_miou",
     "instance_acc25",
+    "instance_pq",
     "context_instance_miou",
     "context_ceiling_miou",
     "instances_found",
@@ -131,6 +132,7 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
         "semantic_macc" => s.semantic_macc,
         "instance_miou" => s.instance_miou,
         "instance_acc25" => s.instance_acc25,
+        "instance_pq" => s.instance_pq,
         "context_instance_miou" => s.context_instance_miou,
         "context_ceiling_miou" => s.context_ceiling_miou,
         "instances_found" => Some(s.instances_found as f64),
