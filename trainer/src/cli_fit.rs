@@ -55,7 +55,7 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
             bar.set_message(format!("{name} loss {loss:.4}"));
         })?;
         bar.finish_and_clear();
-        eprintln!("{}: {} steps in {:.1} s, instance mIoU {}", report.scene, report.steps, report.seconds, pct(report.instance_miou));
+        eprintln!("{}: {} steps in {:.1} s, instance mIoU {}, PQ {}", report.scene, report.steps, report.seconds, pct(report.instance_miou), pct(report.instance_pq));
         reports.push(report);
     }
     print!("{}", markdown(&reports));
@@ -70,11 +70,20 @@ fn pct(v: Option<f64>) -> String {
 }
 
 fn markdown(reports: &[FitReport]) -> String {
-    let mut out = String::from("| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | instances |\n|---|---|---|---|---|---|---|---|---|\n");
+    let mut out = String::from("| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | inst PQ | instances |\n|---|---|---|---|---|---|---|---|---|---|\n");
     for r in reports {
         out += &format!(
-            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} |\n",
-            r.scene, r.views, r.gaussians, r.steps, r.converged, r.seconds, pct(r.instance_miou), pct(r.instance_acc25), r.instances_found
+            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} |\n",
+            r.scene,
+            r.views,
+            r.gaussians,
+            r.steps,
+            r.converged,
+            r.seconds,
+            pct(r.instance_miou),
+            pct(r.instance_acc25),
+            pct(r.instance_pq),
+            r.instances_found
         );
     }
     let mean = |f: &dyn Fn(&FitReport) -> Option<f64>| {
@@ -82,11 +91,12 @@ fn markdown(reports: &[FitReport]) -> String {
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
     out += &format!(
-        "| mean of {} | | | | | {:.1} | {} | {} | |\n",
+        "| mean of {} | | | | | {:.1} | {} | {} | {} | |\n",
         reports.len(),
         mean(&|r| Some(r.seconds)).unwrap_or(0.0),
         pct(mean(&|r| r.instance_miou)),
-        pct(mean(&|r| r.instance_acc25))
+        pct(mean(&|r| r.instance_acc25)),
+        pct(mean(&|r| r.instance_pq))
     );
     out
 }

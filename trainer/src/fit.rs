@@ -21,7 +21,7 @@ use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::{fill_uncovered, render_instance_ids};
-use inssplat_raster::metrics::segmentation::instance_scores;
+use inssplat_raster::metrics::segmentation::{PanopticCounts, instance_scores};
 use inssplat_raster::render::RenderOptions;
 use inssplat_raster::voxel::{VoxelParams, robust_extent};
 use rand::{Rng, SeedableRng};
@@ -72,6 +72,8 @@ pub struct FitReport {
     /// Pooled over target views and their visible true instances, as `inssplat eval` does.
     pub instance_miou: Option<f64>,
     pub instance_acc25: Option<f64>,
+    /// Panoptic quality, pooled over the target views as `inssplat eval` pools it.
+    pub instance_pq: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -223,6 +225,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
     let mut ious = Vec::new();
+    let mut panoptic: Option<PanopticCounts> = None;
     for &t in &eval.target {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
@@ -233,6 +236,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(s) = instance_scores(&pred, &gt).map_err(|e| bad(e.to_string()))? {
             ious.extend(s.matches.iter().map(|m| m.iou));
+            panoptic.get_or_insert_default().add(&s.panoptic);
         }
     }
     let mean = (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64);
@@ -249,6 +253,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         instances_found: k,
         instance_miou: mean,
         instance_acc25: acc,
+        instance_pq: panoptic.and_then(|p| p.pq()),
     })
 }
 

@@ -24,6 +24,9 @@ fn fitting_one_scene_separates_its_instances_on_target_views() {
     assert!(report.instances_found >= 2, "{report:?}");
     let miou = report.instance_miou.expect("target views show instances");
     assert!(miou >= 0.3, "instance mIoU {miou} ({report:?})");
+    // Panoptic quality needs matches above IoU ½, which a separated object gives.
+    let pq = report.instance_pq.expect("target views show instances");
+    assert!(pq > 0.0 && pq <= 1.0, "instance PQ {pq} ({report:?})");
 }
 
 #[test]
