@@ -145,7 +145,7 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     for s in &status.scenes {
         assert_eq!(s.state, JobState::Done, "{s:?}");
         let m = s.metrics.as_ref().expect("ground truth gives metrics");
-        for key in ["instance_miou", "semantic_miou", "psnr", "t_miou"] {
+        for key in ["instance_miou", "instance_pq", "semantic_miou", "psnr", "t_miou"] {
             assert!(m[key].is_number(), "{key} in {m}");
         }
         let ply = server.get(&format!("/v1/scenes/{}/scene.ply", s.scene_id.as_ref().unwrap()));
