@@ -225,7 +225,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
     let mut ious = Vec::new();
-    let mut panoptic: Option<PanopticCounts> = None;
+    let mut panoptic = PanopticCounts::default();
     for &t in &eval.target {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
@@ -236,7 +236,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(s) = instance_scores(&pred, &gt).map_err(|e| bad(e.to_string()))? {
             ious.extend(s.matches.iter().map(|m| m.iou));
-            panoptic.get_or_insert_default().add(&s.panoptic);
+            panoptic.add(&s.panoptic);
         }
     }
     let mean = (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64);
@@ -253,7 +253,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         instances_found: k,
         instance_miou: mean,
         instance_acc25: acc,
-        instance_pq: panoptic.and_then(|p| p.pq()),
+        instance_pq: panoptic.pq(),
     })
 }
 

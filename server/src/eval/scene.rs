@@ -424,7 +424,7 @@ fn target_scores(
     let texts = labels.embed(&words).map_err(|e| err(&e))?;
     let params = &settings.pipeline.cluster;
     let (mut pred_labels, mut gt_labels, mut ious, mut segs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut panoptic: Option<PanopticCounts> = None;
+    let mut panoptic = PanopticCounts::default();
     let (mut psnrs, mut ssims, mut turns) = (Vec::new(), Vec::new(), Vec::new());
     for &t in targets {
         let frame = &scene.frames[t];
@@ -450,7 +450,7 @@ fn target_scores(
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
             ious.extend(ins.matches.iter().map(|m| m.iou));
-            panoptic.get_or_insert_default().add(&ins.panoptic);
+            panoptic.add(&ins.panoptic);
         }
         pred_labels.extend_from_slice(&seg.labels);
         gt_labels.extend(true_labels(scene, gt, vocabulary));
@@ -465,7 +465,7 @@ fn target_scores(
         s.semantic_macc = Some(sem.macc);
     }
     s.instance_miou = mean(&ious);
-    s.instance_pq = panoptic.and_then(|p| p.pq());
+    s.instance_pq = panoptic.pq();
     s.instance_acc25 = (!ious.is_empty()).then(|| ious.iter().filter(|&&x| x > 0.25).count() as f64 / ious.len() as f64);
     // Text queries: the default rule first, then the rules being compared.
     let rules: Vec<QueryRule> = std::iter::once(QueryRule::default()).chain(settings.query_rules.iter().copied()).collect();
