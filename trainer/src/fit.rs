@@ -21,7 +21,7 @@ use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
 use inssplat_raster::cluster::split::{SplitParams, split_disconnected};
 use inssplat_raster::cluster::{ClusterParams, cluster_instances};
 use inssplat_raster::label::masks::{fill_uncovered, render_instance_ids};
-use inssplat_raster::metrics::segmentation::{PanopticCounts, instance_scores};
+use inssplat_raster::metrics::segmentation::{InstancePool, instance_scores};
 use inssplat_raster::render::RenderOptions;
 use inssplat_raster::voxel::{VoxelParams, robust_extent};
 use rand::{Rng, SeedableRng};
@@ -224,8 +224,7 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let cell = split.cell_voxels * VoxelParams::default().voxel_size(robust_extent(&fitted_scene.means));
     let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
-    let mut ious = Vec::new();
-    let mut panoptic = PanopticCounts::default();
+    let mut instances = InstancePool::default();
     for &t in &eval.target {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
@@ -235,12 +234,9 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         fill_uncovered(&mut pred, None, w, h);
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(s) = instance_scores(&pred, &gt).map_err(|e| bad(e.to_string()))? {
-            ious.extend(s.matches.iter().map(|m| m.iou));
-            panoptic.add(&s.panoptic);
+            instances.add(&s);
         }
     }
-    let mean = (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64);
-    let acc = (!ious.is_empty()).then(|| ious.iter().filter(|&&x| x > 0.25).count() as f64 / ious.len() as f64);
     Ok(FitReport {
         scene: name,
         views: v,
@@ -251,9 +247,9 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         first_loss: losses.first().copied().unwrap_or(f32::NAN),
         final_loss: losses.last().copied().unwrap_or(f32::NAN),
         instances_found: k,
-        instance_miou: mean,
-        instance_acc25: acc,
-        instance_pq: panoptic.pq(),
+        instance_miou: instances.miou(),
+        instance_acc25: instances.acc_25(),
+        instance_pq: instances.pq(),
     })
 }
 

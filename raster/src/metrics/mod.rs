@@ -12,7 +12,7 @@ pub mod segmentation;
 pub use image::{DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 pub use pose::{AlignScale, PoseScores, Similarity, angle_deg, camera_errors, pose_alignment, turn_deg};
 pub use segmentation::{
-    ConsistencyScores, InstanceMatch, InstanceScores, NO_LABEL, PanopticCounts, SemanticScores, consistency_scores, instance_scores,
+    ConsistencyScores, InstanceMatch, InstancePool, InstanceScores, NO_LABEL, PanopticCounts, SemanticScores, consistency_scores, instance_scores,
     mask_iou, semantic_scores,
 };
 

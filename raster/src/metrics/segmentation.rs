@@ -168,6 +168,35 @@ pub fn instance_scores(pred: &[u32], gt: &[u32]) -> Result<Option<InstanceScores
     }))
 }
 
+/// Instance scores of several views pooled: mIoU and Acc@0.25 over every view's true
+/// instances, PQ over the views' summed counts. `inssplat eval` and `fit-scene` both pool
+/// their target views with it, so that they score alike.
+#[derive(Debug, Clone, Default)]
+pub struct InstancePool {
+    ious: Vec<f64>,
+    panoptic: PanopticCounts,
+}
+
+impl InstancePool {
+    pub fn add(&mut self, scores: &InstanceScores) {
+        self.ious.extend(scores.matches.iter().map(|m| m.iou));
+        self.panoptic.add(&scores.panoptic);
+    }
+
+    /// `None` (as for the two below) when no view had a true instance.
+    pub fn miou(&self) -> Option<f64> {
+        (!self.ious.is_empty()).then(|| self.ious.iter().sum::<f64>() / self.ious.len() as f64)
+    }
+
+    pub fn acc_25(&self) -> Option<f64> {
+        (!self.ious.is_empty()).then(|| self.ious.iter().filter(|&&x| x > 0.25).count() as f64 / self.ious.len() as f64)
+    }
+
+    pub fn pq(&self) -> Option<f64> {
+        self.panoptic.pq()
+    }
+}
+
 /// Above IoU ½ a ground-truth instance's best prediction is its only possible match and
 /// that prediction's only one, so the best matches are the panoptic matches.
 fn panoptic_counts(o: &Overlap, best: &[InstanceMatch]) -> PanopticCounts {
@@ -302,6 +331,14 @@ mod tests {
         both.add(&split.panoptic);
         assert_eq!((both.true_positives, both.false_positives, both.false_negatives), (2, 1, 0));
         assert_eq!(PanopticCounts::default().pq(), None);
+        // Pooled: mIoU and Acc@0.25 over both views' instances, PQ over their counts.
+        let mut pool = InstancePool::default();
+        assert_eq!((pool.miou(), pool.acc_25(), pool.pq()), (None, None, None));
+        pool.add(&split);
+        pool.add(&whole);
+        assert!((pool.miou().unwrap() - (0.625 + 1.0) / 2.0).abs() < 1e-12);
+        assert_eq!(pool.acc_25(), Some(1.0));
+        assert!((pool.pq().unwrap() - 1.625 / 2.5).abs() < 1e-12);
     }
 
     #[test]

@@ -16,7 +16,7 @@ use inssplat_raster::label::QueryRule;
 use inssplat_raster::label::masks::{fill_uncovered, render_colour};
 use inssplat_raster::metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_raster::metrics::pose::{AlignScale, Similarity, camera_errors, turn_deg};
-use inssplat_raster::metrics::segmentation::{NO_LABEL, PanopticCounts, consistency_scores, instance_scores, semantic_scores};
+use inssplat_raster::metrics::segmentation::{InstancePool, NO_LABEL, consistency_scores, instance_scores, semantic_scores};
 use inssplat_raster::target_pose::refine_pose;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
@@ -43,7 +43,7 @@ pub struct SceneScores {
     pub instance_miou: Option<f64>,
     pub instance_acc25: Option<f64>,
     /// Panoptic quality of the target views' instance maps, their counts pooled
-    /// ([`PanopticCounts`]): charges the pieces mIoU forgives.
+    /// ([`InstancePool`]): charges the pieces mIoU forgives.
     pub instance_pq: Option<f64>,
     /// Instance mIoU of the clustering on the context views, and the ceiling its embeddings
     /// allow there ([`super::ceiling`]; 3D clustering only).
@@ -423,8 +423,8 @@ fn target_scores(
     let words: Vec<&str> = vocabulary.iter().map(String::as_str).collect();
     let texts = labels.embed(&words).map_err(|e| err(&e))?;
     let params = &settings.pipeline.cluster;
-    let (mut pred_labels, mut gt_labels, mut ious, mut segs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut panoptic = PanopticCounts::default();
+    let (mut pred_labels, mut gt_labels, mut segs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut instances = InstancePool::default();
     let (mut psnrs, mut ssims, mut turns) = (Vec::new(), Vec::new(), Vec::new());
     for &t in targets {
         let frame = &scene.frames[t];
@@ -449,8 +449,7 @@ fn target_scores(
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
-            ious.extend(ins.matches.iter().map(|m| m.iou));
-            panoptic.add(&ins.panoptic);
+            instances.add(&ins);
         }
         pred_labels.extend_from_slice(&seg.labels);
         gt_labels.extend(true_labels(scene, gt, vocabulary));
@@ -464,9 +463,9 @@ fn target_scores(
         s.semantic_miou = Some(sem.miou);
         s.semantic_macc = Some(sem.macc);
     }
-    s.instance_miou = mean(&ious);
-    s.instance_pq = panoptic.pq();
-    s.instance_acc25 = (!ious.is_empty()).then(|| ious.iter().filter(|&&x| x > 0.25).count() as f64 / ious.len() as f64);
+    s.instance_miou = instances.miou();
+    s.instance_acc25 = instances.acc_25();
+    s.instance_pq = instances.pq();
     // Text queries: the default rule first, then the rules being compared.
     let rules: Vec<QueryRule> = std::iter::once(QueryRule::default()).chain(settings.query_rules.iter().copied()).collect();
     let held = scene.label_vocabulary();
