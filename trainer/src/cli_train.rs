@@ -148,6 +148,11 @@ pub struct TrainArgs {
     /// pixel's embedding is no longer pulled (0: pulled all the way, into the tightest groups).
     #[arg(long, default_value_t = LossConfig::new().pull_margin, value_parser = unit_interval)]
     pull_margin: f64,
+    /// Weight, inside L_ins, of the assignment term: each pixel's cross-entropy of its own
+    /// instance's prototype among all of the sample's at τ 0.1 (the nearest-prototype choice
+    /// that inference makes; 0: none).
+    #[arg(long, default_value_t = 0.0)]
+    instance_assign_weight: f64,
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
@@ -309,6 +314,7 @@ impl TrainArgs {
             .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
             .with_instance_weight(self.instance_weight)
             .with_pull_margin(self.pull_margin)
+            .with_assign_weight((self.instance_assign_weight > 0.0).then_some(self.instance_assign_weight))
             .with_camera_weight(self.camera_weight)
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_point_map_offsets(self.point_map_offsets.then_some(true))

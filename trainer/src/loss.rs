@@ -169,6 +169,10 @@ pub struct LossConfig {
     /// the other ([`DescriptorMatches::turned_at_least`]); `None` (also what configs saved
     /// before this switch existed read as): every pair.
     pub descriptor_min_angle: Option<f64>,
+    /// Weight, inside L_ins, of its assignment term: each pixel's cross-entropy of its own
+    /// instance's prototype among all of the sample's (see [`instance`]); `None` (also what
+    /// configs saved before this term existed read as) means 0.
+    pub assign_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,

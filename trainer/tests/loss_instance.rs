@@ -89,6 +89,33 @@ fn loss_instance_pull_push_cross_two_views() {
     close(scalar(instance_loss(embedding, &semantic, &ids, &no_cross).unwrap().cross), 0.0, "no cross");
 }
 
+#[test]
+fn loss_instance_assignment_scores_the_nearest_prototype() {
+    // One view of 1×3 pixels, ids [1, 1, 2], f = (1, 0), (0.28, 0.96), (0, 1): the second pixel
+    // lies at cos 0.8 to its own prototype (0.8, 0.6) but at 0.96 to instance 2's.
+    let device = Device::flex();
+    let embedding = tensor(&[1.0, 0.28, 0.0, 0.0, 0.96, 1.0], [1, 2, 1, 3], &device);
+    let semantic = tensor(&[1.0, 1.0, 1.0], [1, 1, 1, 3], &device);
+    let ids = [1, 1, 2];
+    let f = [[1.0, 0.0], [0.28, 0.96], [0.0, 1.0]];
+    let mu = [unit([1.28, 0.96]), [0.0, 1.0]];
+    // −log softmax(f·μ / 0.1)[own], each instance's pixels averaged, then the instances.
+    let ce = |p: usize, k: usize| {
+        let logits = mu.map(|m| dot(f[p], m) / 0.1);
+        let norm = logits.iter().map(|l| l.exp()).sum::<f64>().ln();
+        norm - logits[k]
+    };
+    let expected = 0.5 * (0.5 * (ce(0, 0) + ce(1, 0)) + ce(2, 1));
+    assert!(ce(1, 0) > 2.0_f64.ln(), "the second pixel is assigned to the wrong prototype");
+    let off = LossConfig::new();
+    let on = LossConfig::new().with_assign_weight(Some(0.5));
+    let terms = instance_loss(embedding.clone(), &semantic, &ids, &on).unwrap();
+    close(scalar(terms.assign.clone()), expected, "assign");
+    let without = instance_loss(embedding, &semantic, &ids, &off).unwrap();
+    close(scalar(without.assign.clone()), 0.0, "assign off");
+    close(scalar(terms.total(&on)), scalar(without.total(&off)) + 0.5 * expected, "L_ins with assign");
+}
+
 /// Central differences of `loss` at `x` against the autodiff gradient of the same loss.
 pub(crate) fn check_gradient(values: &[f32], shape: [usize; 4], loss: impl Fn(Tensor<4>) -> Tensor<1>) {
     let ad = Device::flex().autodiff();
@@ -115,8 +142,9 @@ pub(crate) fn check_gradient(values: &[f32], shape: [usize; 4], loss: impl Fn(Te
 #[test]
 fn loss_instance_gradient_matches_finite_differences() {
     // Margins chosen so that every hinge is active and smooth at this point: δ_pull = 0 (1 − cos
-    // > 0 off the prototype) and δ_push = 1.5 (cos > −0.5 between the prototypes).
-    let config = LossConfig::new().with_pull_margin(0.0).with_push_margin(1.5);
+    // > 0 off the prototype) and δ_push = 1.5 (cos > −0.5 between the prototypes); the
+    // assignment term on.
+    let config = LossConfig::new().with_pull_margin(0.0).with_push_margin(1.5).with_assign_weight(Some(0.5));
     let values = [
         0.9, 0.7, 0.2, -0.3, 0.5, 0.1, 0.3, 0.8, -0.2, 0.6, 0.4, 0.9, // view 0, E = 3, 2×2
         0.7, -0.1, 0.5, 0.2, 0.3, 0.6, 0.9, 0.1, 0.4, -0.5, 0.8, 0.3, // view 1
