@@ -18,7 +18,7 @@
 //!   [`CrossView::Off`], or when no instance is seen twice);
 //! - assign = (1/K) Σ_k (1/N_k) Σ_{p∈k} −log softmax_j(f_p·μ̂_j / τ_assign)[k], each pixel's
 //!   cross-entropy of its own prototype among all of the sample's, τ_assign = 0.1 (zero unless
-//!   [`LossConfig::assign_weight`] is set). Pull and push ask that each pixel lie near its
+//!   [`LossConfig::assign_weight`] is set, or with a single instance). Pull and push ask that each pixel lie near its
 //!   prototype and the prototypes apart; inference assigns each Gaussian to its *nearest*
 //!   prototype, and a pixel within the pull margin of its own can still lie nearer another's.
 //!   This term scores exactly that assignment;
@@ -38,7 +38,7 @@ use super::{
     normalize_rows, pixels_last, unit_pixel_vectors, zero,
 };
 
-/// τ_assign of the assignment term: the temperature of L_sem's contrast too.
+/// τ_assign of the assignment term (the temperature the contrastive L_sem is trained at).
 const ASSIGN_TEMPERATURE: f64 = 0.1;
 
 /// The parts of L_ins, unweighted, each a one-element tensor.
@@ -139,11 +139,11 @@ pub fn instance_loss(
     let pull = (pull_hinge * constant(pull_weights.clone(), [pixels], &device)).sum();
 
     let assign = match config.assign_weight {
-        Some(w) if w > 0.0 && kk > 1 => {
+        Some(weight) if weight > 0.0 && kk > 1 => {
             // Each pixel's own column of [P, K], weighted as in pull.
             let mut picks = vec![0.0f32; pixels * kk];
-            for (p, (&k, &w)) in groups.k_from_pixel.iter().zip(&pull_weights).enumerate() {
-                picks[p * kk + k] = w;
+            for (p, (&k, &share)) in groups.k_from_pixel.iter().zip(&pull_weights).enumerate() {
+                picks[p * kk + k] = share;
             }
             let logits = f.clone().matmul(prototypes.clone().transpose()).div_scalar(ASSIGN_TEMPERATURE);
             -(log_softmax(logits, 1) * constant(picks, [pixels, kk], &device)).sum()
