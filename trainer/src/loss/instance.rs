@@ -18,10 +18,10 @@
 //!   [`CrossView::Off`], or when no instance is seen twice);
 //! - assign = (1/K) Σ_k (1/N_k) Σ_{p∈k} −log softmax_j(f_p·μ̂_j / τ_assign)[k], each pixel's
 //!   cross-entropy of its own prototype among all of the sample's, τ_assign = 0.1 (zero unless
-//!   [`LossConfig::assign_weight`] is set, or with a single instance). Pull and push ask that each pixel lie near its
-//!   prototype and the prototypes apart; inference assigns each Gaussian to its *nearest*
-//!   prototype, and a pixel within the pull margin of its own can still lie nearer another's.
-//!   This term scores exactly that assignment;
+//!   [`LossConfig::assign_weight`] is set, or with a single instance). Pull and push ask that
+//!   each pixel lie near its prototype and the prototypes apart; inference assigns each
+//!   Gaussian to its *nearest* prototype, and a pixel within the pull margin of its own can
+//!   still lie nearer another's. This term scores exactly that assignment;
 //! - L_ins = 2·pull + 1·push + 2·cross + w_assign·assign (weights from [`LossConfig`]).
 //!
 //! Background pixels (id 0: floor, walls, ceiling, nothing) take part as one more instance with
@@ -136,8 +136,6 @@ pub fn instance_loss(
     let pull_hinge = relu(cos_own.neg().add_scalar(margin));
     let pull_weights: Vec<f32> =
         groups.k_from_pixel.iter().map(|&k| 1.0 / (kk as f32 * groups.total(k) as f32)).collect();
-    let pull = (pull_hinge * constant(pull_weights.clone(), [pixels], &device)).sum();
-
     let assign = match config.assign_weight {
         Some(weight) if weight > 0.0 && kk > 1 => {
             // Each pixel's own column of [P, K], weighted as in pull.
@@ -150,6 +148,7 @@ pub fn instance_loss(
         }
         _ => zero(&device),
     };
+    let pull = (pull_hinge * constant(pull_weights, [pixels], &device)).sum();
 
     let push = if kk < 2 {
         zero(&device)
