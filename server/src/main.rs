@@ -201,6 +201,11 @@ enum Command {
         /// head's (scores everything but the depth head; combine with --known-poses).
         #[arg(long)]
         known_depth: bool,
+        /// Name every found instance with the true label most of its context pixels carry
+        /// instead of the classifier's (scores the instances' naming out of the question; 3D
+        /// clustering only).
+        #[arg(long)]
+        known_names: bool,
         /// How voxelization merges the opacities of a voxel's Gaussians: their optical depth
         /// over the merged footprint (coverage), or their mean (the ablation).
         #[arg(long, value_enum, default_value_t = MergeOpacity::Coverage)]
@@ -439,6 +444,7 @@ fn main() -> anyhow::Result<()> {
             shape_examples,
             known_poses,
             known_depth,
+            known_names,
             merge_opacity,
             no_register,
             keep_focal,
@@ -460,6 +466,9 @@ fn main() -> anyhow::Result<()> {
             }
             if !(superpixel_scale.is_finite() && superpixel_scale >= 0.0) {
                 anyhow::bail!("--superpixel-scale: {superpixel_scale} must be a finite number ≥ 0 (0 turns the superpixels off)");
+            }
+            if known_names && cluster == eval::ClusterMode::TwoD {
+                anyhow::bail!("--known-names names the instances of the 3D clustering; --cluster 2d names each view's own groups");
             }
             let cluster_params = ClusterParams { position_weight, min_cluster_share, min_samples, min_cosine, ..ClusterParams::default() };
             cluster_params.validate()?;
@@ -493,6 +502,7 @@ fn main() -> anyhow::Result<()> {
                 cluster,
                 known_poses,
                 known_depth,
+                known_names,
                 no_aggregation,
                 no_fill,
                 target_pose_steps,

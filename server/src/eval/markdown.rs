@@ -51,6 +51,9 @@ pub fn markdown(r: &Report) -> String {
     if r.known_depth {
         notes += " Depth: the true context depth (--known-depth), not the depth head.";
     }
+    if r.known_names {
+        notes += " Names: each found instance named with its true label (--known-names), not the classifier.";
+    }
     if r.no_aggregation {
         notes += " Labels per pixel, no instance-grounded aggregation (--no-aggregation).";
     }

@@ -81,6 +81,9 @@ pub struct Report {
     pub known_poses: bool,
     /// Whether the context frames' true depth replaced the predicted one.
     pub known_depth: bool,
+    /// Whether every found instance was named with its true label.
+    #[serde(default)]
+    pub known_names: bool,
     /// Whether pixels were named without instance-grounded aggregation.
     pub no_aggregation: bool,
     /// Whether the target views were scored on their raw renders (nothing filled).
@@ -192,6 +195,8 @@ pub struct EvalRequest {
     pub known_poses: bool,
     /// Use the context frames' true depth instead of the predicted one (see [`Settings`]).
     pub known_depth: bool,
+    /// Name every found instance with its true label (see [`Settings`]).
+    pub known_names: bool,
     /// Pixels named from their own semantic features (see [`Settings`]).
     pub no_aggregation: bool,
     /// Score the target views' raw renders (see [`Settings`]).
@@ -258,6 +263,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             perturbation,
             known_poses: req.known_poses,
             known_depth: req.known_depth,
+            known_names: req.known_names,
             no_aggregation: req.no_aggregation,
             no_fill: req.no_fill,
             target_pose_steps: req.target_pose_steps,
@@ -318,6 +324,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         min_cosine: req.pipeline.cluster.min_cosine,
         known_poses: req.known_poses,
         known_depth: req.known_depth,
+        known_names: req.known_names,
         no_aggregation: req.no_aggregation,
         no_fill: req.no_fill,
         target_pose_steps: req.target_pose_steps,
@@ -331,7 +338,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}",
+             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}{}",
             match (req.known_poses, req.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -380,6 +387,10 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 (Some(_), true, _) => "; the network given the true context cameras as rays (over the context frames' median true depth)",
                 (Some(_), false, true) => "; the network run first with zero camera rays, then again on the registered cameras' rays for the instance and semantic features (stage `rays`)",
                 (Some(_), false, false) => "; the network run once, with zero camera rays (--no-ray-pass)",
+            },
+            match req.known_names {
+                true => "; every found instance NAMED WITH THE TRUE LABEL most of its context pixels carry (--known-names), not the classifier's",
+                false => "",
             }
         ),
     })

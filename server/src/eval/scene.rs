@@ -129,6 +129,9 @@ pub struct Settings<'a> {
     /// Reconstruct with the context frames' true depth instead of the depth head's: what the
     /// rest of the network achieves when its depth is taken out of the question.
     pub known_depth: bool,
+    /// Name every found instance with the true label most of its context pixels carry (3D
+    /// clustering): what the semantic scores would be with perfect naming of these instances.
+    pub known_names: bool,
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
     pub no_aggregation: bool,
@@ -237,9 +240,12 @@ pub fn evaluate_scene_keeping(
         settings.pipeline
     };
     let start = Instant::now();
-    let rec = reconstruct(model, labels, &images, settings.vocabulary, pipeline)
+    let mut rec = reconstruct(model, labels, &images, settings.vocabulary, pipeline)
         .map_err(|source| SceneEvalError::Pipeline { scene: name.clone(), source })?;
     let seconds = start.elapsed().as_secs_f64();
+    if settings.known_names {
+        name_by_truth(&mut rec, scene, &context);
+    }
     let targets = scene.eval.as_ref().map(|e| e.target.clone()).unwrap_or_default();
     let mut s = SceneScores {
         scene: name.clone(),
@@ -352,37 +358,70 @@ const SHELL: [&str; 3] = ["wall", "floor", "ceiling"];
 const OBJECT_SHARE: f64 = 0.25;
 
 /// The true label of each found instance (`pairs` of found and true id maps of the context
-/// views), with the instance's descriptor: the object label with the most of its pixels when
-/// objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that hold an object
-/// and a piece of floor are named for the object, as a user would), else the label with the
-/// most. Instances without labelled pixels are left out. The prototype is the unfused one (as
-/// a semantic classifier reads it), whatever `--shape-weight` named the instances with.
-fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
+/// views): the label with the most of its pixels, or with `object_first`, the object label with
+/// the most when objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that
+/// hold an object and a piece of floor are named for the object, as a user would).
+/// Instances without labelled pixels are left out.
+fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[(&[u32], &[u32])], object_first: bool) -> BTreeMap<u32, &'s str> {
     let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
     for (found, truth) in pairs {
         for (&f, &t) in found.iter().zip(*truth) {
-            if let (true, Some(label)) = (f > 0, scene.label_of(t as u16)) {
+            if let (true, Some(label)) = (f > 0, label_of(t as u16)) {
                 *votes.entry(f).or_default().entry(label).or_default() += 1;
             }
         }
     }
-    let top = |it: &mut dyn Iterator<Item = (&&str, &usize)>| it.max_by_key(|(_, n)| **n).map(|(l, _)| l.to_string());
-    rec.descriptors
+    let top = |it: &mut dyn Iterator<Item = (&&'s str, &usize)>| it.max_by_key(|(_, n)| **n).map(|(l, _)| *l);
+    votes
         .iter()
-        .filter_map(|(id, d)| {
-            let v = votes.get(id)?;
+        .filter_map(|(&id, v)| {
             let total: usize = v.values().sum();
             let objects: usize = v.iter().filter(|(l, _)| !SHELL.contains(l)).map(|(_, n)| n).sum();
-            let label = if objects as f64 >= OBJECT_SHARE * total as f64 {
+            let label = if object_first && objects as f64 >= OBJECT_SHARE * total as f64 {
                 top(&mut v.iter().filter(|(l, _)| !SHELL.contains(l)))
             } else {
                 top(&mut v.iter())
             }?;
+            Some((id, label))
+        })
+        .collect()
+}
+
+/// Each found instance with its true label ([`true_instance_labels`], objects first) and its
+/// descriptor. The
+/// prototype is the unfused one (as a semantic classifier reads it), whatever
+/// `--shape-weight` named the instances with.
+fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
+    let labels = true_instance_labels(|id| scene.label_of(id), pairs, true);
+    rec.descriptors
+        .iter()
+        .filter_map(|(id, d)| {
+            let label = labels.get(id)?.to_string();
             let prototype =
                 rec.unfused_prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
             Some(LabelledDescriptor { label, descriptor: *d, prototype, scene: scene.name() })
         })
         .collect()
+}
+
+/// Names every found instance with the true label most of its context pixels carry
+/// ([`true_instance_labels`]), for `--known-names`: what the semantic scores would be if naming
+/// were perfect and the instances what they are. Instances without labelled pixels keep their
+/// name.
+fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
+    let pairs: Vec<(&[u32], Vec<u32>)> = rec
+        .views
+        .iter()
+        .zip(context)
+        .filter_map(|(view, &f)| Some((view.instance_ids.as_slice(), scene.frames[f].instances.as_ref()?.iter().map(|&i| u32::from(i)).collect())))
+        .collect();
+    let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, t)| (*p, t.as_slice())).collect();
+    let labels: BTreeMap<u32, String> = true_instance_labels(|id| scene.label_of(id), &pairs, false).into_iter().map(|(id, l)| (id, l.to_string())).collect();
+    for instance in &mut rec.instances {
+        if let Some(label) = labels.get(&instance.id) {
+            instance.label.clone_from(label);
+        }
+    }
 }
 
 /// Camera errors of the context views after the alignment of `scale`; returns the map from
@@ -478,4 +517,30 @@ fn target_scores(
     s.query_false_positive = default.false_positive;
     s.query_by_rule = by_rule;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An instance is named for what holds the most of its pixels, or objects first, for the
+    /// object that holds the most once objects hold a quarter of them; unlabelled pixels and
+    /// the background (found id 0) do not vote, and an instance with no labelled pixel gets no
+    /// name.
+    #[test]
+    fn instances_are_named_by_their_pixels_majority_or_objects_first() {
+        let label_of = |id: u16| match id {
+            1 => Some("floor"),
+            2 => Some("chair"),
+            3 => Some("table"),
+            _ => None,
+        };
+        // Found 7: 6 floor, 2 chair (a quarter), 1 unlabelled. Found 8: 7 floor, 2 table (under
+        // a quarter). Found 9: 2 chair, 3 table. Found 10: unlabelled only. Found 0: background.
+        let found = [7, 7, 7, 7, 7, 7, 7, 7, 7, 8, 8, 8, 8, 8, 8, 8, 8, 8, 9, 9, 9, 9, 9, 10, 0];
+        let truth = [1, 1, 1, 1, 1, 1, 2, 2, 0, 1, 1, 1, 1, 1, 1, 1, 3, 3, 2, 2, 3, 3, 3, 0, 2];
+        let pairs = [(&found[..], &truth[..])];
+        assert_eq!(true_instance_labels(label_of, &pairs, true), BTreeMap::from([(7, "chair"), (8, "floor"), (9, "table")]));
+        assert_eq!(true_instance_labels(label_of, &pairs, false), BTreeMap::from([(7, "floor"), (8, "floor"), (9, "table")]));
+    }
 }
