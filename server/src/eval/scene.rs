@@ -406,8 +406,11 @@ fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])
 
 /// Names every found instance with the true label most of its context pixels carry
 /// ([`true_instance_labels`]), for `--known-names`: what the semantic scores would be if naming
-/// were perfect and the instances what they are. Instances without labelled pixels keep their
-/// name.
+/// were perfect and the instances what they are. Where a scene leaves the room's shell
+/// unlabelled (id 0, as val and test scenes do), those pixels vote for `wall`, so that an
+/// instance mostly of floor with a rug's edge in it is named for the shell, as a perfect namer
+/// would, not for the rug that alone of its pixels is scored. Instances without any voting
+/// pixel keep their name.
 fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
     let pairs: Vec<(&[u32], Vec<u32>)> = rec
         .views
@@ -416,7 +419,8 @@ fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
         .filter_map(|(view, &f)| Some((view.instance_ids.as_slice(), scene.frames[f].instances.as_ref()?.iter().map(|&i| u32::from(i)).collect())))
         .collect();
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, t)| (*p, t.as_slice())).collect();
-    let labels: BTreeMap<u32, String> = true_instance_labels(|id| scene.label_of(id), &pairs, false).into_iter().map(|(id, l)| (id, l.to_string())).collect();
+    let label_of = |id| if id == 0 { Some(SHELL[0]) } else { scene.label_of(id) };
+    let labels: BTreeMap<u32, String> = true_instance_labels(label_of, &pairs, false).into_iter().map(|(id, l)| (id, l.to_string())).collect();
     for instance in &mut rec.instances {
         if let Some(label) = labels.get(&instance.id) {
             instance.label.clone_from(label);
