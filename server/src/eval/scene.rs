@@ -129,8 +129,9 @@ pub struct Settings<'a> {
     /// Reconstruct with the context frames' true depth instead of the depth head's: what the
     /// rest of the network achieves when its depth is taken out of the question.
     pub known_depth: bool,
-    /// Name every found instance with the true label most of its context pixels carry (3D
-    /// clustering): what the semantic scores would be with perfect naming of these instances.
+    /// Name every found instance with the true label most of its context pixels carry, the
+    /// unlabelled shell's pixels voting as one (3D clustering): what the semantic scores
+    /// would be with perfect naming of these instances.
     pub known_names: bool,
     /// Name pixels from their own semantic features instead of their instance's prototype
     /// (the "no instance-grounded aggregation" ablation; instances and queries unchanged).
@@ -388,8 +389,7 @@ fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[
 }
 
 /// Each found instance with its true label ([`true_instance_labels`], objects first) and its
-/// descriptor. The
-/// prototype is the unfused one (as a semantic classifier reads it), whatever
+/// descriptor. The prototype is the unfused one (as a semantic classifier reads it), whatever
 /// `--shape-weight` named the instances with.
 fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
     let labels = true_instance_labels(|id| scene.label_of(id), pairs, true);
@@ -420,10 +420,10 @@ fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
         .collect();
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, t)| (*p, t.as_slice())).collect();
     let label_of = |id| if id == 0 { Some(SHELL[0]) } else { scene.label_of(id) };
-    let labels: BTreeMap<u32, String> = true_instance_labels(label_of, &pairs, false).into_iter().map(|(id, l)| (id, l.to_string())).collect();
+    let labels = true_instance_labels(label_of, &pairs, false);
     for instance in &mut rec.instances {
         if let Some(label) = labels.get(&instance.id) {
-            instance.label.clone_from(label);
+            instance.label = (*label).to_string();
         }
     }
 }
