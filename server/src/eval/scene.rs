@@ -419,13 +419,19 @@ fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
         .filter_map(|(view, &f)| Some((view.instance_ids.as_slice(), scene.frames[f].instances.as_ref()?.iter().map(|&i| u32::from(i)).collect())))
         .collect();
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, t)| (*p, t.as_slice())).collect();
-    let label_of = |id| if id == 0 { Some(SHELL[0]) } else { scene.label_of(id) };
-    let labels = true_instance_labels(label_of, &pairs, false);
+    let labels = true_instance_labels(|id| truth_label(scene, id), &pairs, false);
     for instance in &mut rec.instances {
         if let Some(label) = labels.get(&instance.id) {
             instance.label = (*label).to_string();
         }
     }
+}
+
+/// The true label of ground-truth id `id` for [`name_by_truth`]: `wall` for id 0 (the shell a
+/// val or test scene leaves unlabelled, and nothing else: a room's every pixel is shell or
+/// object), else the scene's label of it.
+fn truth_label(scene: &Scene, id: u16) -> Option<&str> {
+    if id == 0 { Some(SHELL[0]) } else { scene.label_of(id) }
 }
 
 /// Camera errors of the context views after the alignment of `scale`; returns the map from
@@ -546,5 +552,24 @@ mod tests {
         let pairs = [(&found[..], &truth[..])];
         assert_eq!(true_instance_labels(label_of, &pairs, true), BTreeMap::from([(7, "chair"), (8, "floor"), (9, "table")]));
         assert_eq!(true_instance_labels(label_of, &pairs, false), BTreeMap::from([(7, "floor"), (8, "floor"), (9, "table")]));
+    }
+
+    /// Where the shell is left unlabelled (id 0), `--known-names` counts its pixels as the
+    /// shell's: an instance of 5 shell pixels and 3 rug pixels is named for the shell, not for
+    /// the rug, the one part of it that a val or test scene labels.
+    #[test]
+    fn known_names_count_the_unlabelled_shell() {
+        use inssplat_proto::dataset::InstanceLabel;
+        let scene = Scene {
+            dir: Default::default(),
+            instances: vec![InstanceLabel { id: 4, label: "rug".into() }],
+            frames: Vec::new(),
+            eval: None,
+            depth_unit_m: 0.001,
+        };
+        let found = [3, 3, 3, 3, 3, 3, 3, 3, 5, 5];
+        let truth = [0, 0, 0, 0, 0, 4, 4, 4, 4, 9];
+        let labels = true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], false);
+        assert_eq!(labels, BTreeMap::from([(3, "wall"), (5, "rug")]));
     }
 }
