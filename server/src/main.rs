@@ -470,6 +470,9 @@ fn main() -> anyhow::Result<()> {
             if known_names && cluster == eval::ClusterMode::TwoD {
                 anyhow::bail!("--known-names names the instances of the 3D clustering; --cluster 2d names each view's own groups");
             }
+            if known_names && no_aggregation {
+                anyhow::bail!("--known-names names the instances; --no-aggregation names each pixel by its own features instead");
+            }
             let cluster_params = ClusterParams { position_weight, min_cluster_share, min_samples, min_cosine, ..ClusterParams::default() };
             cluster_params.validate()?;
             let mut dirs = eval::scene_dirs(&data)?;

@@ -266,6 +266,9 @@ fn eval_names_bad_arguments() {
     let out = inssplat(&["eval", "--data", s(dir.path()), "--known-names", "--cluster", "2d"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--known-names") && err.contains("--cluster 2d"), "{err}");
+    let out = inssplat(&["eval", "--data", s(dir.path()), "--known-names", "--no-aggregation"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--known-names") && err.contains("--no-aggregation"), "{err}");
 }
 
 #[test]
