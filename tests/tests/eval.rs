@@ -5,7 +5,7 @@
 //! arguments are named errors, and that a run whose stderr is no terminal logs a line per
 //! finished run; `--shape-examples` records the prototypes as the features give
 //! them, before the shipped shape classifier moves them, and the room each was found in;
-//! `--known-names` names them with the true labels those record; `--photos` reconstructs
+//! `--known-names` names the instances by their true labels instead; `--photos` reconstructs
 //! from larger photos of the same scene and refuses another's. Also
 //! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
