@@ -26,7 +26,7 @@ use inssplat_raster::render::RenderOptions;
 use inssplat_raster::voxel::{VoxelParams, robust_extent};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::loss::{HardNegatives, LossConfig, instance_loss, rgb_loss};
 use crate::render_op::{SplatTensors, render};
@@ -56,11 +56,14 @@ impl Default for FitConfig {
     }
 }
 
-/// What one fit cost and scored.
-#[derive(Debug, Clone, Serialize)]
+/// What one fit cost and scored, with the settings it ran under.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FitReport {
     pub scene: String,
     pub views: usize,
+    pub stride: usize,
+    pub max_steps: usize,
+    pub lr: f64,
     pub gaussians: usize,
     pub steps: usize,
     pub converged: bool,
@@ -146,8 +149,8 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let bad = |problem: String| FitError::Scene { scene: name.clone(), problem };
     let eval = scene.eval.as_ref().ok_or_else(|| bad("transforms.json has no `eval` split (synthesize with --split test)".into()))?;
     let context = eval.context_for(config.views).ok_or_else(|| bad(format!("no {}-view context set in `eval.context`", config.views)))?;
-    if config.stride == 0 || config.window == 0 {
-        return Err(bad("--stride and the convergence window must be ≥ 1".into()));
+    if config.stride == 0 || config.window == 0 || config.max_steps == 0 {
+        return Err(bad("--stride, --max-steps and the convergence window must be ≥ 1".into()));
     }
     let frames: Vec<_> = context.iter().map(|&f| &scene.frames[f]).collect();
     let (w, h) = (frames[0].width() as usize, frames[0].height() as usize);
@@ -240,12 +243,15 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     Ok(FitReport {
         scene: name,
         views: v,
+        stride: config.stride,
+        max_steps: config.max_steps,
+        lr: config.lr,
         gaussians: n,
         steps: losses.len(),
         converged,
         seconds,
-        first_loss: losses.first().copied().unwrap_or(f32::NAN),
-        final_loss: losses.last().copied().unwrap_or(f32::NAN),
+        first_loss: losses[0],
+        final_loss: losses[losses.len() - 1],
         instances_found: k,
         instance_miou: instances.miou(),
         instance_acc25: instances.acc_25(),
