@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::dataset::Scene;
-use inssplat_trainer::fit::{FitConfig, FitReport, fit_scene};
+use inssplat_trainer::fit::{FitConfig, FitReport, FitScores, fit_scene};
 use inssplat_trainer::train::sample::{DataSpec, Source};
 
 #[derive(clap::Args)]
@@ -29,6 +29,10 @@ pub struct FitArgs {
     /// Adam learning rate.
     #[arg(long, default_value_t = 5e-3)]
     lr: f64,
+    /// Also score each fit after these step counts (comma-separated): its instance mIoU
+    /// against its optimization time so far.
+    #[arg(long, value_delimiter = ',')]
+    score_at: Vec<usize>,
     /// Write every scene's report here as JSON, again after each scene (a run stopped midway
     /// keeps the scenes it finished).
     #[arg(long)]
@@ -48,7 +52,10 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
             Source::Synth(_) => bail!("--data {}: not a folder of scenes", args.data.display()),
         }
     };
-    let config = FitConfig { views: args.views, stride: args.stride, max_steps: args.max_steps, lr: args.lr, ..FitConfig::default() };
+    let mut score_at = args.score_at.clone();
+    score_at.sort_unstable();
+    score_at.dedup();
+    let config = FitConfig { views: args.views, stride: args.stride, max_steps: args.max_steps, lr: args.lr, score_at, ..FitConfig::default() };
     let mut reports = match &args.json {
         Some(path) if args.resume && path.exists() => finished(path, &config)?,
         _ => Vec::new(),
@@ -67,7 +74,7 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
             bar.set_message(format!("{name} loss {loss:.4}"));
         })?;
         bar.finish_and_clear();
-        eprintln!("{}: {} steps in {:.1} s, instance mIoU {}, PQ {}", report.scene, report.steps, report.seconds, pct(report.instance_miou), pct(report.instance_pq));
+        eprintln!("{}: {} steps in {:.1} s, instance mIoU {}, PQ {}", report.scene, report.steps, report.seconds, pct(report.scores.instance_miou), pct(report.scores.instance_pq));
         reports.push(report);
         if let Some(path) = &args.json {
             save(path, &reports)?;
@@ -83,20 +90,22 @@ fn finished(path: &Path, config: &FitConfig) -> Result<Vec<FitReport>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("--resume: reading {}", path.display()))?;
     let reports: Vec<FitReport> = serde_json::from_str(&text).with_context(|| format!("--resume: {} is not a list of fit-scene reports", path.display()))?;
     for r in &reports {
-        let theirs = (r.views, r.stride, r.max_steps, r.lr);
-        if theirs != (config.views, config.stride, config.max_steps, config.lr) {
+        let theirs = (r.views, r.stride, r.max_steps, r.lr, &r.score_at);
+        if theirs != (config.views, config.stride, config.max_steps, config.lr, &config.score_at) {
             bail!(
-                "--resume: {} fitted {} with views {}, stride {}, max_steps {}, lr {}; this run asks for views {}, stride {}, max_steps {}, lr {}",
+                "--resume: {} fitted {} with views {}, stride {}, max_steps {}, lr {}, score_at {:?}; this run asks for views {}, stride {}, max_steps {}, lr {}, score_at {:?}",
                 path.display(),
                 r.scene,
                 r.views,
                 r.stride,
                 r.max_steps,
                 r.lr,
+                r.score_at,
                 config.views,
                 config.stride,
                 config.max_steps,
-                config.lr
+                config.lr,
+                config.score_at
             );
         }
     }
@@ -117,32 +126,42 @@ fn pct(v: Option<f64>) -> String {
 
 fn markdown(reports: &[FitReport]) -> String {
     let mut out = String::from("| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | inst PQ | instances |\n|---|---|---|---|---|---|---|---|---|---|\n");
+    let row = |s: &FitScores| format!("{} | {} | {} | {}", pct(s.instance_miou), pct(s.instance_acc25), pct(s.instance_pq), s.instances_found);
     for r in reports {
-        out += &format!(
-            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} |\n",
-            r.scene,
-            r.views,
-            r.gaussians,
-            r.steps,
-            r.converged,
-            r.seconds,
-            pct(r.instance_miou),
-            pct(r.instance_acc25),
-            pct(r.instance_pq),
-            r.instances_found
-        );
+        out += &format!("| {} | {} | {} | {} | {} | {:.1} | {} |\n", r.scene, r.views, r.gaussians, r.steps, r.converged, r.seconds, row(&r.scores));
     }
-    let mean = |f: &dyn Fn(&FitReport) -> Option<f64>| {
-        let v: Vec<f64> = reports.iter().filter_map(f).collect();
-        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
-    };
-    out += &format!(
-        "| mean of {} | | | | | {:.1} | {} | {} | {} | |\n",
-        reports.len(),
-        mean(&|r| Some(r.seconds)).unwrap_or(0.0),
-        pct(mean(&|r| r.instance_miou)),
-        pct(mean(&|r| r.instance_acc25)),
-        pct(mean(&|r| r.instance_pq))
-    );
+    out += &format!("| mean of {} | | | {:.0} | | {:.1} | {} | |\n", reports.len(), mean(reports, |r| Some(r.steps as f64)), mean(reports, |r| Some(r.seconds)), means(reports.iter().map(|r| &r.scores)));
+    // Along the way: each step count's means over the fits that were scored there, and over
+    // the fits that had already converged before it (their final scores), so that every
+    // row covers every scene.
+    let at: Vec<usize> = reports.first().map(|r| r.score_at.clone()).unwrap_or_default();
+    if !at.is_empty() {
+        out += "\n| after steps | fits scored there | seconds (mean) | inst mIoU | inst Acc@0.25 | inst PQ |\n|---|---|---|---|---|---|\n";
+        for n in at {
+            let points: Vec<(f64, &FitScores)> = reports
+                .iter()
+                .map(|r| r.curve.iter().find(|p| p.steps == n).map_or((r.seconds, &r.scores), |p| (p.seconds, &p.scores)))
+                .collect();
+            let scored = reports.iter().filter(|r| r.curve.iter().any(|p| p.steps == n)).count();
+            let seconds = points.iter().map(|p| p.0).sum::<f64>() / points.len() as f64;
+            out += &format!("| {n} | {scored} of {} | {seconds:.1} | {} |\n", reports.len(), means(points.iter().map(|p| p.1)));
+        }
+    }
     out
 }
+
+/// The mean of `f` over the reports that have it.
+fn mean(reports: &[FitReport], f: impl Fn(&FitReport) -> Option<f64>) -> f64 {
+    let v: Vec<f64> = reports.iter().filter_map(f).collect();
+    if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+}
+
+/// "mIoU | Acc@0.25 | PQ", each the mean over the scores that have it.
+fn means<'a>(scores: impl Iterator<Item = &'a FitScores> + Clone) -> String {
+    let m = |f: fn(&FitScores) -> Option<f64>| {
+        let v: Vec<f64> = scores.clone().filter_map(f).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    format!("{} | {} | {}", pct(m(|s| s.instance_miou)), pct(m(|s| s.instance_acc25)), pct(m(|s| s.instance_pq)))
+}
+

@@ -8,7 +8,8 @@
 //! rendered at the scene's target cameras (what no Gaussian covers taking the nearest covered
 //! pixel's id, as `inssplat eval` fills a new view), and scored with the evaluation's
 //! instance metric (pooled over target views and visible instances), so its time and instance mIoU stand
-//! next to `inssplat eval`'s numbers for the feed-forward model.
+//! next to `inssplat eval`'s numbers for the feed-forward model. Scored also along the way
+//! (`score_at`), it gives its accuracy against its optimization time.
 
 use std::time::Instant;
 
@@ -48,11 +49,13 @@ pub struct FitConfig {
     /// of the mean of the `window` before.
     pub window: usize,
     pub tolerance: f32,
+    /// Also score the fit after each of these step counts (its speed against its accuracy).
+    pub score_at: Vec<usize>,
 }
 
 impl Default for FitConfig {
     fn default() -> Self {
-        Self { views: 8, stride: 2, lr: 5e-3, instance_weight: 1.0, max_steps: 1500, window: 50, tolerance: 0.005 }
+        Self { views: 8, stride: 2, lr: 5e-3, instance_weight: 1.0, max_steps: 1500, window: 50, tolerance: 0.005, score_at: Vec::new() }
     }
 }
 
@@ -64,6 +67,8 @@ pub struct FitReport {
     pub stride: usize,
     pub max_steps: usize,
     pub lr: f64,
+    /// The step counts at which the fit was also scored along the way.
+    pub score_at: Vec<usize>,
     pub gaussians: usize,
     pub steps: usize,
     pub converged: bool,
@@ -71,12 +76,31 @@ pub struct FitReport {
     pub seconds: f64,
     pub first_loss: f32,
     pub final_loss: f32,
+    /// The finished fit's scores.
+    #[serde(flatten)]
+    pub scores: FitScores,
+    /// The fit scored at each of `score_at`'s step counts it reached.
+    pub curve: Vec<CurvePoint>,
+}
+
+/// How a fit's clustered instances score on the scene's target views.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitScores {
     pub instances_found: usize,
     /// Pooled over target views and their visible true instances, as `inssplat eval` does.
     pub instance_miou: Option<f64>,
     pub instance_acc25: Option<f64>,
     /// Panoptic quality, pooled over the target views as `inssplat eval` pools it.
     pub instance_pq: Option<f64>,
+}
+
+/// The fit scored after `steps` steps and `seconds` of optimization.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CurvePoint {
+    pub steps: usize,
+    pub seconds: f64,
+    #[serde(flatten)]
+    pub scores: FitScores,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -190,7 +214,10 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let mut optim = AdamConfig::new().init();
     let mut losses: Vec<f32> = Vec::new();
     let mut converged = false;
-    let start = Instant::now();
+    let mut curve: Vec<CurvePoint> = Vec::new();
+    // Optimization time only: the clock stops while the fit is scored along the way.
+    let mut seconds = 0.0;
+    let mut start = Instant::now();
     for step in 0..config.max_steps {
         let step_err = |problem: String| FitError::Step { scene: name.clone(), step, problem };
         let splats = fitted.splats();
@@ -217,10 +244,38 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
             converged = true;
             break;
         }
+        if config.score_at.contains(&losses.len()) {
+            seconds += start.elapsed().as_secs_f64();
+            let scores = score(&fitted, scene, &eval.target).map_err(bad)?;
+            curve.push(CurvePoint { steps: losses.len(), seconds, scores });
+            start = Instant::now();
+        }
     }
-    let seconds = start.elapsed().as_secs_f64();
+    seconds += start.elapsed().as_secs_f64();
+    let scores = score(&fitted, scene, &eval.target).map_err(bad)?;
+    Ok(FitReport {
+        scene: name,
+        views: v,
+        stride: config.stride,
+        max_steps: config.max_steps,
+        lr: config.lr,
+        score_at: config.score_at.clone(),
+        gaussians: n,
+        steps: losses.len(),
+        converged,
+        seconds,
+        first_loss: losses[0],
+        final_loss: losses[losses.len() - 1],
+        scores,
+        curve,
+    })
+}
+
+/// Clusters the fitted Gaussians as the pipeline clusters a network's and scores the
+/// instances on the target frames `targets`.
+fn score(fitted: &Fitted, scene: &Scene, targets: &[usize]) -> Result<FitScores, String> {
     let mut fitted_scene = to_scene(&fitted.valid());
-    let clustering = cluster_instances(&mut fitted_scene, &ClusterParams::default()).map_err(|e| bad(e.to_string()))?;
+    let clustering = cluster_instances(&mut fitted_scene, &ClusterParams::default()).map_err(|e| e.to_string())?;
     // The pipeline's split of instances into their parts apart in 3D, with its cell: the
     // voxel edge the pipeline would use for these Gaussians.
     let split = SplitParams::default();
@@ -228,35 +283,19 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
     let mut instances = InstancePool::default();
-    for &t in &eval.target {
+    for &t in targets {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
-        let mut pred = render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| bad(e.to_string()))?;
+        let mut pred = render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| e.to_string())?;
         // Filled as `inssplat eval` fills a target view's ids, so that both sides score alike.
         let (w, h) = (frame.camera.intrinsics.width as usize, frame.camera.intrinsics.height as usize);
         fill_uncovered(&mut pred, None, w, h);
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
-        if let Some(s) = instance_scores(&pred, &gt).map_err(|e| bad(e.to_string()))? {
+        if let Some(s) = instance_scores(&pred, &gt).map_err(|e| e.to_string())? {
             instances.add(&s);
         }
     }
-    Ok(FitReport {
-        scene: name,
-        views: v,
-        stride: config.stride,
-        max_steps: config.max_steps,
-        lr: config.lr,
-        gaussians: n,
-        steps: losses.len(),
-        converged,
-        seconds,
-        first_loss: losses[0],
-        final_loss: losses[losses.len() - 1],
-        instances_found: k,
-        instance_miou: instances.miou(),
-        instance_acc25: instances.acc_25(),
-        instance_pq: instances.pq(),
-    })
+    Ok(FitScores { instances_found: k, instance_miou: instances.miou(), instance_acc25: instances.acc_25(), instance_pq: instances.pq() })
 }
 
 /// Whether the last `window` losses' mean is within `tolerance` (relative) of the `window`

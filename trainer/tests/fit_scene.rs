@@ -27,15 +27,26 @@ fn scene(dir: &Path) -> Scene {
 fn fitting_one_scene_separates_its_instances_on_target_views() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = scene(tmp.path());
-    let config = FitConfig { views: 4, stride: 1, max_steps: 120, ..FitConfig::default() };
+    let config = FitConfig { views: 4, stride: 1, max_steps: 120, score_at: vec![20, 60], ..FitConfig::default() };
     let report = fit_scene(&scene, &config, &|_, _| {}).unwrap();
     assert!(report.final_loss * 5.0 < report.first_loss, "{report:?}");
-    assert!(report.instances_found >= 2, "{report:?}");
-    let miou = report.instance_miou.expect("target views show instances");
+    assert!(report.scores.instances_found >= 2, "{report:?}");
+    let miou = report.scores.instance_miou.expect("target views show instances");
     assert!(miou >= 0.3, "instance mIoU {miou} ({report:?})");
     // Panoptic quality needs matches above IoU ½, which a separated object gives.
-    let pq = report.instance_pq.expect("target views show instances");
+    let pq = report.scores.instance_pq.expect("target views show instances");
     assert!(pq > 0.0 && pq <= 1.0, "instance PQ {pq} ({report:?})");
+
+    // Scored along the way: a point after each asked step count, its clock the optimization's
+    // alone, and the fit after 20 steps separates less than the finished one.
+    let steps: Vec<usize> = report.curve.iter().map(|p| p.steps).collect();
+    assert_eq!(steps, [20, 60], "{report:?}");
+    assert!(0.0 < report.curve[0].seconds && report.curve[0].seconds < report.curve[1].seconds && report.curve[1].seconds < report.seconds, "{report:?}");
+    assert!(report.curve[0].scores.instance_miou.unwrap() < miou, "{report:?}");
+    // Scoring does not disturb the fit: a fit stopped at 60 steps scores what the point says.
+    let stopped = fit_scene(&scene, &FitConfig { max_steps: 60, score_at: Vec::new(), ..config }, &|_, _| {}).unwrap();
+    assert_eq!(stopped.steps, 60);
+    assert_eq!(stopped.scores, report.curve[1].scores);
 }
 
 #[test]
@@ -62,7 +73,7 @@ fn a_stopped_fit_scene_run_resumes_from_its_json() {
     write_scene(&data, 3, "scene_000001");
     let json = tmp.path().join("fit.json");
     let (data, json_arg) = (data.to_str().unwrap(), json.to_str().unwrap());
-    let run = |extra: &[&str]| fit_cli(&[&["--data", data, "--views", "4", "--json", json_arg], extra].concat());
+    let run = |extra: &[&str]| fit_cli(&[&["--data", data, "--views", "4", "--score-at", "10", "--json", json_arg], extra].concat());
     let stderr = |out: &Output| String::from_utf8_lossy(&out.stderr).into_owned();
 
     // A run that stopped after its first scene left that scene in the JSON.
@@ -81,6 +92,8 @@ fn a_stopped_fit_scene_run_resumes_from_its_json() {
     assert_eq!(both[0], one[0]);
     assert_eq!(both[1]["scene"], "scene_000001");
     assert_eq!(both[1]["max_steps"], 20);
+    assert_eq!(both[1]["curve"][0]["steps"], 10);
+    assert!(String::from_utf8_lossy(&resumed.stdout).contains("| 10 | 2 of 2 |"), "the table along the way: {}", String::from_utf8_lossy(&resumed.stdout));
 
     // Other settings would mix two baselines in one file: refused, naming the file and both.
     let other = run(&["--max-steps", "30", "--resume"]);
