@@ -38,7 +38,8 @@ pub struct FitArgs {
     #[arg(long)]
     json: Option<PathBuf>,
     /// Keep the reports already in --json and fit only the scenes it lacks (matched by folder
-    /// name; they must have been fitted with this run's --views, --stride, --max-steps and --lr).
+    /// name; they must have been fitted with this run's --views, --stride, --max-steps, --lr
+    /// and --score-at).
     #[arg(long, requires = "json")]
     resume: bool,
 }
@@ -130,7 +131,7 @@ fn markdown(reports: &[FitReport]) -> String {
     for r in reports {
         out += &format!("| {} | {} | {} | {} | {} | {:.1} | {} |\n", r.scene, r.views, r.gaussians, r.steps, r.converged, r.seconds, row(&r.scores));
     }
-    out += &format!("| mean of {} | | | {:.0} | | {:.1} | {} | |\n", reports.len(), mean(reports, |r| Some(r.steps as f64)), mean(reports, |r| Some(r.seconds)), means(reports.iter().map(|r| &r.scores)));
+    out += &format!("| mean of {} | | | {:.0} | | {:.1} | {} | |\n", reports.len(), mean(reports, |r| r.steps as f64), mean(reports, |r| r.seconds), means(reports.iter().map(|r| &r.scores)));
     // Along the way: each step count's means over the fits that were scored there, and over
     // the fits that had already converged before it (their final scores), so that every
     // row covers every scene.
@@ -150,10 +151,9 @@ fn markdown(reports: &[FitReport]) -> String {
     out
 }
 
-/// The mean of `f` over the reports that have it.
-fn mean(reports: &[FitReport], f: impl Fn(&FitReport) -> Option<f64>) -> f64 {
-    let v: Vec<f64> = reports.iter().filter_map(f).collect();
-    if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+/// The mean of `f` over the reports.
+fn mean(reports: &[FitReport], f: impl Fn(&FitReport) -> f64) -> f64 {
+    reports.iter().map(f).sum::<f64>() / reports.len().max(1) as f64
 }
 
 /// "mIoU | Acc@0.25 | PQ", each the mean over the scores that have it.
