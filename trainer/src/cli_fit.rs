@@ -61,7 +61,8 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
         Some(path) if args.resume && path.exists() => finished(path, &config)?,
         _ => Vec::new(),
     };
-    for dir in dirs.iter().take(args.max_scenes.unwrap_or(usize::MAX)) {
+    let dirs = &dirs[..dirs.len().min(args.max_scenes.unwrap_or(usize::MAX))];
+    for (i, dir) in dirs.iter().enumerate() {
         let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if reports.iter().any(|r| r.scene == name) {
             eprintln!("{name}: kept from --json");
@@ -72,7 +73,7 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
         bar.set_style(ProgressStyle::with_template("{spinner} fit {msg} {pos}/{len} steps [{elapsed_precise}]").expect("template"));
         let report = fit_scene(&scene, &config, &|step, loss| {
             bar.set_position(step as u64 + 1);
-            bar.set_message(format!("{name} loss {loss:.4}"));
+            bar.set_message(format!("{name} ({} of {}) loss {loss:.4}", i + 1, dirs.len()));
         })?;
         bar.finish_and_clear();
         eprintln!("{}: {} steps in {:.1} s, instance mIoU {}, PQ {}", report.scene, report.steps, report.seconds, pct(report.scores.instance_miou), pct(report.scores.instance_pq));
