@@ -53,10 +53,10 @@ def load_fits(paths):
 
 
 def at(r, n):
-    """(seconds, mIoU) of fit r after n steps: its point there, or its end if it stopped before."""
+    """(seconds, mIoU) of fit r after n steps: its point there, or its end if it converged before."""
     if n in r["points"]:
         return r["points"][n]["seconds"], r["points"][n]["instance_miou"]
-    if r["steps"] <= n:
+    if r["converged"] and r["steps"] <= n:
         return r["seconds"], r["instance_miou"]
     return None
 

@@ -91,25 +91,9 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
 fn finished(path: &Path, config: &FitConfig) -> Result<Vec<FitReport>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("--resume: reading {}", path.display()))?;
     let reports: Vec<FitReport> = serde_json::from_str(&text).with_context(|| format!("--resume: {} is not a list of fit-scene reports", path.display()))?;
-    for r in &reports {
-        let theirs = (r.views, r.stride, r.max_steps, r.lr, &r.score_at);
-        if theirs != (config.views, config.stride, config.max_steps, config.lr, &config.score_at) {
-            bail!(
-                "--resume: {} fitted {} with views {}, stride {}, max_steps {}, lr {}, score_at {:?}; this run asks for views {}, stride {}, max_steps {}, lr {}, score_at {:?}",
-                path.display(),
-                r.scene,
-                r.views,
-                r.stride,
-                r.max_steps,
-                r.lr,
-                r.score_at,
-                config.views,
-                config.stride,
-                config.max_steps,
-                config.lr,
-                config.score_at
-            );
-        }
+    let asked = config.settings();
+    if let Some(r) = reports.iter().find(|r| r.settings != asked) {
+        bail!("--resume: {} fitted {} with {}; this run asks for {asked}", path.display(), r.scene, r.settings);
     }
     Ok(reports)
 }
@@ -130,13 +114,13 @@ fn markdown(reports: &[FitReport]) -> String {
     let mut out = String::from("| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | inst PQ | instances |\n|---|---|---|---|---|---|---|---|---|---|\n");
     let row = |s: &FitScores| format!("{} | {} | {} | {}", pct(s.instance_miou), pct(s.instance_acc25), pct(s.instance_pq), s.instances_found);
     for r in reports {
-        out += &format!("| {} | {} | {} | {} | {} | {:.1} | {} |\n", r.scene, r.views, r.gaussians, r.steps, r.converged, r.seconds, row(&r.scores));
+        out += &format!("| {} | {} | {} | {} | {} | {:.1} | {} |\n", r.scene, r.settings.views, r.gaussians, r.steps, r.converged, r.seconds, row(&r.scores));
     }
     out += &format!("| mean of {} | | | {:.0} | | {:.1} | {} | |\n", reports.len(), mean(reports, |r| r.steps as f64), mean(reports, |r| r.seconds), means(reports.iter().map(|r| &r.scores)));
     // Along the way: each step count's means over the fits that were scored there, and over
     // the fits that had already converged before it (their final scores), so that every
     // row covers every scene.
-    let at: Vec<usize> = reports.first().map(|r| r.score_at.clone()).unwrap_or_default();
+    let at: Vec<usize> = reports.first().map(|r| r.settings.score_at.clone()).unwrap_or_default();
     if !at.is_empty() {
         out += "\n| after steps | fits scored there | seconds (mean) | inst mIoU | inst Acc@0.25 | inst PQ |\n|---|---|---|---|---|---|\n";
         for n in at {

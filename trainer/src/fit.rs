@@ -59,16 +59,37 @@ impl Default for FitConfig {
     }
 }
 
-/// What one fit cost and scored, with the settings it ran under.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct FitReport {
-    pub scene: String,
+impl FitConfig {
+    /// The settings a report records of this configuration.
+    pub fn settings(&self) -> FitSettings {
+        FitSettings { views: self.views, stride: self.stride, max_steps: self.max_steps, lr: self.lr, score_at: self.score_at.clone() }
+    }
+}
+
+/// The settings a fit ran under, as its report records them: two fits are comparable only
+/// where these agree.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitSettings {
     pub views: usize,
     pub stride: usize,
     pub max_steps: usize,
     pub lr: f64,
     /// The step counts at which the fit was also scored along the way.
     pub score_at: Vec<usize>,
+}
+
+impl std::fmt::Display for FitSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "views {}, stride {}, max_steps {}, lr {}, score_at {:?}", self.views, self.stride, self.max_steps, self.lr, self.score_at)
+    }
+}
+
+/// What one fit cost and scored, with the settings it ran under.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitReport {
+    pub scene: String,
+    #[serde(flatten)]
+    pub settings: FitSettings,
     pub gaussians: usize,
     pub steps: usize,
     pub converged: bool,
@@ -252,14 +273,14 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         }
     }
     seconds += start.elapsed().as_secs_f64();
-    let scores = score(&fitted, scene, &eval.target).map_err(bad)?;
+    // A fit that ran to a step count it was scored at ends with that score.
+    let scores = match curve.last() {
+        Some(p) if p.steps == losses.len() => p.scores.clone(),
+        _ => score(&fitted, scene, &eval.target).map_err(bad)?,
+    };
     Ok(FitReport {
         scene: name,
-        views: v,
-        stride: config.stride,
-        max_steps: config.max_steps,
-        lr: config.lr,
-        score_at: config.score_at.clone(),
+        settings: FitSettings { views: v, ..config.settings() },
         gaussians: n,
         steps: losses.len(),
         converged,

@@ -20,7 +20,7 @@ fn write_scene(dir: &Path, seed: u64, name: &str) -> PathBuf {
 }
 
 fn scene(dir: &Path) -> Scene {
-    Scene::load(&write_scene(dir, 2, "scene_000000")).unwrap()
+    Scene::load(write_scene(dir, 2, "scene_000000")).unwrap()
 }
 
 #[test]
