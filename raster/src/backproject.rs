@@ -82,7 +82,7 @@ impl BackProjected {
         let s = &self.scene;
         for (i, &p) in self.pixel.iter().enumerate() {
             let local = p as usize % per_view;
-            if local % w % stride != 0 || local / w % stride != 0 {
+            if !(local % w).is_multiple_of(stride) || !(local / w).is_multiple_of(stride) {
                 continue;
             }
             out.push(Gaussian {

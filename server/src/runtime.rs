@@ -87,7 +87,7 @@ impl RayInput {
         let [_, t, c] = *shape else { return Err(err(format!("shape {shape:?}, expected {}", signature::INPUT_RAYS.shape))) };
         let side = (t.max(0) as f64).sqrt().round() as usize;
         let k = ((c.max(0) / 6) as f64).sqrt().round() as usize;
-        if side == 0 || side * side != t as usize || resolution % side != 0 || k == 0 || inssplat_proto::rays::ray_channels(k) != c as usize {
+        if side == 0 || side * side != t as usize || !resolution.is_multiple_of(side) || k == 0 || inssplat_proto::rays::ray_channels(k) != c as usize {
             return Err(err(format!("shape {shape:?}: expected [N, T, 6·K²] with T a square number of patches that tile {resolution}²")));
         }
         Ok(Self { tokens: t as usize, k })

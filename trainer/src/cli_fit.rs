@@ -56,6 +56,9 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
     let mut score_at = args.score_at.clone();
     score_at.sort_unstable();
     score_at.dedup();
+    if let Some(&bad) = score_at.iter().find(|&&n| n == 0 || n > args.max_steps) {
+        bail!("--score-at {bad}: each step count must lie in 1..=--max-steps ({})", args.max_steps);
+    }
     let config = FitConfig { views: args.views, stride: args.stride, max_steps: args.max_steps, lr: args.lr, score_at, ..FitConfig::default() };
     let mut reports = match &args.json {
         Some(path) if args.resume && path.exists() => finished(path, &config)?,

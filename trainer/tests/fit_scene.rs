@@ -100,4 +100,10 @@ fn a_stopped_fit_scene_run_resumes_from_its_json() {
     let err = stderr(&other);
     assert!(!other.status.success() && err.contains("fit.json") && err.contains("max_steps 20") && err.contains("max_steps 30"), "{err}");
     assert_eq!(reports(&json), both, "a refused resume leaves the file as it was");
+
+    // A step count the fit can never reach is refused before any fitting, naming both.
+    let beyond = run(&["--max-steps", "5", "--resume"]);
+    let err = stderr(&beyond);
+    assert!(!beyond.status.success() && err.contains("--score-at 10") && err.contains("(5)"), "{err}");
+    assert_eq!(reports(&json), both, "a refused run leaves the file as it was");
 }

@@ -437,7 +437,7 @@ fn training_the_ray_layer_alone_keeps_every_other_weight() {
     // Read as a network without rays, the checkpoint is refused, naming the tensor it would drop.
     let mut state = checkpoint::read_state(&tuned_dir).unwrap();
     state.config.model.camera_rays = None;
-    let err = checkpoint::load_model(&tuned_dir, &state, &Device::flex()).err().expect("an unread tensor");
+    let err = checkpoint::load_model(&tuned_dir, &state, &Device::flex()).expect_err("an unread tensor");
     assert!(err.to_string().contains("ray_embed.weight") && err.to_string().contains("model.bpk"), "{err}");
 }
 

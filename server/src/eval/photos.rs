@@ -43,7 +43,7 @@ pub fn photo_images(dir: &Path, scene: &Scene, context: &[usize]) -> Result<Vec<
                     .iter()
                     .fold(0.0f32, |m, x| m.max(x.abs())),
             );
-            if !(apart <= POSE_TOLERANCE) {
+            if apart.is_nan() || apart > POSE_TOLERANCE {
                 return Err(format!(
                     "--photos: {}: frame {i}'s camera differs from the scene's by {apart} (not the same scene)",
                     json_path.display()

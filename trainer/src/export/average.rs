@@ -26,8 +26,11 @@ pub enum AverageError {
     Shape { name: String, problem: String },
 }
 
+/// A parameter's shape and values.
+type Parameter = (Vec<usize>, Vec<f32>);
+
 /// Every parameter of `net` by its module path: shape and values.
-fn parameters(net: &InsSplatNet) -> Result<HashMap<String, (Vec<usize>, Vec<f32>)>, String> {
+fn parameters(net: &InsSplatNet) -> Result<HashMap<String, Parameter>, String> {
     net.collect(None, None, false)
         .into_iter()
         .map(|t| {
