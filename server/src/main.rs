@@ -503,12 +503,7 @@ fn main() -> anyhow::Result<()> {
                     ..PipelineConfig::default()
                 }),
                 cluster,
-                known_poses,
-                known_depth,
-                known_names,
-                no_aggregation,
-                no_fill,
-                target_pose_steps,
+                switches: eval::EvalSwitches { known_poses, known_depth, known_names, no_aggregation, no_fill, target_pose_steps },
                 query_rules,
                 photos,
                 perturb,

@@ -45,19 +45,19 @@ pub fn markdown(r: &Report) -> String {
         ClusterMode::TwoD => format!("instances clustered per view in 2D (the paper's mode; {hdbscan})"),
     };
     let mut notes = String::new();
-    if r.known_poses {
+    if r.switches.known_poses {
         notes += " Cameras: the true context poses (--known-poses), not the camera head.";
     }
-    if r.known_depth {
+    if r.switches.known_depth {
         notes += " Depth: the true context depth (--known-depth), not the depth head.";
     }
-    if r.known_names {
+    if r.switches.known_names {
         notes += " Names: each found instance named with its true label (--known-names), not the classifier.";
     }
-    if r.no_aggregation {
+    if r.switches.no_aggregation {
         notes += " Labels per pixel, no instance-grounded aggregation (--no-aggregation).";
     }
-    if r.no_fill {
+    if r.switches.no_fill {
         notes += " Target views scored on their raw renders (--no-fill).";
     }
     let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);

@@ -29,6 +29,7 @@ use crate::runtime::Model;
 pub use perturb::{PerturbKind, Perturbation};
 use perturb::most_repeated;
 use progress::Progress;
+pub use scene::EvalSwitches;
 use scene::{SceneScores, Settings, evaluate_scene};
 pub use markdown::{markdown, sweep_markdown};
 pub use views::ClusterMode;
@@ -77,20 +78,10 @@ pub struct Report {
     pub min_cluster_share: f32,
     pub min_samples: usize,
     pub min_cosine: f32,
-    /// Whether the true context cameras replaced the predicted ones.
-    pub known_poses: bool,
-    /// Whether the context frames' true depth replaced the predicted one.
-    pub known_depth: bool,
-    /// Whether every found instance was named with its true label.
-    #[serde(default)]
-    pub known_names: bool,
-    /// Whether pixels were named without instance-grounded aggregation.
-    pub no_aggregation: bool,
-    /// Whether the target views were scored on their raw renders (nothing filled).
-    #[serde(default)]
-    pub no_fill: bool,
-    /// Adam steps of photometric pose refinement of each target camera (0: none).
-    pub target_pose_steps: usize,
+    /// The stages swapped for the truth, the ablations and the protocol's options (their
+    /// fields at the top level of the JSON).
+    #[serde(flatten)]
+    pub switches: EvalSwitches,
     /// Adam steps of test-time refinement of the Gaussians and context cameras (0: none).
     pub refine_steps: usize,
     pub summaries: Vec<Summary>,
@@ -191,18 +182,8 @@ pub struct EvalRequest {
     pub extra_vocab: Vec<String>,
     pub pipeline: PipelineConfig,
     pub cluster: ClusterMode,
-    /// Use the true context cameras instead of the predicted ones (see [`Settings`]).
-    pub known_poses: bool,
-    /// Use the context frames' true depth instead of the predicted one (see [`Settings`]).
-    pub known_depth: bool,
-    /// Name every found instance with its true label (see [`Settings`]).
-    pub known_names: bool,
-    /// Pixels named from their own semantic features (see [`Settings`]).
-    pub no_aggregation: bool,
-    /// Score the target views' raw renders (see [`Settings`]).
-    pub no_fill: bool,
-    /// Refine each target camera's pose against its photo (see [`Settings`]).
-    pub target_pose_steps: usize,
+    /// The stages swapped for the truth, the ablations and the protocol's options.
+    pub switches: EvalSwitches,
     /// Score the text queries under every rule of [`query_rules::grid`] too.
     pub query_rules: bool,
     /// Context photos from this folder's scenes of the same names ([`photos`]).
@@ -261,12 +242,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
             pipeline: &req.pipeline,
             cluster: req.cluster,
             perturbation,
-            known_poses: req.known_poses,
-            known_depth: req.known_depth,
-            known_names: req.known_names,
-            no_aggregation: req.no_aggregation,
-            no_fill: req.no_fill,
-            target_pose_steps: req.target_pose_steps,
+            switches: req.switches,
             query_rules: &rules,
             photos: req.photos.as_deref(),
         };
@@ -322,12 +298,7 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         min_cluster_share: req.pipeline.cluster.min_cluster_share,
         min_samples: req.pipeline.cluster.min_samples,
         min_cosine: req.pipeline.cluster.min_cosine,
-        known_poses: req.known_poses,
-        known_depth: req.known_depth,
-        known_names: req.known_names,
-        no_aggregation: req.no_aggregation,
-        no_fill: req.no_fill,
-        target_pose_steps: req.target_pose_steps,
+        switches: req.switches,
         refine_steps: req.pipeline.refine_steps,
         summaries,
         shape_examples: all.iter_mut().flat_map(|s| std::mem::take(&mut s.shape_examples)).collect(),
@@ -339,20 +310,20 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
              the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}{}",
-            match (req.known_poses, req.known_depth) {
+            match (req.switches.known_poses, req.switches.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
                 (false, true) => " with the TRUE context depth (--known-depth), not the predicted one",
                 (true, true) => " with the TRUE context cameras and depth (--known-poses --known-depth), not the predicted ones",
             },
-            match req.target_pose_steps {
+            match req.switches.target_pose_steps {
                 0 => String::new(),
                 n => format!(
                     ", after TEST-TIME OPTIMIZATION of each target camera's pose against its photo (--target-pose-steps {n}: Adam on the pose, \
                      the Gaussians frozen, coarse to fine; kept only where it lowers the colour error)"
                 ),
             },
-            match req.no_fill {
+            match req.switches.no_fill {
                 true => "; the RAW renders scored (--no-fill): what no Gaussian covers black and without an instance",
                 false => "; what no Gaussian covers there filled from around it (colours by push-pull, ids and labels from the nearest covered pixel)",
             },
@@ -363,18 +334,18 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                      (--refine-steps {n}: Adam, one view a step, the first camera fixed)"
                 ),
             },
-            match (&req.pipeline.register, req.known_poses) {
+            match (&req.pipeline.register, req.switches.known_poses) {
                 (_, true) => "",
                 (Some(p), false) if p.estimate_focal => "; cameras registered from keypoint matches and the predicted depth, with one focal length measured from the matches where they pin it down, else the camera head's (stage `register`)",
                 (Some(_), false) => "; cameras registered from keypoint matches and the predicted depth, at the camera head's field of view (stage `register`, --keep-focal)",
                 (None, false) => "; the camera head's poses as they are (--no-register)",
             },
-            match (&req.pipeline.register, req.known_poses) {
+            match (&req.pipeline.register, req.switches.known_poses) {
                 (Some(p), false) if model.has_descriptors && p.use_descriptors => "; the network's learned descriptors matched beside the keypoints",
                 (Some(_), false) if model.has_descriptors => "; the network's learned descriptors ignored (--no-learned-matches)",
                 _ => "",
             },
-            match (&req.pipeline.register, &req.pipeline.heading, req.known_poses) {
+            match (&req.pipeline.register, &req.pipeline.heading, req.switches.known_poses) {
                 (Some(_), Some(h), false) => format!(
                     "; the views no match links turned to the best of {} headings against the views placed before them (stage `heading`)",
                     h.candidates
@@ -382,13 +353,13 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 (Some(_), None, false) => "; the views no match links kept where the camera's motion continues (--heading-candidates 0)".to_string(),
                 _ => String::new(),
             },
-            match (model.rays, req.known_poses, req.pipeline.ray_pass) {
+            match (model.rays, req.switches.known_poses, req.pipeline.ray_pass) {
                 (None, _, _) => "",
                 (Some(_), true, _) => "; the network given the true context cameras as rays (over the context frames' median true depth)",
                 (Some(_), false, true) => "; the network run first with zero camera rays, then again on the registered cameras' rays for the instance and semantic features (stage `rays`)",
                 (Some(_), false, false) => "; the network run once, with zero camera rays (--no-ray-pass)",
             },
-            match req.known_names {
+            match req.switches.known_names {
                 true => "; every found instance NAMED WITH THE TRUE LABEL most of its context pixels carry (--known-names), not the classifier's",
                 false => "",
             }

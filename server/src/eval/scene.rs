@@ -117,12 +117,10 @@ fn true_labels(scene: &Scene, ids: &[u16], vocabulary: &[String]) -> Vec<u32> {
         .collect()
 }
 
-/// How each scene is evaluated.
-pub struct Settings<'a> {
-    pub vocabulary: &'a [String],
-    pub pipeline: &'a PipelineConfig,
-    pub cluster: ClusterMode,
-    pub perturbation: Option<Perturbation>,
+/// What an evaluation swaps for the truth, leaves out or adds to the protocol; recorded in
+/// the report as it was run (`inssplat eval`'s switches of the same names).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct EvalSwitches {
     /// Reconstruct with the true context cameras instead of the predicted ones: what the rest
     /// of the network achieves when the camera head is taken out of the question.
     pub known_poses: bool,
@@ -144,6 +142,16 @@ pub struct Settings<'a> {
     /// Gaussians frozen ([`inssplat_raster::target_pose`]; 0 scores at the mapped camera, the
     /// protocol's default).
     pub target_pose_steps: usize,
+}
+
+/// How each scene is evaluated.
+pub struct Settings<'a> {
+    pub vocabulary: &'a [String],
+    pub pipeline: &'a PipelineConfig,
+    pub cluster: ClusterMode,
+    pub perturbation: Option<Perturbation>,
+    /// The stages swapped for the truth, the ablations and the protocol's options.
+    pub switches: EvalSwitches,
     /// Query rules scored beside the default one (`--query-rules`).
     pub query_rules: &'a [QueryRule],
     /// Take the context photos from the scenes of this folder that have the same names
@@ -225,13 +233,13 @@ pub fn evaluate_scene_keeping(
         None => context_images(scene, &context, settings.perturbation),
     };
     let known;
-    let pipeline = if settings.known_poses || settings.known_depth {
-        let poses = settings.known_poses.then(|| context.iter().map(|&i| scene.frames[i].camera).collect());
-        let depth = match settings.known_depth {
+    let pipeline = if settings.switches.known_poses || settings.switches.known_depth {
+        let poses = settings.switches.known_poses.then(|| context.iter().map(|&i| scene.frames[i].camera).collect());
+        let depth = match settings.switches.known_depth {
             false => None,
             true => Some(context.iter().map(|&i| scene.frames[i].depth.as_deref().ok_or_else(|| bad(format!("frame {i} has no depth (--known-depth needs it)")))).collect::<Result<Vec<_>, _>>()?.concat()),
         };
-        let median_depth = match (settings.known_poses, model.rays) {
+        let median_depth = match (settings.switches.known_poses, model.rays) {
             (true, Some(_)) => Some(median_true_depth(scene, &context).ok_or_else(|| bad("the context frames have no depth (a network that reads camera rays needs the scene's scale with --known-poses)".into()))?),
             _ => None,
         };
@@ -244,7 +252,7 @@ pub fn evaluate_scene_keeping(
     let mut rec = reconstruct(model, labels, &images, settings.vocabulary, pipeline)
         .map_err(|source| SceneEvalError::Pipeline { scene: name.clone(), source })?;
     let seconds = start.elapsed().as_secs_f64();
-    if settings.known_names {
+    if settings.switches.known_names {
         name_by_truth(&mut rec, scene, &context);
     }
     let targets = scene.eval.as_ref().map(|e| e.target.clone()).unwrap_or_default();
@@ -262,7 +270,7 @@ pub fn evaluate_scene_keeping(
     };
     let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;
     let scale = match depth_scale {
-        Some(d) if !settings.known_poses => AlignScale::Fixed(d),
+        Some(d) if !settings.switches.known_poses => AlignScale::Fixed(d),
         _ => AlignScale::Centres,
     };
     if let Some(to_pred) = align_cameras(&mut s, scene, &context, &rec, scale).map_err(&bad)? {
@@ -479,21 +487,21 @@ fn target_scores(
         let frame = &scene.frames[t];
         let truth = frame.planar_rgb();
         let mut camera = to_pred.map_camera(&frame.camera);
-        if settings.target_pose_steps > 0 {
-            let refined = refine_pose(&rec.scene, &camera, &truth, settings.target_pose_steps).map_err(|e| err(&e))?;
+        if settings.switches.target_pose_steps > 0 {
+            let refined = refine_pose(&rec.scene, &camera, &truth, settings.switches.target_pose_steps).map_err(|e| err(&e))?;
             turns.push(turn_deg(&refined.camera, &camera));
             camera = refined.camera;
         }
-        let colour = render_colour(&rec.scene, &camera, !settings.no_fill).map_err(|e| err(&e))?;
+        let colour = render_colour(&rec.scene, &camera, !settings.switches.no_fill).map_err(|e| err(&e))?;
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
         ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
         let Some(gt) = &frame.instances else { continue };
         let mut seg = segment(rec, &camera, mode, &texts, params)?;
-        if settings.no_aggregation {
+        if settings.switches.no_aggregation {
             seg.labels = pixel_labels(rec, &camera, &texts)?;
         }
-        if !settings.no_fill {
+        if !settings.switches.no_fill {
             fill_uncovered(&mut seg.ids, Some(&mut seg.labels), frame.width() as usize, frame.height() as usize);
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();

@@ -42,7 +42,7 @@ pub fn run_scene(
             vocabulary.extend(task.vocabulary.iter().flatten().cloned());
             vocabulary.sort();
             vocabulary.dedup();
-            let settings = Settings { vocabulary: &vocabulary, pipeline: config, cluster: ClusterMode::ThreeD, perturbation: None, known_poses: false, known_depth: false, known_names: false, no_aggregation: false, no_fill: false, target_pose_steps: 0, query_rules: &[], photos: None };
+            let settings = Settings { vocabulary: &vocabulary, pipeline: config, cluster: ClusterMode::ThreeD, perturbation: None, switches: Default::default(), query_rules: &[], photos: None };
             let (scores, rec, names) = evaluate_scene_keeping(model, labels, &scene, views, &settings)?;
             (rec, names, Some(serde_json::to_value(&scores)?))
         }
