@@ -3,6 +3,8 @@
 //! the ONNX files written from runs and from other files.
 
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -365,6 +367,7 @@ impl TrainArgs {
             val_samples: self.val_samples,
             val_data: self.val_data.clone().map(DataSpec::Folder),
             time_limit: self.time_limit.map(|m| minutes(m, "--time-limit")).transpose()?,
+            stop: None,
             progress: !self.quiet,
             compute: self.device,
         })
@@ -372,7 +375,7 @@ impl TrainArgs {
 }
 
 pub fn run_train(args: TrainArgs) -> Result<()> {
-    let session = args.session()?;
+    let session = Session { stop: Some(stop_on_signals()?), ..args.session()? };
     let summary = if args.resume {
         let dir = checkpoint::latest(&args.out)?.with_context(|| format!("--resume: {} has no checkpoint", args.out.display()))?;
         let state = checkpoint::read_state(&dir)?;
@@ -414,10 +417,31 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         summary.median_step.as_secs_f64(),
         summary.last_val.map_or(String::new(), |v| format!(", val loss {:.4}", v.total))
     );
-    if let Some(dir) = summary.checkpoint {
+    if let Some(dir) = &summary.checkpoint {
         println!("checkpoint {}; chart {}", dir.display(), args.out.join("loss.png").display());
     }
+    if let Some(number) = summary.signal {
+        let at = summary.checkpoint.as_ref().map_or(String::new(), |dir| format!(" in {}", dir.display()));
+        eprintln!("stopped by signal {number} after step {}, checkpoint written{at}; go on with --resume --out {}", summary.steps, args.out.display());
+        std::process::exit(128 + number as i32);
+    }
     Ok(())
+}
+
+/// A flag that SIGINT and SIGTERM set to their number, so that training stops after the step
+/// in progress with a checkpoint ([`Session::stop`]); a second such signal ends the process at
+/// once, as the first would have without the handler.
+fn stop_on_signals() -> Result<Arc<AtomicUsize>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::flag;
+    let (stop, seen) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
+    for number in [SIGINT, SIGTERM] {
+        // Handlers run in the order they were registered: exit if one came before, else note it.
+        flag::register_conditional_shutdown(number, 128 + number, Arc::clone(&seen)).context("installing the signal handlers")?;
+        flag::register(number, Arc::clone(&seen)).context("installing the signal handlers")?;
+        flag::register_usize(number, Arc::clone(&stop), number as usize).context("installing the signal handlers")?;
+    }
+    Ok(stop)
 }
 
 #[derive(clap::Args)]

@@ -582,3 +582,39 @@ fn resuming_keeps_the_checkpoints_the_run_kept() {
     resume("7", &["--keep", "1"]);
     assert_eq!(steps(), [7], "an explicit --keep prunes");
 }
+
+#[test]
+fn a_terminated_run_checkpoints_its_last_step_and_resumes_from_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let tiny = ["--primitives-only", "--image-size", "32", "--dim", "32", "--depth", "2", "--heads", "2", "--val-every", "0", "--quiet"];
+    let child = bin()
+        .args(["train", "--steps", "1000", "--checkpoint-minutes", "60", "--out"])
+        .arg(&run)
+        .args(tiny)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let logged = || std::fs::read_to_string(run.join("train_log.csv")).map_or(0, |t| t.lines().count().saturating_sub(1));
+    let start = std::time::Instant::now();
+    while logged() < 3 {
+        assert!(start.elapsed() < Duration::from_secs(120), "no 3 steps logged in 2 minutes");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: kill(2) on the pid of a child this test spawned and has not yet waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) }, 0);
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(128 + libc::SIGTERM), "{err}");
+    // The step in progress finished and was checkpointed: nothing logged is lost.
+    let steps = logged();
+    let dir = checkpoint::latest(&run).unwrap().expect("a checkpoint written on SIGTERM");
+    assert_eq!(checkpoint::read_state(&dir).unwrap().step as usize, steps);
+    assert!(err.contains(&format!("stopped by signal {} after step {steps}", libc::SIGTERM)) && err.contains("--resume"), "{err}");
+    // --resume goes on from there.
+    let out = bin().args(["train", "--resume", "--quiet", "--steps"]).arg((steps + 1).to_string()).arg("--out").arg(&run).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("steps {steps}..{}", steps + 1)), "{}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(logged(), steps + 1);
+}

@@ -20,6 +20,8 @@ pub mod step;
 mod validation;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use burn::grad_clipping::GradientClippingConfig;
@@ -161,6 +163,9 @@ pub struct Session {
     pub val_data: Option<DataSpec>,
     /// Stop (with a checkpoint) after this much time in this session.
     pub time_limit: Option<Duration>,
+    /// Stop (with a checkpoint) after the step in progress once this holds a signal's number
+    /// (0: none), which the caller's signal handler stores; [`Summary::signal`] says which.
+    pub stop: Option<Arc<AtomicUsize>>,
     /// Show a progress bar on stderr.
     pub progress: bool,
     /// Where the network trains.
@@ -203,6 +208,7 @@ impl Default for Session {
             val_samples: 4,
             val_data: None,
             time_limit: None,
+            stop: None,
             progress: true,
             compute: Compute::Cpu,
         }
@@ -247,6 +253,8 @@ pub struct Summary {
     /// Median step time of this session.
     pub median_step: Duration,
     pub checkpoint: Option<PathBuf>,
+    /// The signal that stopped the session early ([`Session::stop`]), if one did.
+    pub signal: Option<usize>,
 }
 
 /// Starts a new run in `run` (an error if it already has a checkpoint).
@@ -478,6 +486,7 @@ fn run_loop(
     let mut totals = Vec::new();
     let mut step_times = Vec::new();
     let mut last_val = None;
+    let mut signal = None;
     loop {
         let wait = Instant::now();
         let (mut samples, mut step) = (Vec::with_capacity(k as usize), 0);
@@ -545,14 +554,18 @@ fn run_loop(
             last_val = Some(v);
         }
         let out_of_time = session.time_limit.is_some_and(|limit| session_start.elapsed() >= limit);
+        signal = session.stop.as_ref().map(|s| s.load(Ordering::Relaxed)).filter(|&s| s != 0);
         let done = state.step >= state.config.steps;
-        if last_checkpoint.elapsed() >= session.checkpoint_every || out_of_time || done {
+        if last_checkpoint.elapsed() >= session.checkpoint_every || out_of_time || signal.is_some() || done {
             checkpoint_dir = Some(checkpoint::save(run, &net, &optim, &state)?);
             let _ = log::draw_chart(&train_csv, &val_csv, &chart);
             last_checkpoint = Instant::now();
         }
         if out_of_time {
             bar.println(format!("time limit reached at step {}; resume with --resume", state.step));
+            break;
+        }
+        if signal.is_some() {
             break;
         }
     }
@@ -569,5 +582,6 @@ fn run_loop(
         last_val,
         median_step: step_times.get(step_times.len() / 2).copied().unwrap_or_default(),
         checkpoint: checkpoint_dir,
+        signal,
     })
 }
