@@ -563,9 +563,8 @@ fn run_loop(
         }
         if out_of_time {
             bar.println(format!("time limit reached at step {}; resume with --resume", state.step));
-            break;
         }
-        if signal.is_some() {
+        if out_of_time || signal.is_some() {
             break;
         }
     }
