@@ -18,3 +18,4 @@ mod synth_dataset;
 mod synth_geometry;
 mod synth_stats;
 mod train_loop;
+mod train_resume;
