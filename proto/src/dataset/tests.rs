@@ -199,6 +199,19 @@ fn rejects_empty_frames() {
 }
 
 #[test]
+fn frame_intrinsics_override_the_top_level_and_integers_read_as_floats() {
+    let dir = written();
+    edit_json(dir.path(), |v| {
+        v["fl_x"] = json!(7);
+        v["frames"][1]["fl_y"] = json!(9);
+    });
+    let back = Scene::load(dir.path()).unwrap();
+    let k = |i: usize| back.frames[i].camera.intrinsics;
+    assert_eq!((k(0).fx, k(0).fy, k(1).fx, k(1).fy), (7.0, 5.0, 7.0, 9.0));
+    assert_eq!((k(1).cx, k(1).width), (3.0, 6));
+}
+
+#[test]
 fn rejects_missing_intrinsics() {
     let dir = written();
     edit_json(dir.path(), |v| v.as_object_mut().unwrap().remove("fl_x").map(drop).unwrap_or(()));
