@@ -114,7 +114,8 @@ pub fn draw_chart(train_csv: &Path, val_csv: &Path, out: &Path) -> Result<(), St
     let x_max = train.last().map_or(1.0, |r| r.0).max(1.0);
     let positive = train.iter().flat_map(|r| r.1.iter().copied()).chain(val.iter().map(|r| r.1[0])).filter(|v| *v > 0.0);
     let (lo, hi) = positive.fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v), hi.max(v)));
-    let (lo, hi) = if lo <= hi { (lo * 0.8, hi * 1.25) } else { (1e-3, 1.0) };
+    // Headroom above the highest curve keeps the legend (upper right) off the curves.
+    let (lo, hi) = if lo <= hi { (lo * 0.8, hi * 8.0) } else { (1e-3, 1.0) };
     let mut builder = ChartBuilder::on(&root);
     builder.margin(12);
     if with_text {
@@ -122,7 +123,7 @@ pub fn draw_chart(train_csv: &Path, val_csv: &Path, out: &Path) -> Result<(), St
     }
     let mut chart = builder.build_cartesian_2d(0.0..x_max, (lo..hi).log_scale()).map_err(|e| e.to_string())?;
     if with_text {
-        chart.configure_mesh().x_desc("step").y_desc("loss (unweighted terms)").draw().map_err(|e| e.to_string())?;
+        chart.configure_mesh().x_desc("step").x_label_formatter(&|x| format!("{x:.0}")).y_desc("loss (unweighted terms)").draw().map_err(|e| e.to_string())?;
     }
     let steps: Vec<f64> = train.iter().map(|r| r.0).collect();
     for (t, name) in TERMS.iter().enumerate() {
