@@ -10,8 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use image::{Rgb, RgbImage};
 use inssplat_proto::api::{CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut};
-use inssplat_proto::camera::Intrinsics;
-use inssplat_proto::dataset::{FrameJson, IntrinsicsJson, TransformsJson};
+use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::metrics::segmentation::NO_LABEL;
 use serde::{Deserialize, Serialize};
 
@@ -140,12 +139,22 @@ pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) 
             depth_file_path: None,
             instance_file_path: None,
             transform_matrix: c.transform_matrix,
-            intrinsics: IntrinsicsJson::of(&Intrinsics { fx: c.fl_x, fy: c.fl_y, cx: c.cx, cy: c.cy, width: c.w, height: c.h }),
+            fl_x: Some(f64::from(c.fl_x)),
+            fl_y: Some(f64::from(c.fl_y)),
+            cx: Some(f64::from(c.cx)),
+            cy: Some(f64::from(c.cy)),
+            w: Some(c.w),
+            h: Some(c.h),
         })
         .collect();
     let transforms = TransformsJson {
         camera_model: "OPENCV".into(),
-        intrinsics: IntrinsicsJson::default(),
+        fl_x: None,
+        fl_y: None,
+        cx: None,
+        cy: None,
+        w: None,
+        h: None,
         depth_unit_m: None,
         instances: Vec::new(),
         frames,

@@ -9,7 +9,7 @@ mod transforms;
 mod write;
 
 pub use error::{DatasetError, Problem};
-pub use transforms::{EvalSplit, FrameJson, InstanceLabel, IntrinsicsJson, TransformsJson};
+pub use transforms::{EvalSplit, FrameJson, InstanceLabel, TransformsJson};
 
 use std::path::PathBuf;
 

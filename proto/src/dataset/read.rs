@@ -245,7 +245,6 @@ fn frame_intrinsics(t: &TransformsJson, f: &FrameJson, json_path: &Path, index: 
             Some(v) => Ok(v),
         }
     };
-    let (f, t) = (&f.intrinsics, &t.intrinsics);
     let k = Intrinsics {
         fx: float("fl_x", f.fl_x, t.fl_x)?,
         fy: float("fl_y", f.fl_y, t.fl_y)?,

@@ -189,6 +189,13 @@ fn rejects_wrong_types() {
     let dir = written();
     edit_json(dir.path(), |v| v["frames"][1]["file_path"] = json!(3));
     assert!(matches!(rejected(dir.path(), "transforms.json", "frames[1].file_path"), Problem::Json(_)));
+    // The intrinsics too, at either level: the error names the field, not its object.
+    let dir = written();
+    edit_json(dir.path(), |v| v["frames"][1]["fl_y"] = json!("x"));
+    assert!(matches!(rejected(dir.path(), "transforms.json", "frames[1].fl_y"), Problem::Json(_)));
+    let dir = written();
+    edit_json(dir.path(), |v| v["cx"] = json!([]));
+    assert!(matches!(rejected(dir.path(), "transforms.json", "cx"), Problem::Json(_)));
 }
 
 #[test]

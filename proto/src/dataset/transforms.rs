@@ -5,32 +5,10 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::camera::Intrinsics;
-
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TransformsJson {
     #[serde(default = "opencv")]
     pub camera_model: String,
-    /// Top-level intrinsics, the default of every frame.
-    #[serde(flatten)]
-    pub intrinsics: IntrinsicsJson,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub depth_unit_m: Option<f64>,
-    #[serde(default)]
-    pub instances: Vec<InstanceLabel>,
-    pub frames: Vec<FrameJson>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub eval: Option<EvalSplit>,
-}
-
-fn opencv() -> String {
-    "OPENCV".to_string()
-}
-
-/// Pinhole intrinsics as `transforms.json` spells them, at the top level or in a frame; each
-/// field may be absent.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-pub struct IntrinsicsJson {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fl_x: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -43,13 +21,17 @@ pub struct IntrinsicsJson {
     pub w: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub h: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_unit_m: Option<f64>,
+    #[serde(default)]
+    pub instances: Vec<InstanceLabel>,
+    pub frames: Vec<FrameJson>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eval: Option<EvalSplit>,
 }
 
-impl IntrinsicsJson {
-    /// Every field of `k`.
-    pub fn of(k: &Intrinsics) -> Self {
-        Self { fl_x: Some(f64::from(k.fx)), fl_y: Some(f64::from(k.fy)), cx: Some(f64::from(k.cx)), cy: Some(f64::from(k.cy)), w: Some(k.width), h: Some(k.height) }
-    }
+fn opencv() -> String {
+    "OPENCV".to_string()
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -67,9 +49,18 @@ pub struct FrameJson {
     pub instance_file_path: Option<String>,
     /// Camera-to-world, OpenGL axes, row-major.
     pub transform_matrix: [[f64; 4]; 4],
-    /// This frame's own intrinsics; an absent field falls back to the top level.
-    #[serde(flatten)]
-    pub intrinsics: IntrinsicsJson,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fl_x: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fl_y: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub w: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub h: Option<u32>,
 }
 
 /// Frame indices for evaluation: context (input) sets per view count, and target views that

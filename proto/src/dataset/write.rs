@@ -7,7 +7,7 @@ use std::path::Path;
 use image::{ImageBuffer, Luma, Rgb};
 
 use super::error::{DatasetError, Problem};
-use super::transforms::{FrameJson, IntrinsicsJson, TransformsJson};
+use super::transforms::{FrameJson, TransformsJson};
 use super::{Frame, Scene};
 
 impl Scene {
@@ -22,18 +22,29 @@ impl Scene {
             .map(|(i, f)| {
                 let k = f.camera.intrinsics;
                 let own = Some(k) != k0;
+                let pick = |v: f32| own.then_some(f64::from(v));
                 FrameJson {
                     file_path: format!("images/{i:03}.png"),
                     depth_file_path: f.depth.as_ref().map(|_| format!("depth/{i:03}.png")),
                     instance_file_path: f.instances.as_ref().map(|_| format!("instances/{i:03}.png")),
                     transform_matrix: f.camera.to_nerfstudio(),
-                    intrinsics: if own { IntrinsicsJson::of(&k) } else { IntrinsicsJson::default() },
+                    fl_x: pick(k.fx),
+                    fl_y: pick(k.fy),
+                    cx: pick(k.cx),
+                    cy: pick(k.cy),
+                    w: own.then_some(k.width),
+                    h: own.then_some(k.height),
                 }
             })
             .collect();
         TransformsJson {
             camera_model: "OPENCV".into(),
-            intrinsics: k0.map(|k| IntrinsicsJson::of(&k)).unwrap_or_default(),
+            fl_x: k0.map(|k| f64::from(k.fx)),
+            fl_y: k0.map(|k| f64::from(k.fy)),
+            cx: k0.map(|k| f64::from(k.cx)),
+            cy: k0.map(|k| f64::from(k.cy)),
+            w: k0.map(|k| k.width),
+            h: k0.map(|k| k.height),
             depth_unit_m: Some(self.depth_unit_m),
             instances: self.instances.clone(),
             frames,
