@@ -1,11 +1,12 @@
 //! The training loop on real synthesized scenes with the real MiniLM teacher: a small network
-//! overfits one scene (the objective falls ≥ 10×), validating a checkpoint afterwards reproduces the run's own validation loss, the direct terms add L_ins
-//! and L_sem of the network's own embeddings and features, the contrastive L_sem with its
-//! direct term names one scene's objects out of the whole vocabulary, samples carry the label
-//! vocabulary of the contrastive L_sem (older configs read as without these), L_sem on the
-//! furniture alone is L_sem of the scene with its shell unlabelled, the prefetcher's
-//! data threads hand out exactly the sampler's samples in order, and bad data folders and
-//! checkpoints are clear errors that name the path.
+//! overfits one scene (the objective falls ≥ 10×), validating a checkpoint afterwards
+//! reproduces the run's own validation loss, the direct terms add L_ins and L_sem of the
+//! network's own embeddings and features, the contrastive L_sem with its direct term names
+//! one scene's objects out of the whole vocabulary, samples carry the label vocabulary of the
+//! contrastive L_sem (older configs read as without these), L_sem on the furniture alone is
+//! L_sem of the scene with its shell unlabelled, the prefetcher's data threads hand out
+//! exactly the sampler's samples in order, and bad data folders and checkpoints are clear
+//! errors that name the path. Runs that stop and resume are in `train_resume`.
 
 use std::path::Path;
 use std::process::Command;
