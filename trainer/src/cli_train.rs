@@ -98,6 +98,11 @@ pub struct TrainArgs {
     depth: usize,
     #[arg(long, default_value_t = 3)]
     heads: usize,
+    /// Hidden width of each block's MLP, as a multiple of the token width. With --init-from,
+    /// a larger ratio than the source's widens its MLPs: every weight is kept and the new
+    /// hidden units start with no effect on the output.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..))]
+    mlp_ratio: u16,
     #[arg(long, default_value_t = 128)]
     decoder_dim: usize,
     /// Width of the compact semantic feature.
@@ -296,6 +301,7 @@ impl TrainArgs {
             .with_dim(self.dim)
             .with_depth(self.depth)
             .with_heads(self.heads)
+            .with_mlp_ratio(usize::from(self.mlp_ratio))
             .with_decoder_dim(self.decoder_dim)
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips)

@@ -419,20 +419,21 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     }
 }
 
-/// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W` on a network
-/// without an image encoder or either head: the grown network computes exactly what the source
-/// did (the skips join through zero layers, each head has an output of its own), has the new
+/// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W --mlp-ratio R` on
+/// a network without an image encoder or either head and with narrower MLPs: the grown network
+/// computes exactly what the source did (the skips and the new hidden units join through
+/// zeros, each head has an output of its own), has the new
 /// parts' weights besides, and exports (the point map and the descriptors as the optional
 /// `point_map` and `descriptors` outputs) and reads back with parity.
 #[test]
-fn growing_an_image_encoder_and_the_point_and_descriptor_heads_keeps_the_output_and_exports_with_parity() {
+fn growing_an_image_encoder_the_point_and_descriptor_heads_and_the_mlps_keeps_the_output_and_exports_with_parity() {
     let device = Device::flex();
     device.seed(11);
     let source = small_config().init(&device).expect("valid config").map(&mut Perturb { std: 0.15 });
-    let shape = source.config().clone().with_image_skips(Some(4)).with_point_head(Some(8)).with_descriptor_head(Some(6));
+    let shape = source.config().clone().with_image_skips(Some(4)).with_point_head(Some(8)).with_descriptor_head(Some(6)).with_mlp_ratio(6);
     let grown = inssplat_trainer::train::grow(&source, shape, 5, &device).expect("grow");
     let c = grown.config();
-    assert_eq!((c.image_skips, c.point_head, c.descriptor_head), (Some(4), Some(8), Some(6)));
+    assert_eq!((c.image_skips, c.point_head, c.descriptor_head, c.mlp_ratio), (Some(4), Some(8), Some(6), 6));
     assert!(grown.num_params() > source.num_params(), "the new parts add weights");
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
     let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));

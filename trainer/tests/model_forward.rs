@@ -173,3 +173,28 @@ fn camera_rays_join_at_zero_learn_and_are_checked() {
     assert!(matches!(grown.forward(images.clone()), Err(ModelError::Rays(_))));
     assert!(matches!(source.forward_with_rays(images, Some(rays)), Err(ModelError::Rays(_))));
 }
+
+/// `--mlp-ratio` widened on a network: it computes exactly what the source did (the new
+/// hidden units write through zeros), has the wider blocks' weights, and every tensor, the
+/// widened ones included, receives a gradient (so training moves the new units' zeros);
+/// narrowing is refused.
+#[test]
+fn a_wider_mlp_starts_where_the_source_was_and_learns() {
+    let device = Device::flex().autodiff();
+    device.seed(4);
+    let source = small().init(&device).expect("config");
+    let grown = inssplat_trainer::train::grow(&source, small().with_mlp_ratio(6), 9, &device).expect("grow");
+    assert_eq!(grown.config().mlp_ratio, 6);
+    assert_eq!(grown.num_params() - source.num_params(), 2 * (64 * 32 + 64 + 64 * 32), "two blocks, each 64 more hidden units: their reads, biases and writes");
+    let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    assert_eq!(values(a.camera), values(b.camera.clone()));
+    assert_eq!(values(a.depth), values(b.depth.clone()));
+    assert_eq!(values(a.instance), values(b.instance.clone()));
+    let grads = (b.camera.sum() + b.depth.mean() + b.gaussians.mean() + b.instance.mean() + b.semantic.mean()).backward();
+    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
+    grown.visit(&mut visitor);
+    assert_eq!(visitor.without, 2, "every tensor but Φ_sem's two receives a gradient");
+    let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).err().expect("narrowing is refused");
+    assert!(err.to_string().contains("cannot narrow"), "{err}");
+}

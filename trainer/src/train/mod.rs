@@ -274,8 +274,8 @@ pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session)
 /// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
 /// shape is the source's; `config.model` is replaced by it, except that an image encoder or a
-/// point-map head asked for by `config.model` is added to a source without one (see [`grow`]),
-/// and that a key pooling it asks for replaces the source's (`Some(1)`: every token, for a
+/// point-map head asked for by `config.model` is added to a source without one and a wider
+/// MLP than the source's widens its blocks' (see [`grow`]; never narrowed), and that a key pooling it asks for replaces the source's (`Some(1)`: every token, for a
 /// source that pools; `None` keeps the source's).
 pub fn fine_tune(
     run: &Path,
@@ -298,6 +298,7 @@ pub fn fine_tune(
         (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
     };
     let mut shape = net.config().clone();
+    shape.mlp_ratio = shape.mlp_ratio.max(config.model.mlp_ratio);
     for (part, asked, has) in [
         ("an image encoder", config.model.image_skips, &mut shape.image_skips),
         ("a point-map head", config.model.point_head, &mut shape.point_head),
@@ -348,8 +349,18 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
 /// ([`crate::model::ModelConfig::camera_rays`]) that `net` lacks: every weight of `net` is
 /// kept and the new parts are drawn from `seed`. The image encoder and the rays join through
 /// layers that start at zero and each head has an output of its own, so the grown network
-/// computes exactly what `net` did.
+/// computes exactly what `net` did. A larger [`crate::model::ModelConfig::mlp_ratio`] widens
+/// every block's MLP the same way (Net2Net's function-preserving widening, with zeros in
+/// place of its split weights): the new hidden units read the tokens through fresh weights
+/// and write nothing until training moves their output weights, which start at zero.
 pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
+    let widened;
+    let net = if shape.mlp_ratio == net.config().mlp_ratio {
+        net
+    } else {
+        widened = widen_mlps(net, shape.mlp_ratio, seed, device)?;
+        &widened
+    };
     let old = net.config();
     let mut new_parts = Vec::new();
     if old.image_skips.is_none() && shape.image_skips.is_some() {
@@ -374,6 +385,31 @@ pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -
             result.missing, result.unused, result.errors
         )));
     }
+    Ok(grown)
+}
+
+/// `net` with every block's MLP `ratio` times the token width: the old hidden units keep their
+/// weights, the new ones read through weights drawn from `seed` and write through zeros.
+fn widen_mlps(net: &InsSplatNet, ratio: usize, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
+    let old = net.config();
+    if ratio < old.mlp_ratio {
+        return Err(TrainError::Config(format!("the MLP of {} × the width cannot narrow to {ratio} ×", old.mlp_ratio)));
+    }
+    let shape = old.clone().with_mlp_ratio(ratio);
+    let fresh = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
+    let (dim, hidden) = (old.dim, old.mlp_ratio * old.dim);
+    let mut grown = net.clone();
+    for (block, new) in grown.blocks.iter_mut().zip(&fresh.blocks) {
+        let reads = new.fc1.weight.val().slice([0..dim, hidden..ratio * dim]);
+        block.fc1.weight = Param::from_tensor(Tensor::cat(vec![block.fc1.weight.val(), reads], 1).detach());
+        if let (Some(bias), Some(new_bias)) = (&block.fc1.bias, &new.fc1.bias) {
+            let extra = new_bias.val().slice([hidden..ratio * dim]);
+            block.fc1.bias = Some(Param::from_tensor(Tensor::cat(vec![bias.val(), extra], 0).detach()));
+        }
+        let writes = Tensor::zeros([(ratio - old.mlp_ratio) * dim, dim], device);
+        block.fc2.weight = Param::from_tensor(Tensor::cat(vec![block.fc2.weight.val(), writes], 0).detach());
+    }
+    grown.config = shape;
     Ok(grown)
 }
 
