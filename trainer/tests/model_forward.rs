@@ -195,6 +195,6 @@ fn a_wider_mlp_starts_where_the_source_was_and_learns() {
     let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
     grown.visit(&mut visitor);
     assert_eq!(visitor.without, 2, "every tensor but Φ_sem's two receives a gradient");
-    let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).err().expect("narrowing is refused");
+    let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).expect_err("narrowing is refused");
     assert!(err.to_string().contains("cannot narrow"), "{err}");
 }

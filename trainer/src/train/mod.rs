@@ -397,16 +397,16 @@ fn widen_mlps(net: &InsSplatNet, ratio: usize, seed: u64, device: &Device) -> Re
     }
     let shape = old.clone().with_mlp_ratio(ratio);
     let fresh = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
-    let (dim, hidden) = (old.dim, old.mlp_ratio * old.dim);
+    let (dim, hidden, added) = (old.dim, old.mlp_ratio * old.dim, (ratio - old.mlp_ratio) * old.dim);
     let mut grown = net.clone();
     for (block, new) in grown.blocks.iter_mut().zip(&fresh.blocks) {
-        let reads = new.fc1.weight.val().slice([0..dim, hidden..ratio * dim]);
+        let reads = new.fc1.weight.val().narrow(1, hidden, added);
         block.fc1.weight = Param::from_tensor(Tensor::cat(vec![block.fc1.weight.val(), reads], 1).detach());
         if let (Some(bias), Some(new_bias)) = (&block.fc1.bias, &new.fc1.bias) {
-            let extra = new_bias.val().slice([hidden..ratio * dim]);
+            let extra = new_bias.val().narrow(0, hidden, added);
             block.fc1.bias = Some(Param::from_tensor(Tensor::cat(vec![bias.val(), extra], 0).detach()));
         }
-        let writes = Tensor::zeros([(ratio - old.mlp_ratio) * dim, dim], device);
+        let writes = Tensor::zeros([added, dim], device);
         block.fc2.weight = Param::from_tensor(Tensor::cat(vec![block.fc2.weight.val(), writes], 0).detach());
     }
     grown.config = shape;
