@@ -8,7 +8,7 @@ use burn::prelude::*;
 use burn::tensor::Distribution;
 use burn::tensor::Gradients;
 use inssplat_proto::signature as sig;
-use inssplat_trainer::model::{ModelConfig, ModelError};
+use inssplat_trainer::model::{InsSplatNet, ModelConfig, ModelError, ModelOutput};
 
 fn small() -> ModelConfig {
     ModelConfig::new()
@@ -122,6 +122,15 @@ fn model_default_size_and_gradients() {
     assert!(net.forward_flops(4) > 0);
 }
 
+/// The parameters of `net` that get no non-zero finite gradient from its output `out` (every
+/// head's maps and the cameras summed).
+fn tensors_without_gradient(net: &InsSplatNet, out: ModelOutput) -> usize {
+    let grads = (out.camera.sum() + out.depth.mean() + out.gaussians.mean() + out.instance.mean() + out.semantic.mean()).backward();
+    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
+    net.visit(&mut visitor);
+    visitor.without
+}
+
 /// Counts parameters with and without a non-zero finite gradient.
 struct GradCheck<'a> {
     grads: &'a Gradients,
@@ -166,10 +175,7 @@ fn camera_rays_join_at_zero_learn_and_are_checked() {
     let with = grown.forward_with_rays(images.clone(), Some(rays.clone())).expect("forward with rays");
     assert_eq!(values(plain.depth), values(with.depth.clone()));
     assert_eq!(values(plain.instance), values(with.instance.clone()));
-    let grads = (with.camera.sum() + with.depth.mean() + with.gaussians.mean() + with.instance.mean() + with.semantic.mean()).backward();
-    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
-    grown.visit(&mut visitor);
-    assert_eq!(visitor.without, 2, "the ray layer's weight receives a gradient like every tensor but Φ_sem's two");
+    assert_eq!(tensors_without_gradient(&grown, with), 2, "the ray layer's weight receives a gradient like every tensor but Φ_sem's two");
     assert!(matches!(grown.forward(images.clone()), Err(ModelError::Rays(_))));
     assert!(matches!(source.forward_with_rays(images, Some(rays)), Err(ModelError::Rays(_))));
 }
@@ -191,10 +197,7 @@ fn a_wider_mlp_starts_where_the_source_was_and_learns() {
     assert_eq!(values(a.camera), values(b.camera.clone()));
     assert_eq!(values(a.depth), values(b.depth.clone()));
     assert_eq!(values(a.instance), values(b.instance.clone()));
-    let grads = (b.camera.sum() + b.depth.mean() + b.gaussians.mean() + b.instance.mean() + b.semantic.mean()).backward();
-    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
-    grown.visit(&mut visitor);
-    assert_eq!(visitor.without, 2, "every tensor but Φ_sem's two receives a gradient");
+    assert_eq!(tensors_without_gradient(&grown, b), 2, "every tensor but Φ_sem's two receives a gradient");
     let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).expect_err("narrowing is refused");
     assert!(err.to_string().contains("cannot narrow"), "{err}");
 }
