@@ -105,7 +105,8 @@ pub struct TrainArgs {
     mlp_ratio: u16,
     #[arg(long, default_value_t = 128)]
     decoder_dim: usize,
-    /// Width of the compact semantic feature.
+    /// Width of the compact semantic feature. With --init-from, a wider one than the source's
+    /// adds channels that Φ_sem reads through zeros, so the network starts where it was.
     #[arg(long, default_value_t = 16)]
     sem_dim: usize,
     /// Add a convolutional image encoder whose features reach every decoder stage through

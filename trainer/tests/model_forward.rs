@@ -201,3 +201,32 @@ fn a_wider_mlp_starts_where_the_source_was_and_learns() {
     let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).expect_err("narrowing is refused");
     assert!(err.to_string().contains("cannot narrow"), "{err}");
 }
+
+/// `--sem-dim` widened on a network: its first channels are the source's, Φ_sem's text-space
+/// feature is exactly the source's (the new channels are read through zeros), the other outputs
+/// are unchanged, every tensor receives a gradient, and narrowing is refused.
+#[test]
+fn a_wider_semantic_feature_starts_where_the_source_was_and_learns() {
+    let device = Device::flex().autodiff();
+    device.seed(5);
+    let source = small().init(&device).expect("config");
+    let d_s = source.config().sem_dim;
+    let grown = inssplat_trainer::train::grow(&source, small().with_sem_dim(d_s + 4), 9, &device).expect("grow");
+    assert_eq!(grown.config().sem_dim, d_s + 4);
+    let last = small().decoder_channels(small().stages());
+    assert_eq!(grown.num_params() - source.num_params(), 4 * (last + 1) + 4 * 384, "four output rows (weights and biases) and four rows of Φ_sem");
+    let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    assert_eq!(values(a.depth), values(b.depth.clone()));
+    assert_eq!(values(a.gaussians), values(b.gaussians.clone()));
+    assert_eq!(values(a.instance), values(b.instance.clone()));
+    assert_eq!(values(a.semantic.clone()), values(b.semantic.clone().narrow(1, 0, d_s)));
+    let new = values(b.semantic.clone().narrow(1, d_s, 4));
+    assert!(new.iter().any(|v| v.abs() > 1e-3), "the new channels carry features of their own");
+    let text = |net: &InsSplatNet, s: Tensor<4>| values(net.project_semantic(s.permute([0, 2, 3, 1])));
+    let (ta, tb) = (text(&source, a.semantic), text(&grown, b.semantic.clone()));
+    assert!(ta.iter().zip(&tb).all(|(x, y)| (x - y).abs() <= 1e-5 * (1.0 + x.abs())), "Φ_sem reads the new channels through zeros");
+    assert_eq!(tensors_without_gradient(&grown, b), 2, "every tensor but Φ_sem's two receives a gradient");
+    let err = inssplat_trainer::train::grow(&grown, small().with_sem_dim(d_s), 9, &device).expect_err("narrowing is refused");
+    assert!(err.to_string().contains("cannot narrow"), "{err}");
+}

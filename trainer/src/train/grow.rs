@@ -1,13 +1,16 @@
 //! Growing a trained network into a larger shape that starts by computing exactly what it
-//! did: an image encoder, point-map, descriptor and ray layers joined at zero, and wider MLPs
-//! whose new hidden units write through zeros. `--init-from` fine-tunes start from here.
+//! did: an image encoder, point-map, descriptor and ray layers joined at zero, wider MLPs
+//! whose new hidden units write through zeros, and a wider semantic feature whose new channels
+//! Φ_sem reads through zeros. `--init-from` fine-tunes start from here.
 
 use burn::module::Param;
 use burn::prelude::*;
 use burn::store::ModuleSnapshot;
 
+use inssplat_proto::signature::TEXT_DIM;
+
 use super::{TrainError, seeded_init};
-use crate::model::{InsSplatNet, ModelConfig};
+use crate::model::{InsSplatNet, ModelConfig, OUT_DEPTH, OUT_GAUSSIANS};
 
 /// `net` grown to `shape`, which may add an image encoder
 /// ([`crate::model::ModelConfig::image_skips`]), a point-map head
@@ -19,15 +22,19 @@ use crate::model::{InsSplatNet, ModelConfig};
 /// computes exactly what `net` did. A larger [`crate::model::ModelConfig::mlp_ratio`] widens
 /// every block's MLP the same way (Net2Net's function-preserving widening, with zeros in
 /// place of its split weights): the new hidden units read the tokens through fresh weights
-/// and write nothing until training moves their output weights, which start at zero.
+/// and write nothing until training moves their output weights, which start at zero. A larger
+/// [`crate::model::ModelConfig::sem_dim`] adds semantic channels the same way: the output
+/// layer's new rows are drawn from `seed` and Φ_sem reads them through zeros, so the text-space
+/// feature, which every loss and the pipeline read, is what it was.
 pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
-    let widened;
-    let net = if shape.mlp_ratio == net.config().mlp_ratio {
-        net
-    } else {
-        widened = widen_mlps(net, shape.mlp_ratio, seed, device)?;
-        &widened
-    };
+    let mut widened = None;
+    if shape.mlp_ratio != net.config().mlp_ratio {
+        widened = Some(widen_mlps(net, shape.mlp_ratio, seed, device)?);
+    }
+    if shape.sem_dim != net.config().sem_dim {
+        widened = Some(widen_semantic(widened.as_ref().unwrap_or(net), shape.sem_dim, seed, device)?);
+    }
+    let net = widened.as_ref().unwrap_or(net);
     let old = net.config();
     let mut new_parts = Vec::new();
     if old.image_skips.is_none() && shape.image_skips.is_some() {
@@ -76,6 +83,33 @@ fn widen_mlps(net: &InsSplatNet, ratio: usize, seed: u64, device: &Device) -> Re
         let writes = Tensor::zeros([added, dim], device);
         block.fc2.weight = Param::from_tensor(Tensor::cat(vec![block.fc2.weight.val(), writes], 0).detach());
     }
+    grown.config = shape;
+    Ok(grown)
+}
+
+/// `net` with a semantic feature of `sem_dim` channels: the fused output layer gains rows drawn
+/// from `seed` after the old semantic ones, and Φ_sem reads them through zeros.
+fn widen_semantic(net: &InsSplatNet, sem_dim: usize, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
+    let old = net.config();
+    if sem_dim < old.sem_dim {
+        return Err(TrainError::Config(format!("the semantic feature of {} channels cannot narrow to {sem_dim}", old.sem_dim)));
+    }
+    let shape = old.clone().with_sem_dim(sem_dim);
+    let fresh = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
+    let (at, added) = (OUT_DEPTH + OUT_GAUSSIANS + old.sem_dim, sem_dim - old.sem_dim);
+    let insert = |old: Tensor<4>, new: Tensor<4>| {
+        let rest = old.dims()[0] - at;
+        Tensor::cat(vec![old.clone().narrow(0, 0, at), new.narrow(0, at, added), old.narrow(0, at, rest)], 0).detach()
+    };
+    let mut grown = net.clone();
+    let out = &mut grown.decoder.out;
+    out.weight = Param::from_tensor(insert(out.weight.val(), fresh.decoder.out.weight.val()));
+    if let (Some(bias), Some(new_bias)) = (&out.bias, &fresh.decoder.out.bias) {
+        let widened = insert(bias.val().unsqueeze_dims::<4>(&[1, 2, 3]), new_bias.val().unsqueeze_dims::<4>(&[1, 2, 3]));
+        out.bias = Some(Param::from_tensor(widened.flatten::<1>(0, 3)));
+    }
+    let reads = Tensor::zeros([added, TEXT_DIM], device);
+    grown.sem_proj.weight = Param::from_tensor(Tensor::cat(vec![grown.sem_proj.weight.val(), reads], 0).detach());
     grown.config = shape;
     Ok(grown)
 }

@@ -302,6 +302,7 @@ pub fn fine_tune(
     };
     let mut shape = net.config().clone();
     shape.mlp_ratio = shape.mlp_ratio.max(config.model.mlp_ratio);
+    shape.sem_dim = shape.sem_dim.max(config.model.sem_dim);
     for (part, asked, has) in [
         ("an image encoder", config.model.image_skips, &mut shape.image_skips),
         ("a point-map head", config.model.point_head, &mut shape.point_head),
