@@ -397,10 +397,13 @@ fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[
 }
 
 /// Each found instance with its true label ([`true_instance_labels`], objects first) and its
-/// descriptor. The prototype is the unfused one (as a semantic classifier reads it), whatever
+/// descriptor. Where a scene leaves the shell unlabelled (val and test), its pixels vote as
+/// `wall` ([`truth_label`]), so that an instance of shell with a lamp's edge in it is labelled
+/// as in a train room, where the shell has labels: the shell's, unless objects hold a quarter
+/// of it. The prototype is the unfused one (as a semantic classifier reads it), whatever
 /// `--shape-weight` named the instances with.
 fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
-    let labels = true_instance_labels(|id| scene.label_of(id), pairs, true);
+    let labels = true_instance_labels(|id| truth_label(scene, id), pairs, true);
     rec.descriptors
         .iter()
         .filter_map(|(id, d)| {
@@ -435,9 +438,9 @@ fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
     }
 }
 
-/// The true label of ground-truth id `id` for [`name_by_truth`]: `wall` for id 0 (the shell a
-/// val or test scene leaves unlabelled, and nothing else: a room's every pixel is shell or
-/// object), else the scene's label of it.
+/// The true label of ground-truth id `id` for [`name_by_truth`] and [`shape_examples`]: `wall`
+/// for id 0 (the shell a val or test scene leaves unlabelled, and nothing else: a room's every
+/// pixel is shell or object), else the scene's label of it.
 fn truth_label(scene: &Scene, id: u16) -> Option<&str> {
     if id == 0 { Some(SHELL[0]) } else { scene.label_of(id) }
 }
@@ -564,7 +567,8 @@ mod tests {
 
     /// Where the shell is left unlabelled (id 0), `--known-names` counts its pixels as the
     /// shell's: an instance of 5 shell pixels and 3 rug pixels is named for the shell, not for
-    /// the rug, the one part of it that a val or test scene labels.
+    /// the rug, the one part of it that a val or test scene labels. The classifier's examples
+    /// count them too, objects first.
     #[test]
     fn known_names_count_the_unlabelled_shell() {
         use inssplat_proto::dataset::InstanceLabel;
@@ -579,5 +583,11 @@ mod tests {
         let truth = [0, 0, 0, 0, 0, 4, 4, 4, 4, 9];
         let labels = true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], false);
         assert_eq!(labels, BTreeMap::from([(3, "wall"), (5, "rug")]));
+        // The classifier's examples put objects first: 3 rug pixels of 8 (over a quarter) name
+        // instance 3 for the rug, and 1 of 6 leaves instance 6 the shell's.
+        let found = [3, 3, 3, 3, 3, 3, 3, 3, 6, 6, 6, 6, 6, 6];
+        let truth = [0, 0, 0, 0, 0, 4, 4, 4, 0, 0, 0, 0, 0, 4];
+        let labels = true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], true);
+        assert_eq!(labels, BTreeMap::from([(3, "rug"), (6, "wall")]));
     }
 }
