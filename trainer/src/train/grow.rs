@@ -25,7 +25,7 @@ use crate::model::{InsSplatNet, ModelConfig, OUT_DEPTH, OUT_GAUSSIANS};
 /// and write nothing until training moves their output weights, which start at zero. A larger
 /// [`crate::model::ModelConfig::sem_dim`] adds semantic channels the same way: the output
 /// layer's new rows are drawn from `seed` and Φ_sem reads them through zeros, so the text-space
-/// feature, which every loss and the pipeline read, is what it was.
+/// feature, which every loss and the pipeline's names read, is what it was.
 pub fn grow(net: &InsSplatNet, shape: ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, TrainError> {
     let mut widened = None;
     if shape.mlp_ratio != net.config().mlp_ratio {
