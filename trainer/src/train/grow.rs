@@ -97,19 +97,20 @@ fn widen_semantic(net: &InsSplatNet, sem_dim: usize, seed: u64, device: &Device)
     let shape = old.clone().with_sem_dim(sem_dim);
     let fresh = seeded_init(&shape, seed, device).map_err(|e| TrainError::Config(e.to_string()))?;
     let (at, added) = (OUT_DEPTH + OUT_GAUSSIANS + old.sem_dim, sem_dim - old.sem_dim);
-    let insert = |old: Tensor<4>, new: Tensor<4>| {
-        let rest = old.dims()[0] - at;
-        Tensor::cat(vec![old.clone().narrow(0, 0, at), new.narrow(0, at, added), old.narrow(0, at, rest)], 0).detach()
-    };
     let mut grown = net.clone();
     let out = &mut grown.decoder.out;
-    out.weight = Param::from_tensor(insert(out.weight.val(), fresh.decoder.out.weight.val()));
+    out.weight = Param::from_tensor(insert_rows(out.weight.val(), fresh.decoder.out.weight.val(), at, added));
     if let (Some(bias), Some(new_bias)) = (&out.bias, &fresh.decoder.out.bias) {
-        let widened = insert(bias.val().unsqueeze_dims::<4>(&[1, 2, 3]), new_bias.val().unsqueeze_dims::<4>(&[1, 2, 3]));
-        out.bias = Some(Param::from_tensor(widened.flatten::<1>(0, 3)));
+        out.bias = Some(Param::from_tensor(insert_rows(bias.val(), new_bias.val(), at, added)));
     }
     let reads = Tensor::zeros([added, TEXT_DIM], device);
     grown.sem_proj.weight = Param::from_tensor(Tensor::cat(vec![grown.sem_proj.weight.val(), reads], 0).detach());
     grown.config = shape;
     Ok(grown)
+}
+
+/// `old` with rows `at..at + added` of `new` inserted before its row `at`.
+fn insert_rows<const D: usize>(old: Tensor<D>, new: Tensor<D>, at: usize, added: usize) -> Tensor<D> {
+    let rest = old.dims()[0] - at;
+    Tensor::cat(vec![old.clone().narrow(0, 0, at), new.narrow(0, at, added), old.narrow(0, at, rest)], 0).detach()
 }
