@@ -224,6 +224,11 @@ pub struct TrainArgs {
     /// instance, instead of the paper's per-pixel cosine (0).
     #[arg(long, default_value_t = 0.0)]
     semantic_temperature: f64,
+    /// a > 0: the contrastive L_sem logit-adjusted, each label's logit plus a·ln of its share
+    /// of the furniture of 4000 training scenes (Menon et al., 2021), so that the features
+    /// name rare labels as readily as chairs. Needs --semantic-objects-only.
+    #[arg(long, default_value_t = 0.0)]
+    semantic_logit_adjust: f64,
     /// Weight of L_ins on the network's own per-pixel embeddings of the input views (what
     /// inference clusters), added inside L_ins to L_ins on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
@@ -334,6 +339,7 @@ impl TrainArgs {
             .with_descriptor_min_angle((self.descriptor_weight > 0.0 && self.descriptor_min_angle > 0.0).then_some(self.descriptor_min_angle))
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
+            .with_semantic_logit_adjust((self.semantic_logit_adjust > 0.0).then_some(self.semantic_logit_adjust))
             .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
             .with_direct_semantic_weight((self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight))
             .with_semantic_objects_only(self.semantic_objects_only.then_some(true))

@@ -25,7 +25,7 @@ pub mod instance;
 pub mod point_map;
 pub mod semantic;
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -108,6 +108,13 @@ pub struct LossConfig {
     /// Gaussian's own L says. `None` (also what configs saved before this term existed read
     /// as) means 0.
     pub direct_semantic_weight: Option<f64>,
+    /// a of the logit-adjusted contrastive L_sem (see [`semantic`]): each label's logit gains
+    /// a·ln π, π its share of [`Self::semantic_label_counts`]. `None` (also what configs saved
+    /// before this switch existed read as): no adjustment.
+    pub semantic_logit_adjust: Option<f64>,
+    /// Instances per label of the training scenes, the π of the logit adjustment (a label
+    /// missing from it counts as the rarest); filled in when a run starts.
+    pub semantic_label_counts: Option<BTreeMap<String, u64>>,
     /// L_sem on the furniture alone: the pixels of the room's shell (instances labelled
     /// `wall`, `floor` or `ceiling`) are left out of it, as the evaluation's scenes leave the
     /// shell unlabelled, while L_ins still separates the shell's instances. `None` (also what
@@ -233,6 +240,19 @@ pub struct LossTerms {
 }
 
 impl LossConfig {
+    /// a·ln π of each of `labels` for the logit-adjusted L_sem, π over
+    /// [`Self::semantic_label_counts`] (a label it lacks gets the smallest count, at least 1);
+    /// empty when there is no adjustment.
+    pub fn semantic_log_prior(&self, labels: &[&str]) -> Vec<f32> {
+        let (Some(a), Some(counts)) = (self.semantic_logit_adjust.filter(|&a| a != 0.0), &self.semantic_label_counts) else {
+            return Vec::new();
+        };
+        let least = counts.values().copied().filter(|&n| n > 0).min().unwrap_or(1);
+        let count = |l: &str| counts.get(l).copied().filter(|&n| n > 0).unwrap_or(least) as f64;
+        let total: f64 = labels.iter().map(|l| count(l)).sum();
+        labels.iter().map(|l| (a * (count(l) / total).ln()) as f32).collect()
+    }
+
     /// L = w_rgb·L_rgb + w_geom·L_geom + w_ins·L_ins + w_sem·L_sem + w_bd·L_bd-rgb.
     pub fn total(&self, terms: &LossTerms) -> Tensor<1> {
         terms.rgb.clone().mul_scalar(self.rgb_weight)

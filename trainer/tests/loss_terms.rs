@@ -204,12 +204,13 @@ fn loss_semantic_hand_values() {
     assert_eq!(loss(&[0, 1, 3, 1], [0.0; 3]).unwrap_err(), LossError::TeacherRow { id: 3, rows: 3 });
 }
 
-#[test]
-fn loss_semantic_contrastive_hand_values() {
-    // 1×5 view, ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id 2 has
-    // another: A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). The vocabulary holds B again
-    // (one class) and C = (0, 0, 3), a label the view does not show: three classes. Φ_sem
-    // embeds (l0, l1) as (l0, l1, 1) with W = [[1, 0], [0, 1], [0, 0]] and b = (0, 0, 1).
+/// The contrastive L_sem of a 1×5 view, with `log_prior` added to the vocabulary's logits,
+/// and its value by hand. Ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id
+/// 2 has another: A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). The vocabulary holds B again
+/// (one class) and C = (0, 0, 3), a label the view does not show: three classes, A (the
+/// sample's own, beyond the vocabulary) last. Φ_sem embeds (l0, l1) as (l0, l1, 1) with
+/// W = [[1, 0], [0, 1], [0, 0]] and b = (0, 0, 1).
+fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
     let ids = [0, 1, 2, 3, 1];
     let features: [(f32, f32); 5] = [(9.0, 9.0), (1.0, 0.0), (1.0, 1.0), (0.0, 2.0), (3.0, 1.0)];
     let planar: Vec<f32> = features.iter().map(|f| f.0).chain(features.iter().map(|f| f.1)).collect();
@@ -219,22 +220,52 @@ fn loss_semantic_contrastive_hand_values() {
     let bias = tensor(&[0.0, 0.0, 1.0], [3]);
     let tau = 0.5;
     let vocabulary = [0.0, 2.0, 0.0, 0.0, 0.0, 3.0];
-    let form = SemanticForm::Contrastive { temperature: tau, vocabulary: &vocabulary };
+    let form = SemanticForm::Contrastive { temperature: tau, vocabulary: &vocabulary, log_prior };
     let loss = semantic_loss(semantic, &ids, teacher, weight, bias, form).unwrap();
+    // Offsets of B, C and A: the prior's, A the smallest of them (the rarest label).
+    let least = log_prior.iter().copied().fold(f32::INFINITY, f32::min);
+    let [ob, oc, oa] = if log_prior.is_empty() { [0.0; 3] } else { [log_prior[0], log_prior[1], least].map(f64::from) };
     // Pixel p (label pixels 1..5) has cos_A = l0/|y|, cos_B = l1/|y|, cos_C = 1/|y|,
     // |y| = sqrt(l0² + l1² + 1); CE of its own class; weights: instance 1 has 2 pixels,
     // instances 2 and 3 one each.
     let ce = |(l0, l1): (f32, f32), own_a: bool| {
         let (l0, l1) = (f64::from(l0), f64::from(l1));
         let n = (l0 * l0 + l1 * l1 + 1.0).sqrt();
-        let (a, b, c) = (l0 / n / tau, l1 / n / tau, 1.0 / n / tau);
+        let (a, b, c) = (l0 / n / tau + oa, l1 / n / tau + ob, 1.0 / n / tau + oc);
         let lse = (a.exp() + b.exp() + c.exp()).ln();
         lse - if own_a { a } else { b }
     };
     let expected = (ce(features[1], true) / 2.0 + ce(features[4], true) / 2.0)
         + ce(features[2], false)
         + ce(features[3], true);
-    close(scalar(loss), expected / 3.0, "contrastive L_sem");
+    (scalar(loss), expected / 3.0)
+}
+
+#[test]
+fn loss_semantic_contrastive_hand_values() {
+    let (loss, expected) = contrastive_loss_and_hand_value(&[]);
+    close(loss, expected, "contrastive L_sem");
+}
+
+#[test]
+fn logit_adjusted_l_sem_charges_the_frequent_label_more_and_a_uniform_prior_nothing() {
+    let (plain, _) = contrastive_loss_and_hand_value(&[]);
+    // A uniform prior shifts every logit alike: the softmax, and the loss, stay.
+    let (uniform, _) = contrastive_loss_and_hand_value(&[-1.5, -1.5]);
+    close(uniform, plain, "uniform prior");
+    // B (the label of instance 2) frequent, C rare and A rarer still by default: the adjusted
+    // loss asks B's pixel for a larger margin and A's for a smaller one.
+    let prior = [0.6f32.ln(), 0.1f32.ln()];
+    let (adjusted, expected) = contrastive_loss_and_hand_value(&prior);
+    close(adjusted, expected, "logit-adjusted L_sem");
+    assert!((adjusted - plain).abs() > 1e-3, "the prior must change the loss: {adjusted} vs {plain}");
+    // The prior's scale follows LossConfig::semantic_log_prior: a·ln π over the labels asked.
+    let counts = [("chair".to_string(), 60u64), ("bed".to_string(), 10)].into_iter().collect();
+    let config = LossConfig::new().with_semantic_logit_adjust(Some(2.0)).with_semantic_label_counts(Some(counts));
+    let got = config.semantic_log_prior(&["chair", "bed", "piano"]);
+    let want = [60.0f64, 10.0, 10.0].map(|n| (2.0 * (n / 80.0).ln()) as f32);
+    assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-6), "{got:?} vs {want:?}");
+    assert!(LossConfig::new().semantic_log_prior(&["chair"]).is_empty(), "no adjustment asked, no prior");
 }
 
 /// A 1×9 strip (or its 9×1 transpose): pixels 0–1 embed as (1, 0), pixels 2–8 as (0.8, 0.6)

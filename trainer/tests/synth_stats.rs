@@ -54,3 +54,26 @@ fn synth_layouts_span_twenty_categories_with_repeats() {
     assert!(labels.len() >= 20, "{} categories: {labels:?}", labels.len());
     assert!(repeats as f64 >= 0.6 * n as f64, "{repeats} of {n}");
 }
+
+#[test]
+fn synth_furniture_labels_are_the_layout_that_the_rendered_scene_shows() {
+    let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
+    cfg.width = 32;
+    cfg.height = 32;
+    cfg.frames = (6, 6);
+    for index in 0..6 {
+        let placed = synth::furniture_labels(index, &cfg).unwrap();
+        assert_eq!(placed, synth::furniture_labels(index, &cfg).unwrap(), "scene {index}: the same layout each time");
+        // Every furniture instance the frames show is one the layout placed (as a multiset).
+        let mut left: std::collections::BTreeMap<&str, i32> = Default::default();
+        placed.iter().for_each(|l| *left.entry(l).or_default() += 1);
+        let scene = synth::generate_split(index, &cfg).unwrap().scene;
+        let shown: Vec<&str> = scene.instances.iter().map(|i| i.label.as_str()).filter(|l| !synth::stats::SHELL_LABELS.contains(l)).collect();
+        assert!(!shown.is_empty(), "scene {index} shows no furniture");
+        for label in &shown {
+            let n = left.get_mut(label).unwrap_or_else(|| panic!("scene {index} shows a {label} its layout did not place: {placed:?}"));
+            *n -= 1;
+            assert!(*n >= 0, "scene {index} shows more of {label} than its layout placed: {placed:?}");
+        }
+    }
+}

@@ -171,7 +171,7 @@ fn the_direct_semantic_term_adds_l_sem_of_the_networks_own_features() {
 
     let teacher = Tensor::<2>::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), 384]), &device);
     let (weight, bias) = net.sem_proj();
-    let form = SemanticForm::Contrastive { temperature: 0.1, vocabulary: &sample.vocabulary };
+    let form = SemanticForm::Contrastive { temperature: 0.1, vocabulary: &sample.vocabulary, log_prior: &[] };
     let features = net.forward(input_images(&sample, &device)).unwrap().semantic;
     let own_ids = &sample.ids[..sample.inputs * sample.size * sample.size];
     let own = semantic_loss(features, own_ids, teacher, weight, bias, form).unwrap().into_scalar::<f32>();

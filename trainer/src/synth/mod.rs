@@ -245,8 +245,16 @@ pub fn generate_split(index: u64, cfg: &SynthConfig) -> Result<Synthesized, Synt
     generate_scene(cfg.split.seed(index)?, cfg)
 }
 
-/// The scene of `seed`, with credits.
-pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, SynthError> {
+/// The labels of the furniture that scene `index` of `cfg.split` places (visible in its frames
+/// or not), from its layout alone: nothing is rendered, so counting labels over thousands of
+/// scenes takes seconds.
+pub fn furniture_labels(index: u64, cfg: &SynthConfig) -> Result<Vec<&'static str>, SynthError> {
+    let (_, _, furnished) = furnished(cfg.split.seed(index)?, cfg)?;
+    Ok(furnished.objects.iter().map(|o| o.model.label).collect())
+}
+
+/// The random stream of `seed` after its room and furniture are drawn, with both.
+fn furnished(seed: u64, cfg: &SynthConfig) -> Result<(ChaCha8Rng, room::Room, layout::Layout), SynthError> {
     cfg.validate()?;
     let catalog = match &cfg.furniture {
         Furniture::Primitives => None,
@@ -261,6 +269,12 @@ pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, Synth
         contrast: cfg.texture_contrast,
     };
     let furnished = layout::furnish(&room, &source, cfg, &mut rng);
+    Ok((rng, room, furnished))
+}
+
+/// The scene of `seed`, with credits.
+pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, SynthError> {
+    let (mut rng, room, furnished) = furnished(seed, cfg)?;
     let n = furnished.objects.len();
     let ids: Vec<u16> = (1..=n as u16).collect();
     let shell_ids: raycast::ShellIds = match cfg.structure {

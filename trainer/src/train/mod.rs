@@ -45,6 +45,10 @@ pub use ray_errors::RayPlan;
 pub use validation::{CheckpointScores, Matching, ValidationSet, mean_loss, score_checkpoint};
 use validation::{val_samples, validate};
 
+/// Scenes whose furniture gives the label prior of the logit-adjusted L_sem: enough that the
+/// rarest label counts in the hundreds.
+const LABEL_PRIOR_SCENES: u64 = 4000;
+
 /// Everything that defines a run; saved in every checkpoint.
 #[derive(Config, Debug)]
 pub struct TrainConfig {
@@ -139,6 +143,13 @@ impl TrainConfig {
             if !(0.0..=1.0).contains(&plan.dropout) || !(0.0..=180.0).contains(&plan.noise_deg) {
                 return Err(TrainError::Config(format!("ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180", plan.dropout, plan.noise_deg)));
             }
+        }
+        if self.loss.semantic_logit_adjust.is_some_and(|a| a != 0.0)
+            && (self.loss.semantic_temperature.is_none() || self.loss.semantic_objects_only != Some(true))
+        {
+            return Err(TrainError::Config(
+                "the logit-adjusted L_sem needs the contrastive form on the furniture alone (--semantic-temperature, --semantic-objects-only)".into(),
+            ));
         }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
@@ -437,7 +448,17 @@ fn run_loop(
     std::fs::create_dir_all(run).map_err(|e| io_error(run, e))?;
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
-    let sampler = Sampler { source: Source::open(&state.data)?, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
+    let source = Source::open(&state.data)?;
+    if state.config.loss.semantic_logit_adjust.is_some() && state.config.loss.semantic_label_counts.is_none() {
+        let counts = source.label_counts(state.config.first_scene, LABEL_PRIOR_SCENES)?;
+        if session.progress {
+            let total: u64 = counts.values().sum();
+            let shares: Vec<String> = counts.iter().map(|(l, n)| format!("{l} {:.1}%", 100.0 * *n as f64 / total.max(1) as f64)).collect();
+            eprintln!("label prior of the logit-adjusted L_sem, {total} instances of {LABEL_PRIOR_SCENES} scenes: {}", shares.join(", "));
+        }
+        state.config.loss.semantic_label_counts = Some(counts);
+    }
+    let sampler = Sampler { source, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
     let val = val_samples(&state, session, &labels, None)?;
     let first_step = state.step;
     let (train_csv, val_csv, chart) = (run.join("train_log.csv"), run.join("val_log.csv"), run.join("loss.png"));

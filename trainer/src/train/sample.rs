@@ -9,6 +9,7 @@
 //! uninterrupted run would have seen. [`Prefetcher`] builds the samples of the coming steps on
 //! background threads, so data never stalls the step.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
@@ -21,6 +22,7 @@ use inssplat_text::LabelCache;
 use rand::seq::index::sample as sample_indices;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::loss::camera_targets;
@@ -104,6 +106,28 @@ impl Source {
                 Ok(Source::Synth(Arc::new(cfg)))
             }
         }
+    }
+
+    /// Instances per label of scenes `first..first + count` (folders: at most each folder
+    /// once), the room's shell left out: for a synthesized split the furniture its layouts
+    /// place ([`synth::furniture_labels`], nothing rendered), for folders what their
+    /// `transforms.json` list.
+    pub fn label_counts(&self, first: u64, count: u64) -> Result<BTreeMap<String, u64>, SampleError> {
+        let labels: Vec<Vec<String>> = match self {
+            Source::Folder(paths) => (first..first + count.min(paths.len() as u64))
+                .into_par_iter()
+                .map(|i| Ok(self.scene(i)?.instances.into_iter().map(|inst| inst.label).collect()))
+                .collect::<Result<_, SampleError>>()?,
+            Source::Synth(cfg) => (first..first + count)
+                .into_par_iter()
+                .map(|i| Ok(synth::furniture_labels(i, cfg)?.into_iter().map(String::from).collect()))
+                .collect::<Result<_, SampleError>>()?,
+        };
+        let mut counts = BTreeMap::new();
+        for label in labels.into_iter().flatten().filter(|l| !SHELL_LABELS.contains(&l.as_str())) {
+            *counts.entry(label).or_default() += 1;
+        }
+        Ok(counts)
     }
 
     /// Scene number `index` (folders wrap around).
