@@ -240,11 +240,16 @@ pub struct LossTerms {
 }
 
 impl LossConfig {
+    /// a of the logit-adjusted L_sem when there is an adjustment (a ≠ 0).
+    pub fn logit_adjustment(&self) -> Option<f64> {
+        self.semantic_logit_adjust.filter(|&a| a != 0.0)
+    }
+
     /// a·ln π of each of `labels` for the logit-adjusted L_sem, π over
     /// [`Self::semantic_label_counts`] (a label it lacks gets the smallest count, at least 1);
     /// empty when there is no adjustment.
     pub fn semantic_log_prior(&self, labels: &[&str]) -> Vec<f32> {
-        let (Some(a), Some(counts)) = (self.semantic_logit_adjust.filter(|&a| a != 0.0), &self.semantic_label_counts) else {
+        let (Some(a), Some(counts)) = (self.logit_adjustment(), &self.semantic_label_counts) else {
             return Vec::new();
         };
         let least = counts.values().copied().filter(|&n| n > 0).min().unwrap_or(1);

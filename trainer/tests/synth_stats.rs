@@ -1,20 +1,29 @@
 //! Dataset statistics measured by library code on generated scenes: most scenes show two or
 //! more instances of one category (neighbouring chairs, nightstands, bookcases), the
-//! furniture spans at least twenty categories, and every scene shows several objects.
+//! furniture spans at least twenty categories, and every scene shows several objects. The
+//! label counts of the logit-adjusted L_sem: a layout's furniture is what its rendered scene
+//! shows, and a folder counts what its scenes' `transforms.json` list.
 
 use std::collections::BTreeSet;
 
 use inssplat_trainer::synth::layout::{self, Source};
+use inssplat_trainer::train::sample::{DataSpec, Source as DataSource};
 use inssplat_trainer::synth::room::Room;
 use inssplat_trainer::synth::{self, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig};
 use rand::SeedableRng;
 
-#[test]
-fn synth_most_rendered_scenes_repeat_a_category() {
+/// Train-split rooms at 32×32, six frames each: enough to render what a room shows, quickly.
+fn small_train_rooms() -> SynthConfig {
     let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
     cfg.width = 32;
     cfg.height = 32;
     cfg.frames = (6, 6);
+    cfg
+}
+
+#[test]
+fn synth_most_rendered_scenes_repeat_a_category() {
+    let cfg = small_train_rooms();
     let mut stats = DatasetStats::default();
     for index in 0..20 {
         stats.add(&synth::generate_split(index, &cfg).unwrap().scene);
@@ -57,10 +66,7 @@ fn synth_layouts_span_twenty_categories_with_repeats() {
 
 #[test]
 fn synth_furniture_labels_are_the_layout_that_the_rendered_scene_shows() {
-    let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
-    cfg.width = 32;
-    cfg.height = 32;
-    cfg.frames = (6, 6);
+    let cfg = small_train_rooms();
     for index in 0..6 {
         let placed = synth::furniture_labels(index, &cfg).unwrap();
         assert_eq!(placed, synth::furniture_labels(index, &cfg).unwrap(), "scene {index}: the same layout each time");
@@ -76,4 +82,20 @@ fn synth_furniture_labels_are_the_layout_that_the_rendered_scene_shows() {
             assert!(*n >= 0, "scene {index} shows more of {label} than its layout placed: {placed:?}");
         }
     }
+}
+
+#[test]
+fn a_folder_of_scenes_counts_the_furniture_its_transforms_list() {
+    let cfg = small_train_rooms();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut want: std::collections::BTreeMap<String, u64> = Default::default();
+    for index in 0..3 {
+        let scene = synth::generate_split(index, &cfg).unwrap();
+        scene.write(&tmp.path().join(format!("scene_{index}"))).unwrap();
+        for inst in scene.scene.instances.iter().filter(|i| !synth::stats::SHELL_LABELS.contains(&i.label.as_str())) {
+            *want.entry(inst.label.clone()).or_default() += 1;
+        }
+    }
+    let source = DataSource::open(&DataSpec::Folder(tmp.path().to_path_buf())).unwrap();
+    assert_eq!(source.label_counts(0, 10).unwrap(), want, "each folder counted once, the shell left out");
 }

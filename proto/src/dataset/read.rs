@@ -17,7 +17,7 @@ impl Scene {
     pub fn load(dir: impl AsRef<Path>) -> Result<Scene, DatasetError> {
         let dir = dir.as_ref();
         let json_path = dir.join("transforms.json");
-        let t = parse_transforms(&json_path)?;
+        let t = TransformsJson::read(&json_path)?;
         let err = |field: String, problem| DatasetError::new(&json_path, field, problem);
         if t.frames.is_empty() {
             return Err(err("frames".into(), Problem::Invalid("no frames".into())));
@@ -43,20 +43,24 @@ impl Scene {
     }
 }
 
-fn parse_transforms(path: &Path) -> Result<TransformsJson, DatasetError> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        let problem =
-            if e.kind() == std::io::ErrorKind::NotFound { Problem::Missing } else { Problem::Unreadable(e.to_string()) };
-        DatasetError::new(path, "(file)", problem)
-    })?;
-    let de = &mut serde_json::Deserializer::from_str(&text);
-    serde_path_to_error::deserialize(de).map_err(|e| {
-        let field = match e.path().to_string() {
-            p if p == "." => "(document)".to_string(),
-            p => p,
-        };
-        DatasetError::new(path, field, Problem::Json(e.into_inner().to_string()))
-    })
+impl TransformsJson {
+    /// Parses a scene's `transforms.json` at `path` alone: its cameras, instances and split,
+    /// without reading or checking the frames' files.
+    pub fn read(path: &Path) -> Result<TransformsJson, DatasetError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            let problem =
+                if e.kind() == std::io::ErrorKind::NotFound { Problem::Missing } else { Problem::Unreadable(e.to_string()) };
+            DatasetError::new(path, "(file)", problem)
+        })?;
+        let de = &mut serde_json::Deserializer::from_str(&text);
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = match e.path().to_string() {
+                p if p == "." => "(document)".to_string(),
+                p => p,
+            };
+            DatasetError::new(path, field, Problem::Json(e.into_inner().to_string()))
+        })
+    }
 }
 
 /// Listed instance ids as a lookup table over the u16 range.

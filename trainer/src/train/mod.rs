@@ -144,7 +144,7 @@ impl TrainConfig {
                 return Err(TrainError::Config(format!("ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180", plan.dropout, plan.noise_deg)));
             }
         }
-        if self.loss.semantic_logit_adjust.is_some_and(|a| a != 0.0)
+        if self.loss.logit_adjustment().is_some()
             && (self.loss.semantic_temperature.is_none() || self.loss.semantic_objects_only != Some(true))
         {
             return Err(TrainError::Config(
@@ -449,7 +449,7 @@ fn run_loop(
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let source = Source::open(&state.data)?;
-    if state.config.loss.semantic_logit_adjust.is_some() && state.config.loss.semantic_label_counts.is_none() {
+    if state.config.loss.logit_adjustment().is_some() && state.config.loss.semantic_label_counts.is_none() {
         let counts = source.label_counts(state.config.first_scene, LABEL_PRIOR_SCENES)?;
         if session.progress {
             let total: u64 = counts.values().sum();

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
-use inssplat_proto::dataset::Scene;
+use inssplat_proto::dataset::{Scene, TransformsJson};
 use inssplat_proto::signature::TEXT_DIM;
 use inssplat_proto::Camera;
 use inssplat_text::LabelCache;
@@ -111,12 +111,15 @@ impl Source {
     /// Instances per label of scenes `first..first + count` (folders: at most each folder
     /// once), the room's shell left out: for a synthesized split the furniture its layouts
     /// place ([`synth::furniture_labels`], nothing rendered), for folders what their
-    /// `transforms.json` list.
+    /// `transforms.json` list (no frame read).
     pub fn label_counts(&self, first: u64, count: u64) -> Result<BTreeMap<String, u64>, SampleError> {
         let labels: Vec<Vec<String>> = match self {
             Source::Folder(paths) => (first..first + count.min(paths.len() as u64))
                 .into_par_iter()
-                .map(|i| Ok(self.scene(i)?.instances.into_iter().map(|inst| inst.label).collect()))
+                .map(|i| {
+                    let json = paths[(i % paths.len() as u64) as usize].join("transforms.json");
+                    Ok(TransformsJson::read(&json)?.instances.into_iter().map(|inst| inst.label).collect())
+                })
                 .collect::<Result<_, SampleError>>()?,
             Source::Synth(cfg) => (first..first + count)
                 .into_par_iter()
