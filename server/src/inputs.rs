@@ -44,8 +44,7 @@ pub fn photo_paths(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
 /// up to `MAX_VIEWS` evenly spaced frames.
 fn dataset_frames(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let json = dir.join("transforms.json");
-    let text = std::fs::read_to_string(&json).with_context(|| format!("cannot read {}", json.display()))?;
-    let t: TransformsJson = serde_json::from_str(&text).with_context(|| format!("{}: invalid transforms.json", json.display()))?;
+    let t = TransformsJson::read(&json)?;
     let n = t.frames.len();
     let chosen: Vec<usize> = match t.eval.as_ref().and_then(|e| (2..=MAX_VIEWS).rev().find_map(|v| e.context_for(v))) {
         Some(ctx) => ctx.to_vec(),

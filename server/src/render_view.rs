@@ -42,8 +42,7 @@ pub fn cameras(saved: &Saved, spec: &str) -> anyhow::Result<Vec<Camera>> {
         return Ok(vec![Camera { intrinsics: a.intrinsics, rotation, translation: -(rotation * centre) }]);
     }
     let path = Path::new(spec);
-    let text = std::fs::read_to_string(path).with_context(|| format!("--camera {spec}: cannot read (give a transforms.json or interp:i,j,t)"))?;
-    let t: TransformsJson = serde_json::from_str(&text).with_context(|| format!("{spec}: not a transforms.json"))?;
+    let t = TransformsJson::read(path).with_context(|| format!("--camera {spec}: give a transforms.json or interp:i,j,t"))?;
     Ok(t.cameras(path)?)
 }
 

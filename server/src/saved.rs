@@ -28,8 +28,7 @@ impl Saved {
             .with_context(|| format!("{}: cannot open (is {} an `inssplat reconstruct` output?)", ply.display(), dir.display()))?;
         let scene = inssplat_proto::ply::read_ply(&mut std::io::BufReader::new(&mut file)).with_context(|| format!("{}", ply.display()))?;
         let json = dir.join("transforms.json");
-        let text = std::fs::read_to_string(&json).with_context(|| format!("{}: cannot read", json.display()))?;
-        let t: TransformsJson = serde_json::from_str(&text).with_context(|| format!("{}: not a transforms.json", json.display()))?;
+        let t = TransformsJson::read(&json)?;
         let cameras = t.cameras(&json)?;
         let path = dir.join("instances.json");
         let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;

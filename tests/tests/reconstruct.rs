@@ -204,6 +204,14 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     assert!(!ok && stderr.contains("view 9 does not exist"), "{stderr}");
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,2"]);
     assert!(!ok && stderr.contains("outside 0-1"), "{stderr}");
+    // A camera file, and the reconstruction's own transforms.json, are named by the field that breaks them.
+    transforms["frames"][0]["transform_matrix"] = serde_json::json!("identity");
+    std::fs::write(&turned_path, transforms.to_string()).unwrap();
+    let (ok, _, stderr) = run(&["render", s(&out), "--camera", s(&turned_path)]);
+    assert!(!ok && stderr.contains("turned.json: frames[0].transform_matrix"), "{stderr}");
+    std::fs::write(out.join("transforms.json"), transforms.to_string()).unwrap();
+    let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,0.5"]);
+    assert!(!ok && stderr.contains("or/transforms.json: frames[0].transform_matrix"), "{stderr}");
 }
 
 #[test]

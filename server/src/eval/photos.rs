@@ -21,9 +21,7 @@ const POSE_TOLERANCE: f32 = 1e-4;
 pub fn photo_images(dir: &Path, scene: &Scene, context: &[usize]) -> Result<Vec<InputImage>, String> {
     let name = scene.name();
     let json_path = dir.join(&name).join("transforms.json");
-    let text = std::fs::read_to_string(&json_path).map_err(|e| format!("--photos: {}: {e}", json_path.display()))?;
-    let twin: TransformsJson =
-        serde_json::from_str(&text).map_err(|e| format!("--photos: {}: {e}", json_path.display()))?;
+    let twin = TransformsJson::read(&json_path).map_err(|e| format!("--photos: {e}"))?;
     if twin.frames.len() != scene.frames.len() {
         return Err(format!(
             "--photos: {} has {} frames where the scene has {} (not the same scene)",
