@@ -117,7 +117,7 @@ impl Source {
             Source::Folder(paths) => (first..first + count.min(paths.len() as u64))
                 .into_par_iter()
                 .map(|i| {
-                    let json = paths[(i % paths.len() as u64) as usize].join("transforms.json");
+                    let json = wrapped(paths, i).join("transforms.json");
                     Ok(TransformsJson::read(&json)?.instances.into_iter().map(|inst| inst.label).collect())
                 })
                 .collect::<Result<_, SampleError>>()?,
@@ -136,10 +136,15 @@ impl Source {
     /// Scene number `index` (folders wrap around).
     pub fn scene(&self, index: u64) -> Result<Scene, SampleError> {
         match self {
-            Source::Folder(paths) => Ok(Scene::load(&paths[(index % paths.len() as u64) as usize])?),
+            Source::Folder(paths) => Ok(Scene::load(wrapped(paths, index))?),
             Source::Synth(cfg) => Ok(synth::generate_split(index, cfg)?.scene),
         }
     }
+}
+
+/// The folder of scene number `index` among `paths`, wrapping around.
+fn wrapped(paths: &[PathBuf], index: u64) -> &Path {
+    &paths[(index % paths.len() as u64) as usize]
 }
 
 /// How views are drawn for a step.
