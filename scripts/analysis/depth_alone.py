@@ -5,9 +5,14 @@ alone. Prints the depth AbsRel of both (each view at its own median scale, and e
 its own), the paired difference, the within-view slope of log predicted on log true depth,
 and how much the two predictions differ.
 
+With `--rays` (a file with the optional `rays` input), the views together read their true
+cameras as rays (the pipeline's second pass, with the cameras registration would ideally
+give; `proto/src/rays.rs`, centres over the views' median true depth), and each view alone
+reads its own camera's rays; without it both read none (the pipeline's first pass).
+
 A measurement for the model card, not part of the product or of CI:
     pip install onnxruntime numpy pillow
-    python3 scripts/analysis/depth_alone.py models/inssplat-default.onnx data/val40
+    python3 scripts/analysis/depth_alone.py models/inssplat-default.onnx data/val40 [8] [--rays]
 """
 import json
 import os
@@ -37,11 +42,54 @@ def mean_se(values):
     return f"{v.mean():+.4f} ± {v.std(ddof=1) / np.sqrt(len(v)):.4f}"
 
 
-def main(model, data, views="8"):
+def gl_to_cv(c2w_rows):
+    """World → camera rotation and translation (OpenCV axes) of a nerfstudio camera-to-world."""
+    c2w = np.asarray(c2w_rows, np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])
+    rotation = c2w[:3, :3].T
+    return rotation, -rotation @ c2w[:3, 3]
+
+
+def patch_rays(cameras, size, patch, k, scale):
+    """`[N, (size / patch)², 6·k²]` Plücker rays of `cameras` ((rotation, translation, fx, fy,
+    cx, cy) at `size`) in the first camera's frame, as `proto::rays::patch_rays`."""
+    grid = size // patch
+    r0, t0 = cameras[0][:2]
+    sub = (np.arange(k) + 0.5) * patch / k
+    us = (np.arange(grid)[:, None] * patch + sub[None, :]).ravel()
+    out = []
+    for rotation, translation, fx, fy, cx, cy in cameras:
+        centre = -rotation.T @ translation
+        origin = (r0 @ centre + t0) / scale
+        turn = r0 @ rotation.T
+        # Pixel centres patch by patch (row-major), k × k sub-pixels each (row-major).
+        v, u = np.meshgrid(us, us, indexing="ij")
+        v = v.reshape(grid, k, grid, k).transpose(0, 2, 1, 3).ravel()
+        u = u.reshape(grid, k, grid, k).transpose(0, 2, 1, 3).ravel()
+        d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], 1) @ turn.T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        m = np.cross(origin[None, :], d)
+        out.append(np.concatenate([d, m], 1).reshape(grid * grid, 6 * k * k))
+    return np.stack(out).astype(np.float32)
+
+
+def main(model, data, views="8", *flags):
     options = ort.SessionOptions()
     options.intra_op_num_threads = 2
     session = ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
-    depth = lambda images: session.run(["depth"], {"images": images})[0][:, 0]
+    with_rays = "--rays" in flags
+    ray_shape = {i.name: i.shape for i in session.get_inputs()}.get("rays")
+    if with_rays and ray_shape is None:
+        sys.exit(f"{model}: --rays needs a file with a `rays` input")
+    patch = 128 // int(np.sqrt(ray_shape[1])) if ray_shape else None
+    k = int(np.sqrt(ray_shape[2] // 6)) if ray_shape else None
+
+    def depth(images, cameras, scale):
+        feed = {"images": images}
+        if ray_shape is not None:
+            size = images.shape[-1]
+            shape = (len(images), (size // patch) ** 2, 6 * k * k)
+            feed["rays"] = patch_rays(cameras, size, patch, k, scale) if with_rays else np.zeros(shape, np.float32)
+        return session.run(["depth"], feed)[0][:, 0]
     rows, scenes = [], []
     for name in sorted(n for n in os.listdir(data) if n.startswith("scene_")):
         root = os.path.join(data, name)
@@ -50,15 +98,19 @@ def main(model, data, views="8"):
         rgb = lambda f: np.asarray(Image.open(os.path.join(root, f["file_path"])).convert("RGB"), np.float32) / 255
         images = np.stack([rgb(f).transpose(2, 0, 1) for f in frames])
         truth = [np.asarray(Image.open(os.path.join(root, f["depth_file_path"])), np.float32) * meta["depth_unit_m"] for f in frames]
-        together = depth(images)
-        alone = np.stack([depth(images[v : v + 1])[0] for v in range(len(frames))])
+        size = images.shape[-1]
+        intrinsics = lambda f, key, scale: f.get(key, meta.get(key)) * size / scale
+        cameras = [gl_to_cv(f["transform_matrix"]) + tuple(intrinsics(f, key, f.get(dim, meta.get(dim))) for key, dim in [("fl_x", "w"), ("fl_y", "h"), ("cx", "w"), ("cy", "h")]) for f in frames]
+        scale = float(np.median(np.concatenate([t[t > 0] for t in truth])))
+        together = depth(images, cameras, scale)
+        alone = np.stack([depth(images[v : v + 1], cameras[v : v + 1], scale)[0] for v in range(len(frames))])
         flat = lambda preds: np.concatenate([p.ravel() for p in preds])
         scenes.append((abs_rel(flat(together), flat(truth)), abs_rel(flat(alone), flat(truth))))
         for t, a, g in zip(together, alone, truth):
             rows.append((abs_rel(t, g), abs_rel(a, g), log_slope(t, g), log_slope(a, g), float(np.median(np.abs(np.log(t / a))))))
     r = np.asarray(rows)
     s = np.asarray(scenes)
-    print(f"{len(s)} scenes, {len(r)} views of {views}")
+    print(f"{len(s)} scenes, {len(r)} views of {views}, {'true cameras as rays' if with_rays else 'no rays'}")
     print(f"AbsRel, each view at its own median scale: together {r[:, 0].mean():.4f}, alone {r[:, 1].mean():.4f}, together − alone {mean_se(r[:, 0] - r[:, 1])}")
     print(f"AbsRel, each scene at its own median scale: together {s[:, 0].mean():.4f}, alone {s[:, 1].mean():.4f}, together − alone {mean_se(s[:, 0] - s[:, 1])}")
     print(f"slope of log predicted on log true depth within a view: together {r[:, 2].mean():.3f}, alone {r[:, 3].mean():.3f}")

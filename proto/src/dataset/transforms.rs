@@ -1,5 +1,10 @@
 //! The JSON shape of `transforms.json`, as serde types. Unknown fields are kept out of the
 //! way (nerfstudio files carry many); validation happens in `read`.
+//!
+//! The intrinsics (`fl_x` … `h`) are spelled out in both [`TransformsJson`] and [`FrameJson`]
+//! rather than shared through a `#[serde(flatten)]` struct: flatten buffers the fields and
+//! loses their path, so a bad `frames[1].fl_y` would be reported as `frames[1]` alone
+//! (dtolnay/path-to-error#9; the test `rejects_wrong_types` holds the field names).
 
 use std::collections::BTreeMap;
 
