@@ -9,10 +9,12 @@ With `--rays` (a file with the optional `rays` input), the views together read t
 cameras as rays (the pipeline's second pass, with the cameras registration would ideally
 give; `proto/src/rays.rs`, centres over the views' median true depth), and each view alone
 reads its own camera's rays; without it both read none (the pipeline's first pass).
+`--first=N` takes each scene's first N frames, consecutive along its trajectory and so
+overlapping, instead of its N-view context set.
 
 A measurement for the model card, not part of the product or of CI:
     pip install onnxruntime numpy pillow
-    python3 scripts/analysis/depth_alone.py models/inssplat-default.onnx data/val40 [8] [--rays]
+    python3 scripts/analysis/depth_alone.py models/inssplat-default.onnx data/val40 [8] [--rays] [--first=4]
 """
 import json
 import os
@@ -77,6 +79,7 @@ def main(model, data, views="8", *flags):
     options.intra_op_num_threads = 2
     session = ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
     with_rays = "--rays" in flags
+    first = next((int(f.split("=", 1)[1]) for f in flags if f.startswith("--first=")), None)
     ray_shape = {i.name: i.shape for i in session.get_inputs()}.get("rays")
     if with_rays and ray_shape is None:
         sys.exit(f"{model}: --rays needs a file with a `rays` input")
@@ -94,7 +97,7 @@ def main(model, data, views="8", *flags):
     for name in sorted(n for n in os.listdir(data) if n.startswith("scene_")):
         root = os.path.join(data, name)
         meta = json.load(open(os.path.join(root, "transforms.json")))
-        frames = [meta["frames"][i] for i in meta["eval"]["context"][views]]
+        frames = meta["frames"][:first] if first else [meta["frames"][i] for i in meta["eval"]["context"][views]]
         rgb = lambda f: np.asarray(Image.open(os.path.join(root, f["file_path"])).convert("RGB"), np.float32) / 255
         images = np.stack([rgb(f).transpose(2, 0, 1) for f in frames])
         truth = [np.asarray(Image.open(os.path.join(root, f["depth_file_path"])), np.float32) * meta["depth_unit_m"] for f in frames]
@@ -110,7 +113,8 @@ def main(model, data, views="8", *flags):
             rows.append((abs_rel(t, g), abs_rel(a, g), log_slope(t, g), log_slope(a, g), float(np.median(np.abs(np.log(t / a))))))
     r = np.asarray(rows)
     s = np.asarray(scenes)
-    print(f"{len(s)} scenes, {len(r)} views of {views}, {'true cameras as rays' if with_rays else 'no rays'}")
+    chosen = f"the first {first} frames" if first else f"the {views}-view context sets"
+    print(f"{len(s)} scenes, {len(r)} views of {chosen}, {'true cameras as rays' if with_rays else 'no rays'}")
     print(f"AbsRel, each view at its own median scale: together {r[:, 0].mean():.4f}, alone {r[:, 1].mean():.4f}, together − alone {mean_se(r[:, 0] - r[:, 1])}")
     print(f"AbsRel, each scene at its own median scale: together {s[:, 0].mean():.4f}, alone {s[:, 1].mean():.4f}, together − alone {mean_se(s[:, 0] - s[:, 1])}")
     print(f"slope of log predicted on log true depth within a view: together {r[:, 2].mean():.3f}, alone {r[:, 3].mean():.3f}")
