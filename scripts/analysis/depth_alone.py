@@ -51,23 +51,27 @@ def gl_to_cv(c2w_rows):
     return rotation, -rotation @ c2w[:3, 3]
 
 
+def camera(meta, frame, size):
+    """(rotation, translation, fx, fy, cx, cy) of `frame` at `size` pixels a side: its own
+    intrinsics, else the file's."""
+    at = lambda key: frame.get(key, meta.get(key))
+    sx, sy = size / at("w"), size / at("h")
+    return gl_to_cv(frame["transform_matrix"]) + (at("fl_x") * sx, at("fl_y") * sy, at("cx") * sx, at("cy") * sy)
+
+
 def patch_rays(cameras, size, patch, k, scale):
-    """`[N, (size / patch)², 6·k²]` Plücker rays of `cameras` ((rotation, translation, fx, fy,
-    cx, cy) at `size`) in the first camera's frame, as `proto::rays::patch_rays`."""
+    """`[N, (size / patch)², 6·k²]` Plücker rays of `cameras` (as `camera` gives them) in the
+    first camera's frame, centres over `scale`, as `proto::rays::patch_rays`."""
     grid = size // patch
-    r0, t0 = cameras[0][:2]
+    # The sub-pixel centres patch by patch (row-major), k × k within each (row-major).
     sub = (np.arange(k) + 0.5) * patch / k
-    us = (np.arange(grid)[:, None] * patch + sub[None, :]).ravel()
+    along = (np.arange(grid)[:, None] * patch + sub[None, :]).ravel()
+    v, u = (a.reshape(grid, k, grid, k).transpose(0, 2, 1, 3).ravel() for a in np.meshgrid(along, along, indexing="ij"))
+    r0, t0 = cameras[0][:2]
     out = []
     for rotation, translation, fx, fy, cx, cy in cameras:
-        centre = -rotation.T @ translation
-        origin = (r0 @ centre + t0) / scale
-        turn = r0 @ rotation.T
-        # Pixel centres patch by patch (row-major), k × k sub-pixels each (row-major).
-        v, u = np.meshgrid(us, us, indexing="ij")
-        v = v.reshape(grid, k, grid, k).transpose(0, 2, 1, 3).ravel()
-        u = u.reshape(grid, k, grid, k).transpose(0, 2, 1, 3).ravel()
-        d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], 1) @ turn.T
+        origin = (r0 @ (-rotation.T @ translation) + t0) / scale
+        d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], 1) @ (r0 @ rotation.T).T
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         m = np.cross(origin[None, :], d)
         out.append(np.concatenate([d, m], 1).reshape(grid * grid, 6 * k * k))
@@ -83,15 +87,16 @@ def main(model, data, views="8", *flags):
     ray_shape = {i.name: i.shape for i in session.get_inputs()}.get("rays")
     if with_rays and ray_shape is None:
         sys.exit(f"{model}: --rays needs a file with a `rays` input")
-    patch = 128 // int(np.sqrt(ray_shape[1])) if ray_shape else None
-    k = int(np.sqrt(ray_shape[2] // 6)) if ray_shape else None
+    if ray_shape is not None:
+        tokens, channels = ray_shape[1:]
+        grid, k = round(np.sqrt(tokens)), round(np.sqrt(channels / 6))
 
     def depth(images, cameras, scale):
         feed = {"images": images}
-        if ray_shape is not None:
-            size = images.shape[-1]
-            shape = (len(images), (size // patch) ** 2, 6 * k * k)
-            feed["rays"] = patch_rays(cameras, size, patch, k, scale) if with_rays else np.zeros(shape, np.float32)
+        if with_rays:
+            feed["rays"] = patch_rays(cameras, images.shape[-1], images.shape[-1] // grid, k, scale)
+        elif ray_shape is not None:
+            feed["rays"] = np.zeros((len(images), tokens, channels), np.float32)
         return session.run(["depth"], feed)[0][:, 0]
     rows, scenes = [], []
     for name in sorted(n for n in os.listdir(data) if n.startswith("scene_")):
@@ -101,9 +106,7 @@ def main(model, data, views="8", *flags):
         rgb = lambda f: np.asarray(Image.open(os.path.join(root, f["file_path"])).convert("RGB"), np.float32) / 255
         images = np.stack([rgb(f).transpose(2, 0, 1) for f in frames])
         truth = [np.asarray(Image.open(os.path.join(root, f["depth_file_path"])), np.float32) * meta["depth_unit_m"] for f in frames]
-        size = images.shape[-1]
-        intrinsics = lambda f, key, scale: f.get(key, meta.get(key)) * size / scale
-        cameras = [gl_to_cv(f["transform_matrix"]) + tuple(intrinsics(f, key, f.get(dim, meta.get(dim))) for key, dim in [("fl_x", "w"), ("fl_y", "h"), ("cx", "w"), ("cy", "h")]) for f in frames]
+        cameras = [camera(meta, f, images.shape[-1]) for f in frames]
         scale = float(np.median(np.concatenate([t[t > 0] for t in truth])))
         together = depth(images, cameras, scale)
         alone = np.stack([depth(images[v : v + 1], cameras[v : v + 1], scale)[0] for v in range(len(frames))])
