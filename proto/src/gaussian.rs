@@ -21,6 +21,12 @@ pub fn sh_dc_to_rgb(f: f32) -> f32 {
     0.5 + SH_C0 * f
 }
 
+/// L2-normalized copy; a zero or non-finite vector becomes zero (it joins no instance).
+pub fn unit<const N: usize>(v: [f32; N]) -> [f32; N] {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n.is_finite() && n > 1e-12 { v.map(|x| x / n) } else { [0.0; N] }
+}
+
 pub fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }

@@ -5,7 +5,7 @@
 //! The trainer fits it on synthesized rooms and stores it in the model file as JSON under
 //! [`crate::signature::META_SHAPE_CLASSIFIER`]; the server reads it back to name instances
 //! by what they look like in 3D as well as by their semantic features. Only the contract and
-//! the forward pass live here: computing descriptors is `inssplat_raster::label::shape`'s.
+//! the forward pass live here: computing descriptors is `inssplat_understand::label::shape`'s.
 
 use serde::{Deserialize, Serialize};
 

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::fill::{fill_colour, nearest_covered};
-use inssplat_raster::label::masks::MASK_ALPHA;
+use inssplat_raster::masks::MASK_ALPHA;
 use inssplat_raster::render::{GpuRenderer, render, render_any, render_backward};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

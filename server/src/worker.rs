@@ -15,18 +15,17 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use inssplat_proto::api::{QueryResponse, ReconstructResponse};
-use inssplat_text::{LabelCache, TextEmbedder};
+use inssplat_text::LabelCache;
 use tokio::sync::{broadcast, oneshot};
 
 use crate::jobs::{JobStore, SceneOutcome, SceneTask};
 use crate::metrics::Metrics;
-use crate::pipeline::reconstruct::{InputImage, PipelineConfig, PipelineError, reconstruct};
-use crate::runtime::Model;
-use crate::saved::Saved;
+use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, PipelineError, reconstruct};
+use inssplat_pipeline::backend::Model;
+use inssplat_pipeline::saved::Saved;
 use crate::scene_store::{SceneId, SceneStore};
-use crate::{output, query};
+use inssplat_pipeline::{output, query};
 
 /// How long an idle worker waits on the queue before looking for job scenes again.
 const IDLE_POLL: Duration = Duration::from_millis(100);
@@ -205,9 +204,9 @@ fn load_and_spawn(
     rx: Arc<Mutex<Receiver<Task>>>,
     handles: &Mutex<Vec<JoinHandle<()>>>,
 ) -> anyhow::Result<String> {
-    let labels = Arc::new(LabelCache::new(TextEmbedder::from_env().context("loading the text encoder")?));
+    let labels = Arc::new(inssplat_pipeline::vocab::label_cache()?);
     let models = (0..state.workers).map(|_| Model::load(&config.model, config.threads)).collect::<Result<Vec<_>, _>>()?;
-    let version = models[0].model_version.clone();
+    let version = models[0].network.model_version.clone();
     for (i, model) in models.into_iter().enumerate() {
         let worker = Worker { model, labels: labels.clone(), pipeline: config.pipeline.clone(), shared: shared.clone(), state: state.clone() };
         let rx = rx.clone();

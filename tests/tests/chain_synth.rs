@@ -12,18 +12,18 @@
 //! (measured IoU 0.80–0.95 per instance on these scenes' small furniture, hence the lower
 //! bounds there).
 //! `raster/tests/post_pipeline.rs` runs the same chain on an analytic room of large boxes.
-//! Both tests build their inputs with `inssplat_raster::ideal`.
+//! Both tests build their inputs with `inssplat_geometry::ideal`.
 
 use inssplat_proto::dataset::{Frame, Scene};
-use inssplat_raster::backproject::{ViewOutputs, backproject};
-use inssplat_raster::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::ideal::{ViewPlanes, depth_normals, ideal_view, label_projection};
-use inssplat_raster::label::masks::render_instance_ids;
-use inssplat_raster::label::{SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_raster::metrics::{InstanceMatch, instance_scores};
-use inssplat_raster::voxel::{VoxelParams, voxelize};
+use inssplat_geometry::backproject::{ViewOutputs, backproject};
+use inssplat_understand::cluster::{ClusterParams, cluster_instances};
+use inssplat_geometry::ideal::{ViewPlanes, depth_normals, ideal_view, label_projection};
+use inssplat_raster::masks::render_instance_ids;
+use inssplat_understand::label::{SemanticProjection, assign_labels, semantic_prototypes};
+use inssplat_metrics::{InstanceMatch, instance_scores};
+use inssplat_geometry::voxel::{VoxelParams, voxelize};
 use inssplat_text::TextEmbedder;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

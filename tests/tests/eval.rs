@@ -1,4 +1,4 @@
-//! `inssplat eval` end to end: a tiny exported network (random weights), one procedural
+//! `inssplat-eval score` end to end: a tiny exported network (random weights), one procedural
 //! test-split scene with context/target sets, the real binary and ONNX Runtime. Checks that
 //! every metric of the protocol is reported within its range for each view count (and the
 //! names each true label got), that the JSON and markdown files are written, that bad
@@ -7,12 +7,12 @@
 //! them, before the shipped shape classifier moves them, and the room each was found in;
 //! `--known-names` names the instances by their true labels instead; `--photos` reconstructs
 //! from larger photos of the same scene and refuses another's. Also
-//! `inssplat bench`: every stage timed per view count (the refine stage when asked for),
+//! `inssplat-eval bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
 
-use inssplat_e2e::inssplat;
+use inssplat_e2e::inssplat_eval;
 use inssplat_proto::shape::LabelledDescriptor;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use serde_json::Value;
 use crate::support::{self, s};
 
@@ -27,7 +27,7 @@ fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
     support::test_scene(&data, 0);
     let stages = |extra: &[&str]| {
         let out_dir = dir.path().join(format!("eval{}", extra.concat()));
-        let out = inssplat(&[&["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--out", s(&out_dir), "--json"], extra].concat());
+        let out = inssplat_eval(&[&["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--out", s(&out_dir), "--json"], extra].concat());
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
         (report["scenes"][0]["stage_ms"].as_object().unwrap().clone(), report["protocol"].as_str().unwrap().to_string())
@@ -49,7 +49,7 @@ fn eval_reports_every_metric_per_view_count() {
     let data = dir.path().join("test");
     support::test_scene(&data, 0);
     let out_dir = dir.path().join("eval");
-    let out = inssplat(&["eval", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
+    let out = inssplat_eval(&["score", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // Stderr is a pipe here, so progress comes as one line per finished run, the JSON alone
     // on stdout.
@@ -120,8 +120,8 @@ fn eval_reports_every_metric_per_view_count() {
     // With the true context cameras the alignment is exact, with the true depth so is the
     // depth, and the report says so, as it says that the target cameras were refined and the
     // Gaussians fitted to the context photos (the given cameras kept) ...
-    let out = inssplat(&[
-        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
+    let out = inssplat_eval(&[
+        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
         "--target-pose-steps", "6", "--refine-steps", "12", "--no-fill", "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -149,8 +149,8 @@ fn eval_reports_every_metric_per_view_count() {
     assert!((0.0..=1.0).contains(&sem), "{scene}");
 
     // The paper's mode: per-view 2D clustering, same metrics, with the clustering asked for.
-    let out = inssplat(&[
-        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--min-samples", "3", "--json",
+    let out = inssplat_eval(&[
+        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--min-samples", "3", "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -177,8 +177,8 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     let examples = |weight: &str| -> Vec<LabelledDescriptor> {
         let file = dir.path().join(format!("examples_{weight}.json"));
         let out_dir = dir.path().join(format!("eval_{weight}"));
-        let out = inssplat(&[
-            "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--shape-weight", weight, "--shape-examples",
+        let out = inssplat_eval(&[
+            "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--shape-weight", weight, "--shape-examples",
             s(&file), "--out", s(&out_dir),
         ]);
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -200,7 +200,7 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     // semantic mIoU averages over classes, and a mixed instance named for its larger part can
     // cost the smaller part's class more than it gains.)
     let semantic = |extra: &[&str]| -> (f64, Value) {
-        let out = inssplat(&[&["eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--json"], extra].concat());
+        let out = inssplat_eval(&[&["score", "--data", s(&data), "--views", "4", "--model", s(&model), "--json"], extra].concat());
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
         (report["scenes"][0]["semantic_miou"].as_f64().unwrap(), report)
@@ -225,9 +225,9 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
     synth::generate_split(0, &cfg).unwrap().write(&photos.join("scene_000000")).unwrap();
     synth::generate_split(1, &cfg).unwrap().write(&other.join("scene_000000")).unwrap();
     let eval = |extra: &[&str]| {
-        let mut args = vec!["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
+        let mut args = vec!["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
         args.extend_from_slice(extra);
-        inssplat(&args)
+        inssplat_eval(&args)
     };
     let report = |out: std::process::Output| -> Value {
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -251,22 +251,22 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
 #[test]
 fn eval_names_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--model", "/nonexistent.onnx"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--model", "/nonexistent.onnx"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--data") && err.contains("no scene folders"), "{err}");
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--views", "1"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--views", "1"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--views: 1"), "{err}");
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--min-cluster-share", "0"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--min-cluster-share", "0"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("min_cluster_share") && err.contains("(0, 1)"), "{err}");
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--superpixel-scale=-5"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--superpixel-scale=-5"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--superpixel-scale: -5"), "{err}");
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--known-names", "--cluster", "2d"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--cluster", "2d"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--known-names") && err.contains("--cluster 2d"), "{err}");
-    let out = inssplat(&["eval", "--data", s(dir.path()), "--known-names", "--no-aggregation"]);
+    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--no-aggregation"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--known-names") && err.contains("--no-aggregation"), "{err}");
 }
@@ -276,7 +276,7 @@ fn bench_times_every_stage_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = support::tiny_model(dir.path());
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "2", "--model", s(&model), "--json"]);
+    let out = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "2", "--model", s(&model), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
@@ -292,12 +292,12 @@ fn bench_times_every_stage_per_view_count() {
         assert_eq!(r["gaussians_in"].as_u64().unwrap(), r["views"].as_u64().unwrap() * 32 * 32);
         assert!(r["gaussians_kept"].as_u64().unwrap() <= r["gaussians_in"].as_u64().unwrap());
     }
-    let table = inssplat(&["bench", "--data", s(&scene), "--views", "8,16", "--runs", "1", "--model", s(&model)]);
+    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "8,16", "--runs", "1", "--model", s(&model)]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
     assert!(!text.contains("refine"), "no refine stage unless asked: {text}");
     // With test-time refinement the stage is timed and gets its column.
-    let table = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--refine-steps", "4"]);
+    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--refine-steps", "4"]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| label | refine | masks |"), "{text}");
 }
@@ -312,7 +312,7 @@ fn bench_against_times_two_models_in_turns() {
     let int8 = dir.path().join("tiny-int8.onnx");
     inssplat_trainer::export::quantize_file(&model, &int8, None).unwrap();
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "3", "--model", s(&model), "--against", s(&int8), "--json"]);
+    let out = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "3", "--model", s(&model), "--against", s(&int8), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
@@ -329,10 +329,10 @@ fn bench_against_times_two_models_in_turns() {
         }
         assert!(r["model_ms"][0].as_f64() < r["total_ms"][0].as_f64(), "the network is one stage of the request: {r}");
     }
-    let table = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--against", s(&int8)]);
+    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--against", s(&int8)]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("A: e2e-random (") && text.contains("B: e2e-random+int8 ("), "{text}");
-    let missing = inssplat(&["bench", "--data", s(&scene), "--views", "2", "--model", s(&model), "--against", "/nonexistent/b.onnx"]);
+    let missing = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--model", s(&model), "--against", "/nonexistent/b.onnx"]);
     let err = String::from_utf8_lossy(&missing.stderr);
     assert!(!missing.status.success() && err.contains("/nonexistent/b.onnx"), "{err}");
 }
@@ -344,8 +344,8 @@ fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     let data = dir.path().join("test");
     support::test_scene(&data, 2);
     let out_dir = dir.path().join("eval");
-    let out = inssplat(&[
-        "eval", "--data", s(&data), "--views", "4", "--model", s(&model), "--perturb", "noise,overlap,repeats", "--out",
+    let out = inssplat_eval(&[
+        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--perturb", "noise,overlap,repeats", "--out",
         s(&out_dir), "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -372,7 +372,7 @@ fn sweep_draws_the_speed_accuracy_chart() {
     let data = dir.path().join("test");
     support::test_scene(&data, 3);
     let out_dir = dir.path().join("sweep");
-    let out = inssplat(&["eval", "--data", s(&data), "--views", "2", "--model", s(&model), "--sweep", "--out", s(&out_dir)]);
+    let out = inssplat_eval(&["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--sweep", "--out", s(&out_dir)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let points: Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap()).unwrap();
     let points = points.as_array().unwrap();
@@ -382,6 +382,6 @@ fn sweep_draws_the_speed_accuracy_chart() {
     assert_eq!((png.width(), png.height()), (1200, 520));
     assert!(std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap().contains("<svg"));
     // --sweep without --out is refused by the argument parser, naming the flag.
-    let out = inssplat(&["eval", "--data", s(&data), "--sweep"]);
+    let out = inssplat_eval(&["score", "--data", s(&data), "--sweep"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--out"));
 }

@@ -11,7 +11,7 @@ use crate::support::{self, s};
 use inssplat_e2e::{inssplat, inssplat_bin};
 use inssplat_proto::api::ReconstructResponse;
 use inssplat_proto::dataset::TransformsJson;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 
 /// A tiny exported network and a 4-view 32×32 scene, made once per test process.
 fn fixtures() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {

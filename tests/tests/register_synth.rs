@@ -12,10 +12,10 @@
 use glam::Quat;
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
-use inssplat_raster::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
+use inssplat_geometry::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use inssplat_trainer::train::sample::in_reference_frame;
 
 const VIEWS: usize = 8;

@@ -15,8 +15,8 @@ use inssplat_e2e::inssplat;
 use glam::DMat3;
 use inssplat_proto::api::{FocalSource, Placement, QueryResponse, ReconstructResponse};
 use inssplat_proto::dataset::Scene;
-use inssplat_raster::metrics::angle_deg;
-use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_geometry::rotation::angle_deg;
+use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
 use crate::support::s;
 
 fn shipped_model() -> PathBuf {

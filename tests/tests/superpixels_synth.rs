@@ -5,8 +5,8 @@
 //! to them must give more pixels back to their own instance than the blurred map gives; so
 //! must voting an id map whose outlines are shifted by two pixels over them.
 
-use inssplat_raster::superpixel::{SuperpixelParams, segment, snap, vote};
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_understand::superpixel::{SuperpixelParams, segment, snap, vote};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

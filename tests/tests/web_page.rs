@@ -12,7 +12,7 @@ use std::process::Command;
 
 use crate::support::http::Server;
 use crate::support::web;
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use serde_json::Value;
 use crate::support::s;
 

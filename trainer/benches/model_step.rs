@@ -15,7 +15,7 @@ use inssplat_trainer::export::{ExportMeta, Weights, to_onnx_bytes};
 use burn::optim::{AdamWConfig, GradientsParams};
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
-use inssplat_trainer::synth::{Furniture, Split, Structure};
+use inssplat_synth::{Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{TrainConfig, label_cache, update};

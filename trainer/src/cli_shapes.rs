@@ -9,7 +9,7 @@ use anyhow::{Context, Result, anyhow};
 use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_trainer::shapes::{FitShapesConfig, attach, draw_views, fit, scene_examples};
-use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
 use inssplat_trainer::train::label_cache;
 use rayon::prelude::*;
 

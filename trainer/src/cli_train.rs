@@ -12,19 +12,24 @@ use burn::prelude::*;
 use inssplat_trainer::export::{ExportMeta, Weights, average_file, export_keeping_metadata, export_onnx, pool_keys_file, quantize_file};
 use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
 use inssplat_trainer::model::ModelConfig;
-use inssplat_trainer::synth::{self, Furniture, Split, Structure};
+use inssplat_synth::{self as synth, Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, describe};
 use inssplat_trainer::train::{self, Compute, RayPlan, Session, TrainConfig, checkpoint};
 
 #[derive(clap::Args)]
 pub struct TrainArgs {
+    /// A training run as a TOML file: each key a flag of `train` without its dashes
+    /// (`lr = 1.5e-4`, `semantic-objects-only = true`); flags on the command line win
+    /// (trainer/recipes/ holds the shipped network's).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
     /// Run folder: checkpoints, logs and the loss chart go here.
     #[arg(long, env = "INSSPLAT_TRAIN_OUT")]
     out: PathBuf,
     /// Continue the newest checkpoint in --out with its own configuration and data.
     #[arg(long)]
     resume: bool,
-    /// Folder of training scenes (DATASET.md format), instead of synthesizing them.
+    /// Folder of training scenes (docs/DATASET.md format), instead of synthesizing them.
     #[arg(long, conflicts_with = "resume")]
     data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
@@ -388,6 +393,9 @@ impl TrainArgs {
 }
 
 pub fn run_train(args: TrainArgs) -> Result<()> {
+    if let Some(recipe) = &args.config {
+        eprintln!("train: flags from {} (the command line's win)", recipe.display());
+    }
     let session = Session { stop: Some(stop_on_signals()?), ..args.session()? };
     let summary = if args.resume {
         let dir = checkpoint::latest(&args.out)?.with_context(|| format!("--resume: {} has no checkpoint", args.out.display()))?;

@@ -1,12 +1,11 @@
-//! inssplat-trainer: the offline half of inssplat. Procedural indoor scene synthesis (the
-//! training and evaluation data), the VGGT-style network, the InstanceSplat losses, the
+//! inssplat-trainer: the offline half of inssplat. The VGGT-style network, the InstanceSplat losses, the
 //! training loop with checkpoints, and ONNX export of the graph the server runs. The server
 //! never depends on it: the exported ONNX file is the only hand-off.
 
 pub mod export;
 pub mod fit;
 pub mod model;
-pub mod synth;
+pub mod recipe;
 pub mod loss;
 pub mod render_op;
 pub mod shapes;

@@ -1,5 +1,5 @@
 //! `inssplat-train`: the trainer's command line. Each job is a subcommand: `synth` writes
-//! procedural scenes in the DATASET.md format (with a progress bar, dataset statistics at
+//! procedural scenes in the docs/DATASET.md format (with a progress bar, dataset statistics at
 //! the end and optional contact-sheet previews); `train` starts or resumes a training run;
 //! `export` writes a run's network as the ONNX file the server loads; `fit-shapes` adds the
 //! shape classifier to one.
@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use inssplat_trainer::synth::{self, DatasetStats, Furniture, Reserved, Split, Structure, SynthConfig};
+use inssplat_synth::{self as synth, DatasetStats, Furniture, Reserved, Split, Structure, SynthConfig};
 use rayon::prelude::*;
 
 #[derive(Parser)]
@@ -25,6 +25,7 @@ enum Command {
     /// Synthesize procedural indoor scenes (RGB, depth, instance masks, labels, cameras).
     Synth(SynthArgs),
     /// Train the network (or continue a run with --resume).
+    #[command(args_override_self = true)]
     Train(Box<cli_train::TrainArgs>),
     /// The validation loss of a run's newest checkpoint (or a checkpoint) on fixed val samples,
     /// for choosing between runs and checkpoints.
@@ -186,7 +187,8 @@ fn keep_freed_memory() {
 
 fn main() -> Result<()> {
     keep_freed_memory();
-    match Cli::parse().command {
+    let args = inssplat_trainer::recipe::expand(std::env::args_os().collect())?;
+    match Cli::parse_from(args).command {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
         Command::Validate(args) => cli_validate::run_validate(args),

@@ -1,7 +1,7 @@
 //! Fitting the shape classifier ([`inssplat_proto::shape::ShapeClassifier`]): descriptors of
 //! the labelled objects of synthesized rooms, measured on points back-projected from true
 //! depth with the true cameras of a random subset of 2–16 views (what a request sees), by the
-//! same `inssplat_raster::label::shape` code the server runs on its Gaussians; an MLP fitted
+//! same `inssplat_understand::label::shape` code the server runs on its Gaussians; an MLP fitted
 //! to them with cross-entropy, the lengths rescaled at random each epoch (the network's depth
 //! has a scale error of its own), optionally with the cosines of each instance's semantic
 //! prototype to the labels' texts as well (a semantic classifier, fitted on the pipeline's own
@@ -21,7 +21,7 @@ use inssplat_proto::dataset::Scene;
 use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines};
 use inssplat_text::LabelCache;
 use inssplat_proto::signature::{META_MODEL_VERSION, META_SHAPE_CLASSIFIER};
-use inssplat_raster::label::shape::{camera_up, descriptor, ground};
+use inssplat_understand::label::shape::{camera_up, descriptor, ground};
 use prost::Message;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};

@@ -8,7 +8,7 @@ use inssplat_proto::signature as sig;
 use inssplat_trainer::export::import_onnx;
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::InsSplatNet;
-use inssplat_trainer::synth::{Split, Structure};
+use inssplat_synth::{Split, Structure};
 use inssplat_trainer::train::sample::DataSpec;
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 

@@ -259,7 +259,7 @@ fn a_network_that_reads_camera_rays_exports_with_parity() {
 #[test]
 fn a_briefly_trained_checkpoint_exports_with_parity() {
     use inssplat_trainer::loss::LossConfig;
-    use inssplat_trainer::synth::{Split, Structure};
+    use inssplat_synth::{Split, Structure};
     use inssplat_trainer::train::sample::DataSpec;
     use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
@@ -387,7 +387,7 @@ fn an_onnx_file_without_a_weight_or_not_onnx_is_refused_by_name() {
 #[test]
 fn a_fine_tune_starts_from_an_exported_onnx_file() {
     use inssplat_trainer::loss::LossConfig;
-    use inssplat_trainer::synth::{Split, Structure};
+    use inssplat_synth::{Split, Structure};
     use inssplat_trainer::train::sample::DataSpec;
     use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 

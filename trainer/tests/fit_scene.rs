@@ -8,7 +8,7 @@ use std::process::{Command, Output};
 
 use inssplat_proto::dataset::Scene;
 use inssplat_trainer::fit::{FitConfig, fit_scene};
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 
 /// Writes the small test-split scene of `seed` to `dir/name`.
 fn write_scene(dir: &Path, seed: u64, name: &str) -> PathBuf {

@@ -5,7 +5,7 @@
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
 use inssplat_trainer::loss::{point_map_loss, point_map_targets};
-use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 
 use crate::loss_instance::check_gradient;
 

@@ -1,5 +1,5 @@
-//! The trainer's integration tests, one test binary (one link) for all of them: synthesis,
-//! model, losses and their gradients, the training loop, export parity, fit-scene and the
+//! The trainer's integration tests, one test binary (one link) for all of them: the synth
+//! command, training recipes, the model, losses and their gradients, the training loop, export parity, fit-scene and the
 //! shape classifier.
 
 mod average;
@@ -14,8 +14,7 @@ mod model_forward;
 mod shapes;
 mod render_op_grad;
 mod synth_cli;
-mod synth_dataset;
-mod synth_geometry;
 mod synth_stats;
+mod recipe;
 mod train_loop;
 mod train_resume;

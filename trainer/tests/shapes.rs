@@ -13,7 +13,7 @@ use inssplat_trainer::export::onnx_pb::ModelProto;
 use inssplat_trainer::export::{ExportMeta, Weights, export_onnx};
 use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::shapes::{FitShapesConfig, accuracy, attach, draw_views, fit, scene_examples};
-use inssplat_trainer::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
 use inssplat_trainer::train::label_cache;
 use prost::Message;
 use rand::{Rng, SeedableRng};

@@ -6,10 +6,10 @@
 
 use std::collections::BTreeSet;
 
-use inssplat_trainer::synth::layout::{self, Source};
+use inssplat_synth::layout::{self, Source};
 use inssplat_trainer::train::sample::{DataSpec, Source as DataSource};
-use inssplat_trainer::synth::room::Room;
-use inssplat_trainer::synth::{self, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig};
+use inssplat_synth::room::Room;
+use inssplat_synth::{self as synth, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig};
 use rand::SeedableRng;
 
 /// Train-split rooms at 32×32, six frames each: enough to render what a room shows, quickly.

@@ -17,7 +17,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use inssplat_trainer::loss::{LossConfig, SemanticForm, instance_loss, semantic_loss};
 use inssplat_trainer::model::ModelConfig;
-use inssplat_trainer::synth::{Split, Structure};
+use inssplat_synth::{Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Prefetcher, Sample, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{self, Session, batch, TrainConfig, checkpoint, label_cache, seeded_init, update};
@@ -208,7 +208,7 @@ fn l_sem_on_the_furniture_alone_leaves_the_shells_pixels_out() {
 #[test]
 fn a_sample_carries_the_whole_label_vocabulary_for_the_contrastive_l_sem() {
     let sample = three_view_sample(3, 0);
-    let labels = inssplat_trainer::synth::all_labels();
+    let labels = inssplat_synth::all_labels();
     assert_eq!(sample.vocabulary.len(), labels.len() * 384);
     // Every label the scene shows is a vocabulary row.
     let rows: Vec<&[f32]> = sample.vocabulary.chunks_exact(384).collect();

@@ -33,8 +33,8 @@ pub use error::ApiError;
 use crate::jobs::JobStore;
 use crate::jobs::sqlite::SqliteStore;
 use crate::metrics::Metrics;
-use crate::pipeline::reconstruct::PipelineConfig;
-use crate::pipeline::switches::PipelineSwitches;
+use inssplat_pipeline::reconstruct::PipelineConfig;
+use inssplat_pipeline::switches::PipelineSwitches;
 use crate::scene_store::SceneStore;
 use crate::worker::{Pool, Shared, WorkerConfig};
 
@@ -122,7 +122,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     if requeued > 0 {
         tracing::info!("{requeued} job scene(s) interrupted by the last stop are queued again");
     }
-    let default_vocab = crate::vocab::vocabulary(args.vocab.as_deref())?;
+    let default_vocab = inssplat_pipeline::vocab::vocabulary(args.vocab.as_deref())?;
     let (job_events, _) = broadcast::channel(256);
     let shared = Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);

@@ -14,7 +14,7 @@ use utoipa::ToSchema;
 
 use super::upload::{read_parts, refine_steps, vocabulary};
 use super::{ApiError, AppState};
-use crate::pipeline::reconstruct::InputImage;
+use inssplat_pipeline::reconstruct::InputImage;
 use crate::worker::Task;
 
 /// The multipart form of `POST /v1/reconstruct` (it describes the form in the OpenAPI

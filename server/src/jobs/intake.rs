@@ -266,7 +266,7 @@ mod tests {
     #[test]
     fn photo_sets_need_2_to_16_real_images() {
         let dir = tempfile::tempdir().unwrap();
-        let png = crate::output::png_bytes(&image::RgbImage::new(2, 2));
+        let png = inssplat_pipeline::output::png_bytes(&image::RgbImage::new(2, 2));
         let photo = |b: &[u8]| Photo { file_name: "p.png".into(), bytes: b.to_vec() };
         let err = write_photo_sets(vec![("one".into(), vec![photo(&png)])], dir.path()).unwrap_err();
         assert!(err.to_string().contains("scene `one`: 1 photos"), "{err}");

@@ -13,12 +13,12 @@ use inssplat_proto::signature::{MAX_VIEWS, MIN_VIEWS};
 use inssplat_text::LabelCache;
 
 use super::SceneTask;
-use crate::eval::ClusterMode;
-use crate::eval::scene::{Settings, evaluate_scene_keeping};
-use crate::output::write_reconstruction;
-use crate::pipeline::reconstruct::{PipelineConfig, reconstruct};
-use crate::runtime::Model;
-use crate::{inputs, vocab};
+use inssplat_eval::ClusterMode;
+use inssplat_eval::scene::{Settings, evaluate_scene_keeping};
+use inssplat_pipeline::output::write_reconstruction;
+use inssplat_pipeline::reconstruct::{PipelineConfig, reconstruct};
+use inssplat_pipeline::backend::Model;
+use inssplat_pipeline::{inputs, vocab};
 
 /// Runs `task` (with the job's refinement steps where it set them, else `config`'s), writing
 /// its reconstruction to `out`; returns the stage timings and the evaluation metrics when the

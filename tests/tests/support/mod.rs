@@ -36,7 +36,7 @@ fn export_tiny(config: ModelConfig, model: &Path) -> PathBuf {
 /// Writes test-split scene `index` (32×32, primitives, 3–5 objects, eval context/target sets)
 /// to `dir` and returns its folder.
 pub fn test_scene(dir: &Path, index: u64) -> PathBuf {
-    use inssplat_trainer::synth::{self, Furniture, Split, SynthConfig};
+    use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
     let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
     (cfg.width, cfg.height, cfg.objects) = (32, 32, (3, 5));
     let scene = dir.join(format!("scene_{index:06}"));

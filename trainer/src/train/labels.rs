@@ -11,7 +11,7 @@ use inssplat_text::{EMBEDDING_DIM, Embedding, LabelCache, TextEmbedder};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
-use crate::synth;
+use inssplat_synth as synth;
 
 /// Environment variable naming a label table to use instead of the text model.
 pub const LABEL_TABLE_ENV: &str = "INSSPLAT_LABEL_TABLE";

@@ -26,8 +26,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::loss::camera_targets;
-use crate::synth::stats::SHELL_LABELS;
-use crate::synth::{self, Furniture, Split, Structure, SynthConfig};
+use inssplat_synth::stats::SHELL_LABELS;
+use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
 
 /// Where scenes come from. Serialized into checkpoints so that `--resume` reads the same data.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -253,7 +253,7 @@ impl Sample {
         for ((id, _), e) in present.iter().zip(embeddings) {
             teacher[*id as usize * TEXT_DIM..(*id as usize + 1) * TEXT_DIM].copy_from_slice(&e);
         }
-        let all: Vec<&str> = crate::synth::all_labels().into_iter().collect();
+        let all: Vec<&str> = inssplat_synth::all_labels().into_iter().collect();
         let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
         let shell = present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
         Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell, ray_cameras: RayCameras::True })

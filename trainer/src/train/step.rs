@@ -204,7 +204,7 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     }
     let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
     let (weight, bias) = net.sem_proj();
-    let vocabulary_labels: Vec<&str> = crate::synth::all_labels().into_iter().collect();
+    let vocabulary_labels: Vec<&str> = inssplat_synth::all_labels().into_iter().collect();
     let log_prior = config.semantic_log_prior(&vocabulary_labels);
     let semantic_form = match config.semantic_temperature {
         Some(temperature) => SemanticForm::Contrastive { temperature, vocabulary: &sample.vocabulary, log_prior: &log_prior },

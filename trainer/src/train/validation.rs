@@ -81,7 +81,7 @@ fn matching_scores(net: &InsSplatNet, val: &[Sample], device: &Device) -> Result
         let out = net.forward_with_rays(images, super::step::input_rays(net, s, device)).map_err(StepError::from)?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = crate::loss::host("depth", &out.depth).map_err(StepError::from)?;
-        let depth_scores = inssplat_raster::metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| StepError::from(crate::loss::LossError::Read { what: "depth", message: e.to_string() }))?;
+        let depth_scores = inssplat_metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| StepError::from(crate::loss::LossError::Read { what: "depth", message: e.to_string() }))?;
         depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
         let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(StepError::from)?;
         let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(StepError::from)?;
@@ -157,7 +157,7 @@ pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &A
     let spec = match (&session.val_data, &state.data) {
         (Some(spec), _) => spec.clone(),
         (None, DataSpec::Synth { furniture_dir, size, structure, antialias, .. }) => DataSpec::Synth {
-            split: crate::synth::Split::Val,
+            split: inssplat_synth::Split::Val,
             furniture_dir: furniture_dir.clone(),
             size: *size,
             structure: *structure,

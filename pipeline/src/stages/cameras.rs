@@ -1,0 +1,118 @@
+//! Stage "register": the views' cameras. Known poses are taken as given; else the camera
+//! head's, registered from matched keypoints (found in each photo's own detail where it is
+//! larger than the network's input), the network's learned descriptors when it has them, and
+//! the predicted depth ([`inssplat_geometry::register`]).
+
+use glam::{Quat, Vec2, Vec3};
+use inssplat_geometry::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
+use inssplat_proto::api::{FocalSource, Placement};
+use inssplat_proto::signature::CAMERA_CHANNELS;
+use inssplat_proto::{Camera, Intrinsics};
+
+use super::decode::ModelImage;
+use super::{Stopwatch, plane};
+use crate::backend::ModelOutput;
+use crate::reconstruct::PipelineError;
+
+/// The views' cameras and how each was found.
+pub struct Cameras {
+    pub cameras: Vec<Camera>,
+    pub placements: Vec<Placement>,
+    pub focal: FocalSource,
+    /// Registration's component root of every view ([`inssplat_geometry::register::Registration::component`]);
+    /// `None` when registration did not run.
+    pub component: Option<Vec<usize>>,
+}
+
+/// Cameras predicted by the network (model resolution, world = view 0's camera).
+pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
+    out.camera
+        .chunks_exact(CAMERA_CHANNELS)
+        .map(|c| {
+            let q = Quat::from_xyzw(c[4], c[5], c[6], c[3]);
+            let rotation = if q.is_finite() && q.length() > 1e-8 { q.normalize() } else { Quat::IDENTITY };
+            let focal = |fov: f32, size: usize| 0.5 * size as f32 / (0.5 * fov.clamp(0.05, 3.0)).tan();
+            let intrinsics = Intrinsics {
+                fx: focal(c[8], out.width),
+                fy: focal(c[7], out.height),
+                cx: 0.5 * out.width as f32,
+                cy: 0.5 * out.height as f32,
+                width: out.width as u32,
+                height: out.height as u32,
+            };
+            Camera { intrinsics, rotation, translation: Vec3::new(c[0], c[1], c[2]) }
+        })
+        .collect()
+}
+
+/// How registration placed view `v`, given the root of its component.
+fn placement(v: usize, root: usize) -> Placement {
+    match (v, root) {
+        (0, _) => Placement::Reference,
+        (_, 0) => Placement::Registered,
+        (_, 1) => Placement::CameraHead,
+        _ => Placement::Continued,
+    }
+}
+
+/// The cameras: `known` as given, else the camera head's, registered with `params` (timed as
+/// stage "register") unless `params` is `None`.
+pub fn run(
+    clock: &mut Stopwatch<'_>,
+    out: &ModelOutput,
+    decoded: &[ModelImage],
+    known: Option<&[Camera]>,
+    params: Option<&RegisterParams>,
+) -> Result<Cameras, PipelineError> {
+    let params = match (known, params) {
+        (Some(poses), _) => return given(poses, decoded.len()),
+        (None, None) => return Ok(camera_head(predicted_cameras(out))),
+        (None, Some(params)) => params,
+    };
+    let predicted = predicted_cameras(out);
+    Ok(clock.time("register", || {
+        let pixels = out.height * out.width;
+        let details: Vec<Option<KeypointImage>> = decoded
+            .iter()
+            .map(|d| {
+                d.detail_in_model()
+                    .map(|(rgb, per_view, [x, y])| KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y)))
+            })
+            .collect();
+        let views: Vec<RegisterView<'_>> = (0..out.views)
+            .map(|v| RegisterView {
+                rgb: &decoded[v].planar,
+                depth: &out.depth[plane(1, pixels, v)],
+                photo: decoded[v].letterbox.photo_rect(),
+                camera: &predicted[v],
+                descriptors: out
+                    .descriptors
+                    .as_ref()
+                    .map(|(data, dim)| Descriptors { data: &data[plane(*dim, pixels, v)], dim: *dim }),
+                detail: details[v].as_ref(),
+            })
+            .collect();
+        let registration = register(&views, params);
+        let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
+        let focal = if registration.focal_scale.is_some() { FocalSource::Measured } else { FocalSource::CameraHead };
+        Cameras { cameras: registration.cameras, placements, focal, component: Some(registration.component) }
+    }))
+}
+
+fn given(poses: &[Camera], views: usize) -> Result<Cameras, PipelineError> {
+    if poses.len() != views {
+        return Err(PipelineError::Poses { given: poses.len(), views });
+    }
+    Ok(Cameras {
+        cameras: poses.to_vec(),
+        placements: vec![Placement::Given; poses.len()],
+        focal: FocalSource::Given,
+        component: None,
+    })
+}
+
+fn camera_head(predicted: Vec<Camera>) -> Cameras {
+    let placements =
+        (0..predicted.len()).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
+    Cameras { cameras: predicted, placements, focal: FocalSource::CameraHead, component: None }
+}
