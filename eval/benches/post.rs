@@ -1,27 +1,28 @@
 //! Post-processing benchmark: back-project, voxelize, cluster (once in 3D, and the paper's
 //! per-view 2D mode on rendered instance feature maps, measured in the same run), label and
-//! the input views' masks (each pixel's merged Gaussian's id), for 2, 4, 8 and 16 views of 128×128 of the analytic test room (evenly
+//! the input views' masks (each pixel's merged Gaussian's id), for 2, 4, 8 and 16 views of 128×128
+//! of the analytic test room (evenly
 //! spaced views out of one ring of 16). Prints per-stage medians, Gaussians kept vs pixels
 //! in, mask quality of both clustering modes against the ground truth (mean per-view
-//! instance mIoU, and T-mIoU across views), and the contract checks: 3D clustering at 16 views ≤ 1.2× that at 8, Gaussians kept
+//! instance mIoU, and T-mIoU across views), and the contract checks: 3D clustering at 16 views ≤
+//! 1.2× that at 8, Gaussians kept
 //! ≤ 25% of input pixels, 16 views keeping ≤ 1.5× the Gaussians of 8.
 //!
 //! `cargo bench -p inssplat-raster --bench post`
 
-#[path = "../tests/post_scene.rs"]
-mod post_scene;
-
 use std::time::{Duration, Instant};
 
-use inssplat_proto::INSTANCE_DIM;
+use inssplat_geometry::analytic_room::{
+    SEM_DIM, ideal_outputs, render_scene, ring_cameras, text_space,
+};
 use inssplat_geometry::backproject::{ViewOutputs, backproject};
+use inssplat_geometry::voxel::{VoxelParams, Voxelized, voxelize};
+use inssplat_metrics::{consistency_scores, instance_scores};
+use inssplat_proto::INSTANCE_DIM;
+use inssplat_raster::render::{Splats, render};
 use inssplat_understand::cluster::per_view::{FeatureMap, cluster_views};
 use inssplat_understand::cluster::{ClusterParams, cluster_instances};
 use inssplat_understand::label::{SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_metrics::{consistency_scores, instance_scores};
-use inssplat_raster::render::{Splats, render};
-use inssplat_geometry::voxel::{VoxelParams, Voxelized, voxelize};
-use post_scene::{SEM_DIM, ideal_outputs, render_scene, ring_cameras, text_space};
 
 const SIZE: u32 = 128;
 const REPEATS: usize = 5;
@@ -66,7 +67,8 @@ fn quality(predicted: &[&[u32]], truth: &[Vec<u32>]) -> (f64, f64) {
         .map(|(p, t)| instance_scores(p, t).expect("same size").map_or(0.0, |s| s.miou))
         .sum::<f64>()
         / predicted.len() as f64;
-    let pairs: Vec<(&[u32], &[u32])> = predicted.iter().zip(truth).map(|(p, t)| (*p, t.as_slice())).collect();
+    let pairs: Vec<(&[u32], &[u32])> =
+        predicted.iter().zip(truth).map(|(p, t)| (*p, t.as_slice())).collect();
     (per_view, consistency_scores(&pairs).expect("same size").map_or(0.0, |s| s.t_miou))
 }
 
@@ -80,9 +82,11 @@ fn main() {
     let mut rows = Vec::new();
     for views in [2, 4, 8, 16] {
         let picked: Vec<usize> = (0..views).map(|i| i * 16 / views).collect();
-        let inputs: Vec<ViewOutputs<'_>> = picked.iter().map(|&i| planes[i].outputs(&ring[i])).collect();
+        let inputs: Vec<ViewOutputs<'_>> =
+            picked.iter().map(|&i| planes[i].outputs(&ring[i])).collect();
         let (t_bp, dense) = time(|| backproject(&inputs, SEM_DIM).expect("back-projection"));
-        let (t_vox, voxelized) = time(|| voxelize(&dense.scene, &VoxelParams::default()).expect("voxelization"));
+        let (t_vox, voxelized) =
+            time(|| voxelize(&dense.scene, &VoxelParams::default()).expect("voxelization"));
         let compact = voxelized.scene.clone();
         let (t_c3, (clustered_scene, k)) = time(|| {
             let mut s = compact.clone();
@@ -95,8 +99,13 @@ fn main() {
             assign_labels(&protos, &text.vocabulary).expect("labels")
         });
         let pixels = (SIZE * SIZE) as usize;
-        let (t_masks, masks) =
-            time(|| dense.to_pixels(&clustered.input_instance_ids()).chunks_exact(pixels).map(<[u32]>::to_vec).collect::<Vec<_>>());
+        let (t_masks, masks) = time(|| {
+            dense
+                .to_pixels(&clustered.input_instance_ids())
+                .chunks_exact(pixels)
+                .map(<[u32]>::to_vec)
+                .collect::<Vec<_>>()
+        });
         // The paper's mode clusters each view's rendered instance feature map.
         let embeddings: Vec<f32> = compact.instance_embedding.iter().flatten().copied().collect();
         let splats = Splats {
@@ -111,12 +120,22 @@ fn main() {
             .iter()
             .map(|&i| render(&splats, &ring[i], &[0.0; INSTANCE_DIM]).expect("feature render").0)
             .collect();
-        let maps: Vec<FeatureMap<'_>> =
-            rendered.iter().map(|im| FeatureMap { features: &im.features, alpha: &im.alpha }).collect();
+        let maps: Vec<FeatureMap<'_>> = rendered
+            .iter()
+            .map(|im| FeatureMap { features: &im.features, alpha: &im.alpha })
+            .collect();
         let (t_c2, per_view) = time(|| cluster_views(&maps, &params).expect("2D clustering"));
         let truth: Vec<Vec<u32>> = picked
             .iter()
-            .map(|&i| scene.frames[i].instances.as_ref().expect("instances").iter().map(|&id| u32::from(id)).collect())
+            .map(|&i| {
+                scene.frames[i]
+                    .instances
+                    .as_ref()
+                    .expect("instances")
+                    .iter()
+                    .map(|&id| u32::from(id))
+                    .collect()
+            })
             .collect();
         let per_view_ids: Vec<&[u32]> = per_view.iter().map(|c| c.ids.as_slice()).collect();
         let mask_ids: Vec<&[u32]> = masks.iter().map(Vec::as_slice).collect();

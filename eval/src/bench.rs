@@ -16,14 +16,14 @@ use serde::Serialize;
 
 use std::time::Instant;
 
-use inssplat_understand::cluster::ClusterParams;
 use inssplat_raster::masks::render_instance_ids_on;
 use inssplat_raster::render::GpuRenderer;
+use inssplat_understand::cluster::ClusterParams;
 
-use crate::views::{ClusterMode, segment};
 use crate::scene::context_images;
-use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, max_instance_id, reconstruct};
+use crate::views::{ClusterMode, segment};
 use inssplat_pipeline::backend::Model;
+use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, max_instance_id, reconstruct};
 
 /// Medians of one view count.
 #[derive(Debug, Clone, Serialize)]
@@ -51,7 +51,11 @@ pub struct BenchRow {
 impl BenchRow {
     /// Everything after the network (and its second pass, stage "rays").
     pub fn post_ms(&self) -> f64 {
-        self.stage_ms.iter().filter(|(s, _)| !matches!(s.as_str(), "decode" | "model" | "rays")).map(|(_, v)| v).sum()
+        self.stage_ms
+            .iter()
+            .filter(|(s, _)| !matches!(s.as_str(), "decode" | "model" | "rays"))
+            .map(|(_, v)| v)
+            .sum()
     }
 }
 
@@ -110,7 +114,8 @@ pub fn bench(
                 .map(|_| -> anyhow::Result<f64> {
                     let start = Instant::now();
                     for view in &rec.views {
-                        segment(&rec, &view.camera, ClusterMode::TwoD, &texts, &params).map_err(anyhow::Error::msg)?;
+                        segment(&rec, &view.camera, ClusterMode::TwoD, &texts, &params)
+                            .map_err(anyhow::Error::msg)?;
                     }
                     Ok(start.elapsed().as_secs_f64() * 1e3)
                 })
@@ -181,7 +186,8 @@ pub fn compare(
     let [a, b] = models;
     let time = |model: &mut Model, images: &[InputImage]| -> anyhow::Result<[f64; 2]> {
         let rec = reconstruct(model, labels, images, vocabulary, &config)?;
-        let stage = |name: &str| rec.timings.iter().filter(|t| t.stage == name).map(|t| t.ms).sum::<f64>();
+        let stage =
+            |name: &str| rec.timings.iter().filter(|t| t.stage == name).map(|t| t.ms).sum::<f64>();
         Ok([stage("model"), rec.timings.iter().map(|t| t.ms).sum()])
     };
     views
@@ -220,7 +226,13 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
     for r in rows {
         out += &format!(
             "| {} | {:.0} | {:.0} | {:.2} | {:.0} | {:.0} | {:.2} |\n",
-            r.views, r.model_ms[0], r.model_ms[1], r.model_ratio, r.total_ms[0], r.total_ms[1], r.total_ratio
+            r.views,
+            r.model_ms[0],
+            r.model_ms[1],
+            r.model_ratio,
+            r.total_ms[0],
+            r.total_ms[1],
+            r.total_ratio
         );
     }
     out
@@ -257,7 +269,10 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
             out += &format!(" {:.0} |", r.stage_ms.get(*s).copied().unwrap_or(f64::NAN));
         }
         let model = r.stage_ms.get("model").copied().unwrap_or(f64::NAN);
-        let three_d = ["cluster", "vote", "masks"].iter().map(|s| r.stage_ms.get(*s).copied().unwrap_or(0.0)).sum::<f64>();
+        let three_d = ["cluster", "vote", "masks"]
+            .iter()
+            .map(|s| r.stage_ms.get(*s).copied().unwrap_or(0.0))
+            .sum::<f64>();
         out += &format!(
             " {:.0} | {:.2} | {} | {} | {} | {three_d:.0} | {:.0} | {:.0} | {} |\n",
             r.total_ms,

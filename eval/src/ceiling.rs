@@ -6,10 +6,10 @@
 //! "ceiling"): when it is low, the network is what limits instance mIoU; when the first lies far
 //! below it, the clustering is.
 
-use inssplat_proto::INSTANCE_DIM;
-use inssplat_proto::gaussian::unit;
 use inssplat_metrics::MetricError;
 use inssplat_metrics::segmentation::instance_scores;
+use inssplat_proto::INSTANCE_DIM;
+use inssplat_proto::gaussian::unit;
 
 /// One context view at the model resolution, all maps `[H][W]`.
 pub struct ContextView<'a> {
@@ -25,7 +25,10 @@ pub struct ContextView<'a> {
 /// Pooled instance mIoU over the context views: (of the clustering, of the nearest true
 /// prototype), with `embeddings` the Gaussians' instance embeddings; `None` when no view has a
 /// true instance.
-pub fn context_instances(embeddings: &[[f32; INSTANCE_DIM]], views: &[ContextView<'_>]) -> Result<Option<(f64, f64)>, MetricError> {
+pub fn context_instances(
+    embeddings: &[[f32; INSTANCE_DIM]],
+    views: &[ContextView<'_>],
+) -> Result<Option<(f64, f64)>, MetricError> {
     let embedding = |g: u32| (g > 0).then(|| unit(embeddings[g as usize - 1]));
     let ids = views.iter().flat_map(|v| v.truth.iter().copied()).max().unwrap_or(0) as usize;
     let mut sums = vec![[0.0f32; INSTANCE_DIM]; ids + 1];
@@ -48,7 +51,8 @@ pub fn context_instances(embeddings: &[[f32; INSTANCE_DIM]], views: &[ContextVie
     };
     let (mut clustered, mut ceiling) = (Vec::new(), Vec::new());
     for view in views {
-        let best: Vec<u32> = view.gaussians.iter().map(|&g| embedding(g).map_or(0, nearest)).collect();
+        let best: Vec<u32> =
+            view.gaussians.iter().map(|&g| embedding(g).map_or(0, nearest)).collect();
         if let Some(s) = instance_scores(view.ids, view.truth)? {
             clustered.extend(s.matches.iter().map(|m| m.iou));
         }

@@ -43,7 +43,9 @@ impl Confusion {
 
     /// One row per true label, the most pixels first.
     pub fn rows(&self, vocabulary: &[String]) -> Vec<LabelRow> {
-        let name = |i: u32| vocabulary.get(i as usize).map_or_else(|| "(unnamed)".to_string(), Clone::clone);
+        let name = |i: u32| {
+            vocabulary.get(i as usize).map_or_else(|| "(unnamed)".to_string(), Clone::clone)
+        };
         let mut per_truth: BTreeMap<u32, Vec<(u32, u64)>> = BTreeMap::new();
         for (&(t, p), &n) in &self.0 {
             per_truth.entry(t).or_default().push((p, n));
@@ -53,7 +55,11 @@ impl Confusion {
             .map(|(t, preds)| {
                 let pixels: u64 = preds.iter().map(|p| p.1).sum();
                 let right = preds.iter().find(|p| p.0 == t).map_or(0, |p| p.1);
-                let most = preds.iter().max_by_key(|p| (p.1, std::cmp::Reverse(p.0))).copied().unwrap_or((NO_LABEL, 0));
+                let most = preds
+                    .iter()
+                    .max_by_key(|p| (p.1, std::cmp::Reverse(p.0)))
+                    .copied()
+                    .unwrap_or((NO_LABEL, 0));
                 LabelRow {
                     label: name(t),
                     pixels,
@@ -89,6 +95,12 @@ mod tests {
             named_most: named_most.into(),
             named_most_share,
         };
-        assert_eq!(rows, [row("chair", 3, 1.0 / 3.0, "floor", 2.0 / 3.0), row("lamp", 3, 2.0 / 3.0, "lamp", 2.0 / 3.0)]);
+        assert_eq!(
+            rows,
+            [
+                row("chair", 3, 1.0 / 3.0, "floor", 2.0 / 3.0),
+                row("lamp", 3, 2.0 / 3.0, "lamp", 2.0 / 3.0)
+            ]
+        );
     }
 }

@@ -1,6 +1,7 @@
 //! inssplat-eval: the research bench, out of the service. The evaluation protocol
 //! (docs/EVALUATION.md) over a folder of test-split scenes at several view counts, with its
-//! oracles, perturbations and sweeps, and the per-stage benchmark ([`bench`]). Each (scene, view count) is scored by [`scene::evaluate_scene`]; the
+//! oracles, perturbations and sweeps, and the per-stage benchmark ([`bench`]). Each (scene, view
+//! count) is scored by [`scene::evaluate_scene`]; the
 //! report averages every metric per view count over the scenes that have it, and is written as
 //! JSON (`eval.json`, every scene's numbers included) and a markdown table (`eval.md`,
 //! [`markdown`]).
@@ -26,14 +27,14 @@ use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_text::LabelCache;
 use serde::Serialize;
 
-use inssplat_pipeline::reconstruct::PipelineConfig;
 use inssplat_pipeline::backend::Model;
-pub use perturb::{PerturbKind, Perturbation};
+use inssplat_pipeline::reconstruct::PipelineConfig;
+pub use markdown::{markdown, sweep_markdown};
 use perturb::most_repeated;
+pub use perturb::{PerturbKind, Perturbation};
 use progress::Progress;
 pub use scene::EvalSwitches;
 use scene::{SceneScores, Settings, evaluate_scene};
-pub use markdown::{markdown, sweep_markdown};
 pub use views::ClusterMode;
 
 /// Scene folders to evaluate: `path` itself if it is a scene, else its sub-folders that are.
@@ -41,9 +42,12 @@ pub fn scene_dirs(path: &Path) -> Result<Vec<PathBuf>> {
     if path.join("transforms.json").is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
-    let entries = std::fs::read_dir(path).with_context(|| format!("--data {}: cannot read the folder", path.display()))?;
-    let mut dirs: Vec<PathBuf> =
-        entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.join("transforms.json").is_file()).collect();
+    let entries = std::fs::read_dir(path)
+        .with_context(|| format!("--data {}: cannot read the folder", path.display()))?;
+    let mut dirs: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("transforms.json").is_file())
+        .collect();
     if dirs.is_empty() {
         bail!("--data {}: no scene folders (with a transforms.json) in it", path.display());
     }
@@ -157,7 +161,8 @@ fn summarize(views: usize, scores: &[&SceneScores], vocabulary: &[String]) -> Su
     let metrics = METRICS
         .iter()
         .filter_map(|m| {
-            let v: Vec<f64> = scores.iter().filter_map(|s| metric(s, m)).filter(|x| x.is_finite()).collect();
+            let v: Vec<f64> =
+                scores.iter().filter_map(|s| metric(s, m)).filter(|x| x.is_finite()).collect();
             Some((m.to_string(), (mean(&v)?, v.len())))
         })
         .collect();
@@ -170,9 +175,12 @@ fn summarize(views: usize, scores: &[&SceneScores], vocabulary: &[String]) -> Su
         scenes: scores.len(),
         metrics,
         seconds_median: secs.get(secs.len() / 2).copied().unwrap_or(f64::NAN),
-        gaussians_kept_mean: scores.iter().map(|s| s.gaussians_kept as f64).sum::<f64>() / scores.len().max(1) as f64,
+        gaussians_kept_mean: scores.iter().map(|s| s.gaussians_kept as f64).sum::<f64>()
+            / scores.len().max(1) as f64,
         labels: labels.rows(vocabulary),
-        query_rules: query_rules::summarize(&scores.iter().map(|s| s.query_by_rule.as_slice()).collect::<Vec<_>>()),
+        query_rules: query_rules::summarize(
+            &scores.iter().map(|s| s.query_by_rule.as_slice()).collect::<Vec<_>>(),
+        ),
     }
 }
 
@@ -223,22 +231,38 @@ pub struct Failure {
 }
 
 /// Evaluates every scene in `dirs` at every requested view count, then the robustness sweeps.
-pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &EvalRequest) -> Result<Report> {
-    let scenes: Vec<Scene> =
-        dirs.iter().map(|d| Scene::load(d).with_context(|| format!("loading {}", d.display()))).collect::<Result<_>>()?;
-    let mut vocabulary: Vec<String> = scenes.iter().flat_map(Scene::label_vocabulary).chain(req.extra_vocab.iter().cloned()).collect();
+pub fn evaluate(
+    model: &mut Model,
+    labels: &LabelCache,
+    dirs: &[PathBuf],
+    req: &EvalRequest,
+) -> Result<Report> {
+    let scenes: Vec<Scene> = dirs
+        .iter()
+        .map(|d| Scene::load(d).with_context(|| format!("loading {}", d.display())))
+        .collect::<Result<_>>()?;
+    let mut vocabulary: Vec<String> = scenes
+        .iter()
+        .flat_map(Scene::label_vocabulary)
+        .chain(req.extra_vocab.iter().cloned())
+        .collect();
     vocabulary.sort();
     vocabulary.dedup();
     let image_sweeps: Vec<Perturbation> = req
         .perturb
         .iter()
         .filter(|k| **k != PerturbKind::Repeats)
-        .flat_map(|&kind| kind.strengths().iter().map(move |&strength| Perturbation { kind, strength }))
+        .flat_map(|&kind| {
+            kind.strengths().iter().map(move |&strength| Perturbation { kind, strength })
+        })
         .collect();
     let runs = scenes.len() * (req.views.len() + image_sweeps.len());
     let bar = Progress::new("eval", runs as u64, req.progress);
     let rules = if req.query_rules { query_rules::grid() } else { Vec::new() };
-    let run = |views: usize, perturbation: Option<Perturbation>, model: &mut Model| -> Result<Vec<SceneScores>> {
+    let run = |views: usize,
+               perturbation: Option<Perturbation>,
+               model: &mut Model|
+     -> Result<Vec<SceneScores>> {
         let settings = Settings {
             vocabulary: &vocabulary,
             pipeline: &req.pipeline,
@@ -251,7 +275,12 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
         scenes
             .iter()
             .map(|scene| {
-                bar.set_message(format!("{views} views{}, {}", perturbation.map_or(String::new(), |p| format!(", {:?} {}", p.kind, p.strength)), scene.dir.display()));
+                bar.set_message(format!(
+                    "{views} views{}, {}",
+                    perturbation
+                        .map_or(String::new(), |p| format!(", {:?} {}", p.kind, p.strength)),
+                    scene.dir.display()
+                ));
                 let s = evaluate_scene(model, labels, scene, views, &settings)?;
                 bar.inc();
                 Ok(s)
@@ -266,7 +295,11 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
     let mut robustness = Vec::new();
     for p in &image_sweeps {
         let scores = run(rv, Some(*p), model)?;
-        robustness.push(RobustRow { kind: p.kind, strength: p.strength, summary: summarize(rv, &scores.iter().collect::<Vec<_>>(), &vocabulary) });
+        robustness.push(RobustRow {
+            kind: p.kind,
+            strength: p.strength,
+            summary: summarize(rv, &scores.iter().collect::<Vec<_>>(), &vocabulary),
+        });
     }
     bar.finish_and_clear();
     let at_rv: Vec<&SceneScores> = all.iter().filter(|s| s.views == rv).collect();
@@ -283,14 +316,24 @@ pub fn evaluate(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &
                 .map(|(s, _)| *s)
                 .collect();
             if !group.is_empty() {
-                robustness.push(RobustRow { kind: PerturbKind::Repeats, strength: bucket as f32, summary: summarize(rv, &group, &vocabulary) });
+                robustness.push(RobustRow {
+                    kind: PerturbKind::Repeats,
+                    strength: bucket as f32,
+                    summary: summarize(rv, &group, &vocabulary),
+                });
             }
         }
     }
     if !req.perturb.is_empty() {
         failures = worst_scenes(model, labels, &scenes, &at_rv, &vocabulary, req)?;
     }
-    let summaries = req.views.iter().map(|&v| summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>(), &vocabulary)).collect();
+    let summaries = req
+        .views
+        .iter()
+        .map(|&v| {
+            summarize(v, &all.iter().filter(|s| s.views == v).collect::<Vec<_>>(), &vocabulary)
+        })
+        .collect();
     Ok(Report {
         model_version: model.network.model_version.clone(),
         data: dirs.first().and_then(|d| d.parent()).map_or_else(String::new, |p| p.display().to_string()),
@@ -380,7 +423,9 @@ fn worst_scenes(
     req: &EvalRequest,
 ) -> Result<Vec<Failure>> {
     let mut order: Vec<usize> = (0..scores.len()).collect();
-    order.sort_by(|&a, &b| scores[a].instance_miou.unwrap_or(0.0).total_cmp(&scores[b].instance_miou.unwrap_or(0.0)));
+    order.sort_by(|&a, &b| {
+        scores[a].instance_miou.unwrap_or(0.0).total_cmp(&scores[b].instance_miou.unwrap_or(0.0))
+    });
     order
         .into_iter()
         .take(5)
@@ -388,7 +433,14 @@ fn worst_scenes(
             let preview = match &req.out {
                 Some(out) => {
                     let dir = out.join("failures").join(&scores[i].scene);
-                    let (rec, names) = scene::reconstruct_context(model, labels, &scenes[i], req.robust_views(), vocabulary, &req.pipeline)?;
+                    let (rec, names) = scene::reconstruct_context(
+                        model,
+                        labels,
+                        &scenes[i],
+                        req.robust_views(),
+                        vocabulary,
+                        &req.pipeline,
+                    )?;
                     inssplat_pipeline::output::write_reconstruction(&rec, &names, &dir)?;
                     Some(dir.join("preview.png"))
                 }
@@ -406,7 +458,13 @@ fn worst_scenes(
 
 /// Runs the sweep grid over `req.views` (each configuration a full evaluation of `dirs`),
 /// marks the Pareto fronts and draws the chart into `out`.
-pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: &EvalRequest, out: &Path) -> Result<Vec<sweep::SweepPoint>> {
+pub fn run_sweep(
+    model: &mut Model,
+    labels: &LabelCache,
+    dirs: &[PathBuf],
+    req: &EvalRequest,
+    out: &Path,
+) -> Result<Vec<sweep::SweepPoint>> {
     let grid = sweep::grid(&req.views);
     let bar = Progress::new("sweep", grid.len() as u64, req.progress);
     let mut points = Vec::with_capacity(grid.len());
@@ -415,7 +473,13 @@ pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: 
         let mut pipeline = req.pipeline.clone();
         pipeline.voxel.extent_fraction = knobs.voxel_fraction;
         pipeline.cluster.max_samples = knobs.cluster_samples;
-        let one = EvalRequest { views: vec![knobs.views], pipeline, perturb: Vec::new(), progress: false, ..req.clone() };
+        let one = EvalRequest {
+            views: vec![knobs.views],
+            pipeline,
+            perturb: Vec::new(),
+            progress: false,
+            ..req.clone()
+        };
         let report = evaluate(model, labels, dirs, &one)?;
         let s = &report.summaries[0];
         points.push(sweep::SweepPoint {
@@ -430,7 +494,8 @@ pub fn run_sweep(model: &mut Model, labels: &LabelCache, dirs: &[PathBuf], req: 
     }
     bar.finish_and_clear();
     sweep::mark_pareto(&mut points);
-    std::fs::create_dir_all(out).with_context(|| format!("--out: cannot create {}", out.display()))?;
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("--out: cannot create {}", out.display()))?;
     sweep::chart(&points, out)?;
     Ok(points)
 }

@@ -6,7 +6,9 @@ use super::{ClusterMode, Report, query_rules, sweep};
 
 /// The sweep as a markdown table.
 pub fn sweep_markdown(points: &[sweep::SweepPoint]) -> String {
-    let mut out = String::from("| views | voxel | HDBSCAN samples | s/scene | inst mIoU | PSNR | Pareto (mIoU / PSNR) |\n|---|---|---|---|---|---|---|\n");
+    let mut out = String::from(
+        "| views | voxel | HDBSCAN samples | s/scene | inst mIoU | PSNR | Pareto (mIoU / PSNR) |\n|---|---|---|---|---|---|---|\n",
+    );
     for p in points {
         out += &format!(
             "| {} | 1/{:.0} of extent | {} | {:.2} | {} | {} | {} / {} |\n",
@@ -36,13 +38,16 @@ fn num(v: Option<&(f64, usize)>, digits: usize) -> String {
 pub fn markdown(r: &Report) -> String {
     let hdbscan = format!(
         "HDBSCAN smallest cluster share {}, min_samples {}, joined at cosine ≥ {}",
-        r.min_cluster_share,
-        r.min_samples,
-        r.min_cosine
+        r.min_cluster_share, r.min_samples, r.min_cosine
     );
     let mode = match r.cluster {
-        ClusterMode::ThreeD => format!("instances clustered once in 3D (position weight {}; {hdbscan})", r.position_weight),
-        ClusterMode::TwoD => format!("instances clustered per view in 2D (the paper's mode; {hdbscan})"),
+        ClusterMode::ThreeD => format!(
+            "instances clustered once in 3D (position weight {}; {hdbscan})",
+            r.position_weight
+        ),
+        ClusterMode::TwoD => {
+            format!("instances clustered per view in 2D (the paper's mode; {hdbscan})")
+        }
     };
     let mut notes = String::new();
     if r.switches.known_poses {
@@ -60,7 +65,12 @@ pub fn markdown(r: &Report) -> String {
     if r.switches.no_fill {
         notes += " Target views scored on their raw renders (--no-fill).";
     }
-    let mut out = format!("Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n", r.model_version, r.scenes.len() / r.summaries.len().max(1), r.data);
+    let mut out = format!(
+        "Model `{}`, {} scenes from `{}`, {mode}.{notes}\n\n",
+        r.model_version,
+        r.scenes.len() / r.summaries.len().max(1),
+        r.data
+    );
     out += "| views | sem mIoU | sem mAcc | inst mIoU | inst Acc@0.25 | inst PQ | query IoU | T-mIoU | T-SR@0.5 | PSNR | SSIM | depth AbsRel | rot err ° | trans err | s/scene | Gaussians kept |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for s in &r.summaries {
@@ -115,8 +125,13 @@ pub fn markdown(r: &Report) -> String {
         }
     }
     // The names at the view count nearest the paper's headline 8.
-    if let Some(s) = r.summaries.iter().filter(|s| !s.labels.is_empty()).min_by_key(|s| s.views.abs_diff(8)) {
-        out += &format!("\nLabels on the target views at {} views (the 12 with the most pixels):\n\n", s.views);
+    if let Some(s) =
+        r.summaries.iter().filter(|s| !s.labels.is_empty()).min_by_key(|s| s.views.abs_diff(8))
+    {
+        out += &format!(
+            "\nLabels on the target views at {} views (the 12 with the most pixels):\n\n",
+            s.views
+        );
         out += "| true label | pixels | named right | named most often | share |\n|---|---|---|---|---|\n";
         for row in s.labels.iter().take(12) {
             out += &format!(
@@ -134,7 +149,9 @@ pub fn markdown(r: &Report) -> String {
     }
     if !r.robustness.is_empty() {
         let views = r.robustness[0].summary.views;
-        out += &format!("\nRobustness at {views} views:\n\n| perturbation | strength | unit | inst mIoU | sem mIoU | T-mIoU | query IoU | PSNR | depth AbsRel | scenes |\n|---|---|---|---|---|---|---|---|---|---|\n");
+        out += &format!(
+            "\nRobustness at {views} views:\n\n| perturbation | strength | unit | inst mIoU | sem mIoU | T-mIoU | query IoU | PSNR | depth AbsRel | scenes |\n|---|---|---|---|---|---|---|---|---|---|\n"
+        );
         for row in &r.robustness {
             let m = |k: &str| row.summary.metrics.get(k);
             out += &format!(

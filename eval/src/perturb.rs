@@ -71,7 +71,8 @@ impl Perturbation {
                 }
             }
             PerturbKind::Blur if self.strength > 0.0 => {
-                let img = image::RgbImage::from_raw(width as u32, height as u32, rgb.to_vec()).expect("w·h·3 bytes");
+                let img = image::RgbImage::from_raw(width as u32, height as u32, rgb.to_vec())
+                    .expect("w·h·3 bytes");
                 let blurred = image::imageops::blur(&img, self.strength);
                 rgb.copy_from_slice(blurred.as_raw());
             }
@@ -89,7 +90,13 @@ impl Perturbation {
 
     /// The context frames for `views` views: `context` itself, or for `overlap` consecutive
     /// non-target frames `stride` apart (starting at the first context frame).
-    pub fn context(&self, context: &[usize], targets: &[usize], frames: usize, views: usize) -> Vec<usize> {
+    pub fn context(
+        &self,
+        context: &[usize],
+        targets: &[usize],
+        frames: usize,
+        views: usize,
+    ) -> Vec<usize> {
         if self.kind != PerturbKind::Overlap {
             return context.to_vec();
         }
@@ -112,7 +119,10 @@ pub fn most_repeated(scene: &Scene) -> usize {
 
 /// A seed per (scene, frame) so every run perturbs the same way.
 pub fn seed(scene: &str, frame: usize) -> u64 {
-    scene.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)) ^ frame as u64
+    scene
+        .bytes()
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3))
+        ^ frame as u64
 }
 
 #[cfg(test)]
@@ -122,7 +132,8 @@ mod tests {
     #[test]
     fn image_perturbations_change_what_they_should() {
         let (w, h) = (16, 16);
-        let base: Vec<u8> = (0..w * h * 3).map(|i| if (i / 3) % w < 8 { 60 } else { 200 }).collect();
+        let base: Vec<u8> =
+            (0..w * h * 3).map(|i| if (i / 3) % w < 8 { 60 } else { 200 }).collect();
         let run = |kind, strength| {
             let mut x = base.clone();
             Perturbation { kind, strength }.apply(&mut x, w, h, 1);
@@ -130,11 +141,21 @@ mod tests {
         };
         assert_eq!(run(PerturbKind::Noise, 0.0), base, "strength 0 is the identity");
         let noisy = run(PerturbKind::Noise, 0.05);
-        let rms = (noisy.iter().zip(&base).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum::<f64>() / base.len() as f64).sqrt();
+        let rms = (noisy
+            .iter()
+            .zip(&base)
+            .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
+            .sum::<f64>()
+            / base.len() as f64)
+            .sqrt();
         assert!((rms - 0.05 * 255.0).abs() < 2.0, "noise rms {rms}");
         let blurred = run(PerturbKind::Blur, 2.0);
         // The edge between columns 7 and 8 softens; flat far regions stay.
-        assert!(blurred[7 * 3] > 60 && blurred[8 * 3] < 200 && blurred[0] == 60, "{:?}", &blurred[..30]);
+        assert!(
+            blurred[7 * 3] > 60 && blurred[8 * 3] < 200 && blurred[0] == 60,
+            "{:?}",
+            &blurred[..30]
+        );
         let bright = run(PerturbKind::Exposure, 1.0);
         // One stop up: 60 → 60·2^(1/2.2) ≈ 82, and 200 → 274 clips at white.
         assert!(bright[0] > 60 && bright[0] < 120 && bright[15 * 3] == 255, "{:?}", &bright[..48]);
@@ -147,7 +168,8 @@ mod tests {
         let got = p.context(&[3, 9, 15, 21], &[0, 5, 10], 24, 4);
         assert_eq!(got, vec![3, 6, 8, 11]);
         assert!(got.iter().all(|f| ![0, 5, 10].contains(f)));
-        let same = Perturbation { kind: PerturbKind::Noise, strength: 0.1 }.context(&[3, 9], &[0], 24, 2);
+        let same =
+            Perturbation { kind: PerturbKind::Noise, strength: 0.1 }.context(&[3, 9], &[0], 24, 2);
         assert_eq!(same, vec![3, 9]);
     }
 }

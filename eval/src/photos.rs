@@ -18,7 +18,11 @@ const POSE_TOLERANCE: f32 = 1e-4;
 /// The frames `context` of `scene` as the photo files of its twin under `dir`, after checking
 /// that the twin has the same frames at the same poses; a problem comes back as a sentence
 /// that names the file.
-pub fn photo_images(dir: &Path, scene: &Scene, context: &[usize]) -> Result<Vec<InputImage>, String> {
+pub fn photo_images(
+    dir: &Path,
+    scene: &Scene,
+    context: &[usize],
+) -> Result<Vec<InputImage>, String> {
     let name = scene.name();
     let json_path = dir.join(&name).join("transforms.json");
     let twin = TransformsJson::read(&json_path).map_err(|e| format!("--photos: {e}"))?;

@@ -21,9 +21,15 @@ impl Progress {
     /// A bar on a terminal, lines elsewhere; nothing at all when `shown` is false.
     pub fn new(what: &'static str, len: u64, shown: bool) -> Self {
         let terminal = std::io::stderr().is_terminal();
-        let target = if shown && terminal { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() };
+        let target = if shown && terminal {
+            ProgressDrawTarget::stderr()
+        } else {
+            ProgressDrawTarget::hidden()
+        };
         let bar = ProgressBar::with_draw_target(Some(len), target);
-        let template = format!("{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}] {{wide_msg}}");
+        let template = format!(
+            "{{spinner}} {what} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}] {{wide_msg}}"
+        );
         bar.set_style(ProgressStyle::with_template(&template).expect("template"));
         Self { bar, what, lines: shown && !terminal }
     }
@@ -37,9 +43,16 @@ impl Progress {
     pub fn inc(&self) {
         self.bar.inc(1);
         if self.lines {
-            let (done, len, elapsed) = (self.bar.position(), self.bar.length().unwrap_or(0), self.bar.elapsed());
+            let (done, len, elapsed) =
+                (self.bar.position(), self.bar.length().unwrap_or(0), self.bar.elapsed());
             let left = elapsed.mul_f64(len.saturating_sub(done) as f64 / done as f64);
-            eprintln!("{} {done}/{len} after {}, about {} left: {}", self.what, minutes(elapsed), minutes(left), self.bar.message());
+            eprintln!(
+                "{} {done}/{len} after {}, about {} left: {}",
+                self.what,
+                minutes(elapsed),
+                minutes(left),
+                self.bar.message()
+            );
         }
     }
 

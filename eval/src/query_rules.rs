@@ -5,10 +5,10 @@
 //! choosing [`QueryRule::default`] on val: the rule is a threshold on cosines, and what names
 //! an instance (its features, the shape classifier's weight) moves those cosines.
 
-use inssplat_raster::masks::ids_mask;
-use inssplat_understand::label::{QueryRule, query};
 use inssplat_metrics::segmentation::mask_iou;
 use inssplat_raster::masks::NO_LABEL;
+use inssplat_raster::masks::ids_mask;
+use inssplat_understand::label::{QueryRule, query};
 use serde::Serialize;
 
 use super::mean;
@@ -49,13 +49,17 @@ pub fn query_scores<T: AsRef<[f32]>>(
     texts: &[T],
     rules: &[QueryRule],
 ) -> Result<Vec<QueryScores>, String> {
-    let present: std::collections::BTreeSet<u32> = gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
+    let present: std::collections::BTreeSet<u32> =
+        gt_labels.iter().copied().filter(|l| *l != NO_LABEL).collect();
     // Each present label's true pixels, the same under every rule.
-    let wants: Vec<(u32, Vec<bool>)> = present.into_iter().map(|l| (l, gt_labels.iter().map(|g| *g == l).collect())).collect();
+    let wants: Vec<(u32, Vec<bool>)> =
+        present.into_iter().map(|l| (l, gt_labels.iter().map(|g| *g == l).collect())).collect();
     let hits = |l: u32, rule: &QueryRule| -> Result<Vec<Vec<u32>>, String> {
         segs.iter()
             .map(|seg| {
-                let hits = query(&seg.prototypes, texts[l as usize].as_ref(), &seg.own_scores, rule).map_err(|e| e.to_string())?;
+                let hits =
+                    query(&seg.prototypes, texts[l as usize].as_ref(), &seg.own_scores, rule)
+                        .map_err(|e| e.to_string())?;
                 Ok(hits.iter().map(|h| h.id).collect())
             })
             .collect()
@@ -66,14 +70,20 @@ pub fn query_scores<T: AsRef<[f32]>>(
             let mut ious = Vec::new();
             for (l, want) in &wants {
                 let per_view = hits(*l, rule)?;
-                let got: Vec<bool> = segs.iter().zip(&per_view).flat_map(|(seg, ids)| ids_mask(&seg.ids, ids)).collect();
+                let got: Vec<bool> = segs
+                    .iter()
+                    .zip(&per_view)
+                    .flat_map(|(seg, ids)| ids_mask(&seg.ids, ids))
+                    .collect();
                 if let Some(iou) = mask_iou(&got, want).map_err(|e| e.to_string())? {
                     ious.push(iou);
                 }
             }
             let answered = absent
                 .iter()
-                .map(|&l| Ok(if hits(l, rule)?.iter().any(|ids| !ids.is_empty()) { 1.0 } else { 0.0 }))
+                .map(|&l| {
+                    Ok(if hits(l, rule)?.iter().any(|ids| !ids.is_empty()) { 1.0 } else { 0.0 })
+                })
                 .collect::<Result<Vec<f64>, String>>()?;
             Ok(QueryScores { iou: mean(&ious), false_positive: mean(&answered) })
         })
@@ -105,7 +115,9 @@ pub fn summarize(per_scene: &[&[QueryScores]]) -> Vec<RuleRow> {
             margin: r.margin,
             label_margin: r.label_margin.is_finite().then_some(r.label_margin),
             query_iou: mean(&per_scene.iter().filter_map(|s| s.get(i)?.iou).collect::<Vec<_>>()),
-            false_positive: mean(&per_scene.iter().filter_map(|s| s.get(i)?.false_positive).collect::<Vec<_>>()),
+            false_positive: mean(
+                &per_scene.iter().filter_map(|s| s.get(i)?.false_positive).collect::<Vec<_>>(),
+            ),
         })
         .collect();
     rows.sort_by(|a, b| b.query_iou.unwrap_or(0.0).total_cmp(&a.query_iou.unwrap_or(0.0)));
@@ -115,7 +127,9 @@ pub fn summarize(per_scene: &[&[QueryScores]]) -> Vec<RuleRow> {
 /// The best `top` rows and the default rule's as a markdown table.
 pub fn markdown(views: usize, rows: &[RuleRow], top: usize) -> String {
     let d = QueryRule::default();
-    let is_default = |r: &RuleRow| r.min_score == d.min_score && r.margin == d.margin && r.label_margin == Some(d.label_margin);
+    let is_default = |r: &RuleRow| {
+        r.min_score == d.min_score && r.margin == d.margin && r.label_margin == Some(d.label_margin)
+    };
     let mut out = format!(
         "\nQuery rules at {views} views (the best {top} by query IoU, and the default; false positives: share of queries for labels the scene lacks that returned an instance):\n\n| rank | min score | margin | label margin | query IoU | false positives |\n|---|---|---|---|---|---|\n"
     );
@@ -142,14 +156,22 @@ mod tests {
     /// One view of four pixels: a chair (id 1) on two, a table (id 2) on one, nothing on the
     /// last; the vocabulary is chair, table, lamp, and the scene has no lamp.
     fn view() -> (Vec<ViewSegmentation>, Vec<u32>, Vec<[f32; 3]>) {
-        let proto = |id, embedding: [f32; 3]| InstancePrototype { id, embedding: embedding.to_vec(), gaussians: 10 };
+        let proto = |id, embedding: [f32; 3]| InstancePrototype {
+            id,
+            embedding: embedding.to_vec(),
+            gaussians: 10,
+        };
         let seg = ViewSegmentation {
             ids: vec![1, 1, 2, 0],
             labels: vec![0, 0, 1, NO_LABEL],
             prototypes: vec![proto(1, [1.0, 0.0, 0.0]), proto(2, [0.0, 1.0, 0.0])],
             own_scores: Vec::new(),
         };
-        (vec![seg], vec![0, 0, 1, NO_LABEL], vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        (
+            vec![seg],
+            vec![0, 0, 1, NO_LABEL],
+            vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        )
     }
 
     #[test]

@@ -11,29 +11,33 @@ use std::path::Path;
 use std::time::Instant;
 
 use image::RgbImage;
-use inssplat_proto::dataset::Scene;
-use inssplat_understand::label::QueryRule;
-use inssplat_raster::masks::{fill_uncovered, render_colour};
-use inssplat_metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
 use inssplat_geometry::rotation::turn_deg;
-use inssplat_metrics::pose::{AlignScale, Similarity, camera_errors};
-use inssplat_metrics::segmentation::{InstancePool, consistency_scores, instance_scores, semantic_scores};
-use inssplat_raster::masks::NO_LABEL;
 use inssplat_geometry::target_pose::refine_pose;
+use inssplat_metrics::image::{depth_abs_rel, depth_abs_rel_where, psnr, ssim};
+use inssplat_metrics::pose::{AlignScale, Similarity, camera_errors};
+use inssplat_metrics::segmentation::{
+    InstancePool, consistency_scores, instance_scores, semantic_scores,
+};
+use inssplat_proto::dataset::Scene;
 use inssplat_proto::shape::LabelledDescriptor;
+use inssplat_raster::masks::NO_LABEL;
+use inssplat_raster::masks::{fill_uncovered, render_colour};
 use inssplat_text::LabelCache;
+use inssplat_understand::label::QueryRule;
 use serde::Serialize;
 
-use inssplat_pipeline::reconstruct::{InputImage, Known, PipelineConfig, Reconstruction, reconstruct};
-use inssplat_pipeline::output::png_bytes;
-use inssplat_pipeline::backend::Model;
 use super::ceiling::{ContextView, context_instances};
 use super::confusion::Confusion;
+use super::mean;
 use super::perturb::{self, Perturbation};
 use super::photos::photo_images;
-use super::mean;
 use super::query_rules::{QueryScores, query_scores};
 use super::views::{ClusterMode, pixel_labels, segment};
+use inssplat_pipeline::backend::Model;
+use inssplat_pipeline::output::png_bytes;
+use inssplat_pipeline::reconstruct::{
+    InputImage, Known, PipelineConfig, Reconstruction, reconstruct,
+};
 
 /// Every number of one (scene, view count); `None` where the scene cannot give it.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -162,12 +166,24 @@ pub struct Settings<'a> {
 }
 
 /// The context frames of `scene` for `views` views (after an overlap perturbation), checked.
-fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation>, resolution: usize) -> Result<Vec<usize>, String> {
-    let eval = scene.eval.as_ref().ok_or("transforms.json has no `eval` split (synthesize with --split test)")?;
-    let context = eval.context_for(views).ok_or_else(|| format!("no {views}-view context set in `eval.context`"))?;
+fn context_frames(
+    scene: &Scene,
+    views: usize,
+    perturbation: Option<Perturbation>,
+    resolution: usize,
+) -> Result<Vec<usize>, String> {
+    let eval = scene
+        .eval
+        .as_ref()
+        .ok_or("transforms.json has no `eval` split (synthesize with --split test)")?;
+    let context = eval
+        .context_for(views)
+        .ok_or_else(|| format!("no {views}-view context set in `eval.context`"))?;
     let res = resolution as u32;
     if scene.frames.iter().any(|f| f.width() != res || f.height() != res) {
-        return Err(format!("frames must be {res}×{res}, the model resolution (synthesize with --size {res})"));
+        return Err(format!(
+            "frames must be {res}×{res}, the model resolution (synthesize with --size {res})"
+        ));
     }
     Ok(match perturbation {
         Some(p) => p.context(context, &eval.target, scene.frames.len(), views),
@@ -176,7 +192,11 @@ fn context_frames(scene: &Scene, views: usize, perturbation: Option<Perturbation
 }
 
 /// The frames `context` of `scene` (perturbed if asked) as PNG-encoded photos.
-pub fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Perturbation>) -> Vec<InputImage> {
+pub fn context_images(
+    scene: &Scene,
+    context: &[usize],
+    perturbation: Option<Perturbation>,
+) -> Vec<InputImage> {
     let name = scene.name();
     context
         .iter()
@@ -184,9 +204,15 @@ pub fn context_images(scene: &Scene, context: &[usize], perturbation: Option<Per
             let frame = &scene.frames[i];
             let mut rgb = frame.rgb.clone();
             if let Some(p) = perturbation {
-                p.apply(&mut rgb, frame.width() as usize, frame.height() as usize, perturb::seed(&name, i));
+                p.apply(
+                    &mut rgb,
+                    frame.width() as usize,
+                    frame.height() as usize,
+                    perturb::seed(&name, i),
+                );
             }
-            let img = RgbImage::from_raw(frame.width(), frame.height(), rgb).expect("frame rgb is w·h·3");
+            let img =
+                RgbImage::from_raw(frame.width(), frame.height(), rgb).expect("frame rgb is w·h·3");
             InputImage { name: format!("{name}/frame {i}"), bytes: png_bytes(&img) }
         })
         .collect()
@@ -201,7 +227,8 @@ pub fn reconstruct_context(
     vocabulary: &[String],
     config: &PipelineConfig,
 ) -> anyhow::Result<(Reconstruction, Vec<String>)> {
-    let context = context_frames(scene, views, None, model.network.resolution).map_err(anyhow::Error::msg)?;
+    let context =
+        context_frames(scene, views, None, model.network.resolution).map_err(anyhow::Error::msg)?;
     let images = context_images(scene, &context, None);
     let names = images.iter().map(|i| i.name.clone()).collect();
     Ok((reconstruct(model, labels, &images, vocabulary, config)?, names))
@@ -229,23 +256,40 @@ pub fn evaluate_scene_keeping(
 ) -> Result<(SceneScores, Reconstruction, Vec<String>), SceneEvalError> {
     let name = scene.name();
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
-    let context = context_frames(scene, views, settings.perturbation, model.network.resolution).map_err(&bad)?;
+    let context = context_frames(scene, views, settings.perturbation, model.network.resolution)
+        .map_err(&bad)?;
     let images = match settings.photos {
         Some(dir) => photo_images(dir, scene, &context).map_err(&bad)?,
         None => context_images(scene, &context, settings.perturbation),
     };
     let known;
     let pipeline = if settings.switches.known_poses || settings.switches.known_depth {
-        let poses = settings.switches.known_poses.then(|| context.iter().map(|&i| scene.frames[i].camera).collect());
+        let poses = settings
+            .switches
+            .known_poses
+            .then(|| context.iter().map(|&i| scene.frames[i].camera).collect());
         let depth = match settings.switches.known_depth {
             false => None,
-            true => Some(context.iter().map(|&i| scene.frames[i].depth.as_deref().ok_or_else(|| bad(format!("frame {i} has no depth (--known-depth needs it)")))).collect::<Result<Vec<_>, _>>()?.concat()),
+            true => Some(
+                context
+                    .iter()
+                    .map(|&i| {
+                        scene.frames[i].depth.as_deref().ok_or_else(|| {
+                            bad(format!("frame {i} has no depth (--known-depth needs it)"))
+                        })
+                    })
+                    .collect::<Result<Vec<_>, _>>()?
+                    .concat(),
+            ),
         };
         let median_depth = match (settings.switches.known_poses, model.network.rays) {
             (true, Some(_)) => Some(median_true_depth(scene, &context).ok_or_else(|| bad("the context frames have no depth (a network that reads camera rays needs the scene's scale with --known-poses)".into()))?),
             _ => None,
         };
-        known = PipelineConfig { known: Known { poses, depth, median_depth }, ..settings.pipeline.clone() };
+        known = PipelineConfig {
+            known: Known { poses, depth, median_depth },
+            ..settings.pipeline.clone()
+        };
         &known
     } else {
         settings.pipeline
@@ -270,7 +314,8 @@ pub fn evaluate_scene_keeping(
         refine_context_psnr: rec.refinement.as_ref().map(|r| r.psnr()),
         ..SceneScores::default()
     };
-    let depth_scale = context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;
+    let depth_scale =
+        context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;
     let scale = match depth_scale {
         Some(d) if !settings.switches.known_poses => AlignScale::Fixed(d),
         _ => AlignScale::Centres,
@@ -285,7 +330,12 @@ pub fn evaluate_scene_keeping(
 /// The median of the true depth over the surface pixels of the `context` frames, the scale
 /// the trainer divides camera rays by.
 fn median_true_depth(scene: &Scene, context: &[usize]) -> Option<f32> {
-    let depth: Vec<f32> = context.iter().filter_map(|&i| scene.frames[i].depth.as_deref()).flatten().copied().collect();
+    let depth: Vec<f32> = context
+        .iter()
+        .filter_map(|&i| scene.frames[i].depth.as_deref())
+        .flatten()
+        .copied()
+        .collect();
     inssplat_proto::rays::median_depth(&depth)
 }
 
@@ -306,7 +356,9 @@ fn context_scores(
     let mut pairs: Vec<(Vec<u32>, Vec<u32>)> = Vec::new();
     let texts = match mode {
         ClusterMode::ThreeD => Vec::new(),
-        ClusterMode::TwoD => labels.embed(&rec.vocabulary.iter().map(String::as_str).collect::<Vec<_>>()).map_err(|e| err(&e))?,
+        ClusterMode::TwoD => labels
+            .embed(&rec.vocabulary.iter().map(String::as_str).collect::<Vec<_>>())
+            .map_err(|e| err(&e))?,
     };
     // Per depth pixel: whether it shows an object (`None` once a view with depth has no ids).
     let mut objects = Some(Vec::new());
@@ -316,7 +368,9 @@ fn context_scores(
             pred_depth.extend_from_slice(&view.depth);
             true_depth.extend_from_slice(d);
             objects = objects.zip(frame.instances.as_ref()).map(|(mut o, ids)| {
-                o.extend(ids.iter().map(|&id| scene.label_of(id).is_some_and(|l| !SHELL.contains(&l))));
+                o.extend(
+                    ids.iter().map(|&id| scene.label_of(id).is_some_and(|l| !SHELL.contains(&l))),
+                );
                 o
             });
         }
@@ -336,10 +390,13 @@ fn context_scores(
     s.depth_abs_rel = depth.as_ref().map(|d| d.abs_rel);
     if let (Some(d), Some(objects)) = (&depth, &objects) {
         let shell: Vec<bool> = objects.iter().map(|o| !o).collect();
-        s.depth_abs_rel_objects = depth_abs_rel_where(&pred_depth, &true_depth, d.scale, objects).map_err(|e| err(&e))?;
-        s.depth_abs_rel_shell = depth_abs_rel_where(&pred_depth, &true_depth, d.scale, &shell).map_err(|e| err(&e))?;
+        s.depth_abs_rel_objects =
+            depth_abs_rel_where(&pred_depth, &true_depth, d.scale, objects).map_err(|e| err(&e))?;
+        s.depth_abs_rel_shell =
+            depth_abs_rel_where(&pred_depth, &true_depth, d.scale, &shell).map_err(|e| err(&e))?;
     }
-    let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
+    let pairs: Vec<(&[u32], &[u32])> =
+        pairs.iter().map(|(p, g)| (p.as_slice(), g.as_slice())).collect();
     if mode == ClusterMode::ThreeD {
         s.shape_examples = shape_examples(scene, rec, &pairs);
     }
@@ -350,7 +407,9 @@ fn context_scores(
             .zip(&pairs)
             .map(|(v, (ids, truth))| ContextView { gaussians: &v.gaussians, ids, truth })
             .collect();
-        if let Some((clustered, ceiling)) = context_instances(&rec.scene.instance_embedding, &views).map_err(|e| err(&e))? {
+        if let Some((clustered, ceiling)) =
+            context_instances(&rec.scene.instance_embedding, &views).map_err(|e| err(&e))?
+        {
             s.context_instance_miou = Some(clustered);
             s.context_ceiling_miou = Some(ceiling);
         }
@@ -373,7 +432,11 @@ const OBJECT_SHARE: f64 = 0.25;
 /// the most when objects hold at least [`OBJECT_SHARE`] of its labelled pixels (clusters that
 /// hold an object and a piece of floor are named for the object, as a user would).
 /// Instances without labelled pixels are left out.
-fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[(&[u32], &[u32])], object_first: bool) -> BTreeMap<u32, &'s str> {
+fn true_instance_labels<'s>(
+    label_of: impl Fn(u16) -> Option<&'s str>,
+    pairs: &[(&[u32], &[u32])],
+    object_first: bool,
+) -> BTreeMap<u32, &'s str> {
     let mut votes: BTreeMap<u32, BTreeMap<&str, usize>> = BTreeMap::new();
     for (found, truth) in pairs {
         for (&f, &t) in found.iter().zip(*truth) {
@@ -382,7 +445,9 @@ fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[
             }
         }
     }
-    let top = |it: &mut dyn Iterator<Item = (&&'s str, &usize)>| it.max_by_key(|(_, n)| **n).map(|(l, _)| *l);
+    let top = |it: &mut dyn Iterator<Item = (&&'s str, &usize)>| {
+        it.max_by_key(|(_, n)| **n).map(|(l, _)| *l)
+    };
     votes
         .iter()
         .filter_map(|(&id, v)| {
@@ -404,14 +469,22 @@ fn true_instance_labels<'s>(label_of: impl Fn(u16) -> Option<&'s str>, pairs: &[
 /// as in a train room, where the shell has labels: the shell's, unless objects hold a quarter
 /// of it. The prototype is the unfused one (as a semantic classifier reads it), whatever
 /// `--shape-weight` named the instances with.
-fn shape_examples(scene: &Scene, rec: &Reconstruction, pairs: &[(&[u32], &[u32])]) -> Vec<LabelledDescriptor> {
+fn shape_examples(
+    scene: &Scene,
+    rec: &Reconstruction,
+    pairs: &[(&[u32], &[u32])],
+) -> Vec<LabelledDescriptor> {
     let labels = true_instance_labels(|id| truth_label(scene, id), pairs, true);
     rec.descriptors
         .iter()
         .filter_map(|(id, d)| {
             let label = labels.get(id)?.to_string();
-            let prototype =
-                rec.unfused_prototypes.iter().find(|p| p.id == *id).map(|p| p.embedding.clone()).unwrap_or_default();
+            let prototype = rec
+                .unfused_prototypes
+                .iter()
+                .find(|p| p.id == *id)
+                .map(|p| p.embedding.clone())
+                .unwrap_or_default();
             Some(LabelledDescriptor { label, descriptor: *d, prototype, scene: scene.name() })
         })
         .collect()
@@ -429,7 +502,12 @@ fn name_by_truth(rec: &mut Reconstruction, scene: &Scene, context: &[usize]) {
         .views
         .iter()
         .zip(context)
-        .filter_map(|(view, &f)| Some((view.instance_ids.as_slice(), scene.frames[f].instances.as_ref()?.iter().map(|&i| u32::from(i)).collect())))
+        .filter_map(|(view, &f)| {
+            Some((
+                view.instance_ids.as_slice(),
+                scene.frames[f].instances.as_ref()?.iter().map(|&i| u32::from(i)).collect(),
+            ))
+        })
         .collect();
     let pairs: Vec<(&[u32], &[u32])> = pairs.iter().map(|(p, t)| (*p, t.as_slice())).collect();
     let labels = true_instance_labels(|id| truth_label(scene, id), &pairs, false);
@@ -458,7 +536,10 @@ fn align_cameras(
 ) -> Result<Option<Similarity>, String> {
     let pred_cams: Vec<_> = rec.views.iter().map(|v| v.camera).collect();
     let true_cams: Vec<_> = context.iter().map(|&i| scene.frames[i].camera).collect();
-    let Some(pose) = camera_errors(&pred_cams, &true_cams, scale).map_err(|e| e.to_string())? else { return Ok(None) };
+    let Some(pose) = camera_errors(&pred_cams, &true_cams, scale).map_err(|e| e.to_string())?
+    else {
+        return Ok(None);
+    };
     s.rotation_deg = Some(pose.rotation_deg);
     s.translation = Some(pose.translation);
     Ok(Some(pose.alignment.inverse()))
@@ -493,21 +574,32 @@ fn target_scores(
         let truth = frame.planar_rgb();
         let mut camera = to_pred.map_camera(&frame.camera);
         if settings.switches.target_pose_steps > 0 {
-            let refined = refine_pose(&rec.scene, &camera, &truth, settings.switches.target_pose_steps).map_err(|e| err(&e))?;
+            let refined =
+                refine_pose(&rec.scene, &camera, &truth, settings.switches.target_pose_steps)
+                    .map_err(|e| err(&e))?;
             turns.push(turn_deg(&refined.camera, &camera));
             camera = refined.camera;
         }
-        let colour = render_colour(&rec.scene, &camera, !settings.switches.no_fill).map_err(|e| err(&e))?;
+        let colour =
+            render_colour(&rec.scene, &camera, !settings.switches.no_fill).map_err(|e| err(&e))?;
         let colour: Vec<f32> = colour.iter().map(|v| v.clamp(0.0, 1.0)).collect();
         psnrs.push(psnr(&colour, &truth).map_err(|e| err(&e))?);
-        ssims.push(ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize).map_err(|e| err(&e))?);
+        ssims.push(
+            ssim(&colour, &truth, 3, frame.width() as usize, frame.height() as usize)
+                .map_err(|e| err(&e))?,
+        );
         let Some(gt) = &frame.instances else { continue };
         let mut seg = segment(rec, &camera, mode, &texts, params)?;
         if settings.switches.no_aggregation {
             seg.labels = pixel_labels(rec, &camera, &texts)?;
         }
         if !settings.switches.no_fill {
-            fill_uncovered(&mut seg.ids, Some(&mut seg.labels), frame.width() as usize, frame.height() as usize);
+            fill_uncovered(
+                &mut seg.ids,
+                Some(&mut seg.labels),
+                frame.width() as usize,
+                frame.height() as usize,
+            );
         }
         let gt_ids: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(ins) = instance_scores(&seg.ids, &gt_ids).map_err(|e| err(&e))? {
@@ -529,10 +621,14 @@ fn target_scores(
     s.instance_acc25 = instances.acc_25();
     s.instance_pq = instances.pq();
     // Text queries: the default rule first, then the rules being compared.
-    let rules: Vec<QueryRule> = std::iter::once(QueryRule::default()).chain(settings.query_rules.iter().copied()).collect();
+    let rules: Vec<QueryRule> =
+        std::iter::once(QueryRule::default()).chain(settings.query_rules.iter().copied()).collect();
     let held = scene.label_vocabulary();
     let absent: Vec<u32> = (0..vocabulary.len() as u32)
-        .filter(|&i| !held.contains(&vocabulary[i as usize]) && !SHELL.contains(&vocabulary[i as usize].as_str()))
+        .filter(|&i| {
+            !held.contains(&vocabulary[i as usize])
+                && !SHELL.contains(&vocabulary[i as usize].as_str())
+        })
         .collect();
     let mut by_rule = query_scores(&segs, &gt_labels, &absent, &texts, &rules)?;
     let default = by_rule.remove(0);
@@ -563,8 +659,14 @@ mod tests {
         let found = [7, 7, 7, 7, 7, 7, 7, 7, 7, 8, 8, 8, 8, 8, 8, 8, 8, 8, 9, 9, 9, 9, 9, 10, 0];
         let truth = [1, 1, 1, 1, 1, 1, 2, 2, 0, 1, 1, 1, 1, 1, 1, 1, 3, 3, 2, 2, 3, 3, 3, 0, 2];
         let pairs = [(&found[..], &truth[..])];
-        assert_eq!(true_instance_labels(label_of, &pairs, true), BTreeMap::from([(7, "chair"), (8, "floor"), (9, "table")]));
-        assert_eq!(true_instance_labels(label_of, &pairs, false), BTreeMap::from([(7, "floor"), (8, "floor"), (9, "table")]));
+        assert_eq!(
+            true_instance_labels(label_of, &pairs, true),
+            BTreeMap::from([(7, "chair"), (8, "floor"), (9, "table")])
+        );
+        assert_eq!(
+            true_instance_labels(label_of, &pairs, false),
+            BTreeMap::from([(7, "floor"), (8, "floor"), (9, "table")])
+        );
     }
 
     /// Where the shell is left unlabelled (id 0), `--known-names` counts its pixels as the
@@ -583,13 +685,15 @@ mod tests {
         };
         let found = [3, 3, 3, 3, 3, 3, 3, 3, 5, 5];
         let truth = [0, 0, 0, 0, 0, 4, 4, 4, 4, 9];
-        let labels = true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], false);
+        let labels =
+            true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], false);
         assert_eq!(labels, BTreeMap::from([(3, "wall"), (5, "rug")]));
         // The classifier's examples put objects first: 3 rug pixels of 8 (over a quarter) name
         // instance 3 for the rug, and 1 of 6 leaves instance 6 the shell's.
         let found = [3, 3, 3, 3, 3, 3, 3, 3, 6, 6, 6, 6, 6, 6];
         let truth = [0, 0, 0, 0, 0, 4, 4, 4, 0, 0, 0, 0, 0, 4];
-        let labels = true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], true);
+        let labels =
+            true_instance_labels(|id| truth_label(&scene, id), &[(&found[..], &truth[..])], true);
         assert_eq!(labels, BTreeMap::from([(3, "rug"), (6, "wall")]));
     }
 }

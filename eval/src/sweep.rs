@@ -61,7 +61,9 @@ pub fn mark_pareto(points: &mut [SweepPoint]) {
             .map(|p| {
                 score(p).is_some_and(|sp| {
                     !points.iter().any(|q| {
-                        score(q).is_some_and(|sq| q.seconds <= p.seconds && sq >= sp && (q.seconds < p.seconds || sq > sp))
+                        score(q).is_some_and(|sq| {
+                            q.seconds <= p.seconds && sq >= sp && (q.seconds < p.seconds || sq > sp)
+                        })
                     })
                 })
             })
@@ -76,14 +78,24 @@ pub fn mark_pareto(points: &mut [SweepPoint]) {
 }
 
 /// Point colours, one per view count.
-const VIEW_COLOURS: [RGBColor; 5] =
-    [RGBColor(31, 119, 180), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(214, 39, 40), RGBColor(148, 103, 189)];
+const VIEW_COLOURS: [RGBColor; 5] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+];
 
 fn register_font() -> bool {
     const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *REGISTERED.get_or_init(|| match std::fs::read(FONT) {
-        Ok(bytes) => plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(bytes.into_boxed_slice())).is_ok(),
+        Ok(bytes) => plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            Box::leak(bytes.into_boxed_slice()),
+        )
+        .is_ok(),
         Err(_) => false,
     })
 }
@@ -99,20 +111,30 @@ fn panel<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let scored: Vec<(f64, f64, &SweepPoint)> = points.iter().filter_map(|p| score(p).map(|s| (p.seconds, s, p))).collect();
+    let scored: Vec<(f64, f64, &SweepPoint)> =
+        points.iter().filter_map(|p| score(p).map(|s| (p.seconds, s, p))).collect();
     if scored.is_empty() {
         return Ok(());
     }
-    let (x_max, y_min, y_max) = scored.iter().fold((0.0f64, f64::MAX, f64::MIN), |(x, lo, hi), (t, s, _)| (x.max(*t), lo.min(*s), hi.max(*s)));
+    let (x_max, y_min, y_max) =
+        scored.iter().fold((0.0f64, f64::MAX, f64::MIN), |(x, lo, hi), (t, s, _)| {
+            (x.max(*t), lo.min(*s), hi.max(*s))
+        });
     let pad = ((y_max - y_min) * 0.1).max(1e-3);
     let mut builder = ChartBuilder::on(area);
     builder.margin(12);
     if text {
         builder.caption(title, ("sans-serif", 18)).x_label_area_size(36).y_label_area_size(50);
     }
-    let mut chart = builder.build_cartesian_2d(0.0..x_max * 1.1, (y_min - pad)..(y_max + pad)).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut chart = builder
+        .build_cartesian_2d(0.0..x_max * 1.1, (y_min - pad)..(y_max + pad))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
     if text {
-        chart.configure_mesh().x_desc("seconds per scene (median)").draw().map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("seconds per scene (median)")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     let mut views: Vec<usize> = scored.iter().map(|(_, _, p)| p.knobs.views).collect();
     views.sort_unstable();
@@ -120,15 +142,25 @@ where
     for (i, v) in views.iter().enumerate() {
         let colour = VIEW_COLOURS[i % VIEW_COLOURS.len()];
         let series = chart
-            .draw_series(scored.iter().filter(|(_, _, p)| p.knobs.views == *v).map(|(t, s, _)| Circle::new((*t, *s), 5, colour.filled())))
+            .draw_series(
+                scored
+                    .iter()
+                    .filter(|(_, _, p)| p.knobs.views == *v)
+                    .map(|(t, s, _)| Circle::new((*t, *s), 5, colour.filled())),
+            )
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         if text {
-            series.label(format!("{v} views")).legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
+            series
+                .label(format!("{v} views"))
+                .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
         }
     }
-    let mut front: Vec<(f64, f64)> = scored.iter().filter(|(_, _, p)| on_front(p)).map(|(t, s, _)| (*t, *s)).collect();
+    let mut front: Vec<(f64, f64)> =
+        scored.iter().filter(|(_, _, p)| on_front(p)).map(|(t, s, _)| (*t, *s)).collect();
     front.sort_by(|a, b| a.0.total_cmp(&b.0));
-    chart.draw_series(LineSeries::new(front, BLACK.stroke_width(2))).map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .draw_series(LineSeries::new(front, BLACK.stroke_width(2)))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
     if text {
         chart
             .draw_series(scored.iter().filter(|(_, _, p)| on_front(p)).map(|(t, s, p)| {
@@ -146,13 +178,24 @@ where
     Ok(())
 }
 
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, points: &[SweepPoint], text: bool) -> anyhow::Result<()>
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    points: &[SweepPoint],
+    text: bool,
+) -> anyhow::Result<()>
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let (left, right) = root.split_horizontally(root.dim_in_pixel().0 / 2);
-    panel(&left, points, "instance mIoU vs time (Pareto front in black)", |p| p.instance_miou.map(|v| 100.0 * v), |p| p.pareto_instance, text)?;
+    panel(
+        &left,
+        points,
+        "instance mIoU vs time (Pareto front in black)",
+        |p| p.instance_miou.map(|v| 100.0 * v),
+        |p| p.pareto_instance,
+        text,
+    )?;
     panel(&right, points, "PSNR (dB) vs time", |p| p.psnr, |p| p.pareto_psnr, text)?;
     root.present().map_err(|e| anyhow::anyhow!("{e}"))
 }
@@ -161,9 +204,11 @@ where
 pub fn chart(points: &[SweepPoint], out: &Path) -> anyhow::Result<()> {
     let text = register_font();
     let png = out.join("sweep.png");
-    draw(BitMapBackend::new(&png, (1200, 520)).into_drawing_area(), points, text).with_context(|| format!("drawing {}", png.display()))?;
+    draw(BitMapBackend::new(&png, (1200, 520)).into_drawing_area(), points, text)
+        .with_context(|| format!("drawing {}", png.display()))?;
     let svg = out.join("sweep.svg");
-    draw(SVGBackend::new(&svg, (1200, 520)).into_drawing_area(), points, text).with_context(|| format!("drawing {}", svg.display()))
+    draw(SVGBackend::new(&svg, (1200, 520)).into_drawing_area(), points, text)
+        .with_context(|| format!("drawing {}", svg.display()))
 }
 
 #[cfg(test)]

@@ -10,11 +10,15 @@
 //! rendered semantic feature instead, the instances staying as they are.
 
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM};
+use inssplat_raster::masks::NO_LABEL;
+use inssplat_raster::masks::{
+    FeatureImage, MASK_ALPHA, label_map, render_features, render_instance_ids,
+};
 use inssplat_understand::cluster::ClusterParams;
 use inssplat_understand::cluster::per_view::{FeatureMap, cluster_view};
-use inssplat_raster::masks::{FeatureImage, MASK_ALPHA, label_map, render_features, render_instance_ids};
-use inssplat_understand::label::{InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_raster::masks::NO_LABEL;
+use inssplat_understand::label::{
+    InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes,
+};
 
 use inssplat_pipeline::reconstruct::{Reconstruction, label_table, own_label_scores};
 
@@ -52,21 +56,35 @@ pub fn segment(
     match mode {
         ClusterMode::ThreeD => {
             let label_of_id = label_table(&rec.instances, &rec.vocabulary);
-            let ids = render_instance_ids(&rec.scene, camera, label_of_id.len()).map_err(|e| err(&e))?;
+            let ids =
+                render_instance_ids(&rec.scene, camera, label_of_id.len()).map_err(|e| err(&e))?;
             let own_scores = own_label_scores(&rec.prototypes, &rec.instances);
-            Ok(ViewSegmentation { labels: label_map(&ids, &label_of_id), ids, prototypes: rec.prototypes.clone(), own_scores })
+            Ok(ViewSegmentation {
+                labels: label_map(&ids, &label_of_id),
+                ids,
+                prototypes: rec.prototypes.clone(),
+                own_scores,
+            })
         }
         ClusterMode::TwoD => {
             let image = render_features(&rec.scene, camera).map_err(|e| err(&e))?;
-            let clustering =
-                cluster_view(&FeatureMap { features: &image.instance, alpha: &image.alpha }, params).map_err(|e| err(&e))?;
+            let clustering = cluster_view(
+                &FeatureMap { features: &image.instance, alpha: &image.alpha },
+                params,
+            )
+            .map_err(|e| err(&e))?;
             let (prototypes, matches) = name_pixel_groups(rec, &image, &clustering.ids, texts)?;
             let mut label_of_id = vec![None; clustering.prototypes.len()];
             for (p, m) in prototypes.iter().zip(&matches) {
                 label_of_id[p.id as usize - 1] = m.map(|m| m.label);
             }
             let own_scores = matches.iter().map(|m| m.map_or(f32::MIN, |m| m.score)).collect();
-            Ok(ViewSegmentation { labels: label_map(&clustering.ids, &label_of_id), ids: clustering.ids, prototypes, own_scores })
+            Ok(ViewSegmentation {
+                labels: label_map(&clustering.ids, &label_of_id),
+                ids: clustering.ids,
+                prototypes,
+                own_scores,
+            })
         }
     }
 }
@@ -74,9 +92,18 @@ pub fn segment(
 /// Labels of the view seen by `camera` pixel by pixel, each from its own rendered semantic
 /// feature (no aggregation over instances); `NO_LABEL` where the accumulated alpha is at most
 /// [`MASK_ALPHA`].
-pub fn pixel_labels(rec: &Reconstruction, camera: &Camera, texts: &[[f32; 384]]) -> Result<Vec<u32>, String> {
+pub fn pixel_labels(
+    rec: &Reconstruction,
+    camera: &Camera,
+    texts: &[[f32; 384]],
+) -> Result<Vec<u32>, String> {
     let image = render_features(&rec.scene, camera).map_err(|e| e.to_string())?;
-    let own: Vec<u32> = image.alpha.iter().enumerate().map(|(p, &a)| if a > MASK_ALPHA { p as u32 + 1 } else { 0 }).collect();
+    let own: Vec<u32> = image
+        .alpha
+        .iter()
+        .enumerate()
+        .map(|(p, &a)| if a > MASK_ALPHA { p as u32 + 1 } else { 0 })
+        .collect();
     let (prototypes, matches) = name_pixel_groups(rec, &image, &own, texts)?;
     let mut labels = vec![NO_LABEL; own.len()];
     for (p, m) in prototypes.iter().zip(&matches) {

@@ -36,7 +36,9 @@ impl Adam {
         assert!(!lrs.is_empty(), "no learning rate");
         self.t += 1;
         let (c1, c2) = (1.0 - BETA1.powi(self.t), 1.0 - BETA2.powi(self.t));
-        for (i, ((p, &g), (m, v))) in params.iter_mut().zip(grads).zip(self.m.iter_mut().zip(&mut self.v)).enumerate() {
+        for (i, ((p, &g), (m, v))) in
+            params.iter_mut().zip(grads).zip(self.m.iter_mut().zip(&mut self.v)).enumerate()
+        {
             *m = BETA1 * *m + (1.0 - BETA1) * g;
             *v = BETA2 * *v + (1.0 - BETA2) * g * g;
             *p -= lrs[i % lrs.len()] * (*m / c1) / ((*v / c2).sqrt() + EPSILON);
@@ -56,7 +58,13 @@ impl Default for PoseAdam {
 }
 
 impl PoseAdam {
-    pub fn step(&mut self, camera: &mut Camera, grad: &CameraGrad, lr_rotation: f32, lr_translation: f32) {
+    pub fn step(
+        &mut self,
+        camera: &mut Camera,
+        grad: &CameraGrad,
+        lr_rotation: f32,
+        lr_translation: f32,
+    ) {
         let (q, t) = (camera.rotation, camera.translation);
         let mut pose = [q.w, q.x, q.y, q.z, t.x, t.y, t.z];
         let [gw, gx, gy, gz] = grad.rotation;

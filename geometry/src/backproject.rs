@@ -8,8 +8,8 @@
 //! pixel, so per-Gaussian results map back onto the views ([`BackProjected::to_pixels`]).
 
 use glam::{Quat, Vec3};
-use inssplat_proto::signature::GAUSSIAN_CHANNELS;
 use inssplat_proto::gaussian::Gaussian;
+use inssplat_proto::signature::GAUSSIAN_CHANNELS;
 use inssplat_proto::{Camera, GaussianScene, INSTANCE_DIM};
 use rayon::prelude::*;
 
@@ -76,7 +76,8 @@ impl BackProjected {
     /// rendered at 1/`stride` of their resolution: a cheap stand-in for comparing renders at
     /// that size. Only what a colour render reads is kept (no embeddings or features).
     pub fn thinned(&self, width: u32, height: u32, stride: u32) -> GaussianScene {
-        let (w, per_view, stride) = (width as usize, (width * height) as usize, stride.max(1) as usize);
+        let (w, per_view, stride) =
+            (width as usize, (width * height) as usize, stride.max(1) as usize);
         let grow = (stride as f32).ln();
         let mut out = GaussianScene::with_sem_dim(0);
         let s = &self.scene;
@@ -102,11 +103,15 @@ impl BackProjected {
 }
 
 /// Back-projects every view into one scene whose semantic features have `sem_dim` channels.
-pub fn backproject(views: &[ViewOutputs<'_>], sem_dim: usize) -> Result<BackProjected, BackprojectError> {
+pub fn backproject(
+    views: &[ViewOutputs<'_>],
+    sem_dim: usize,
+) -> Result<BackProjected, BackprojectError> {
     for (v, view) in views.iter().enumerate() {
         check_shapes(v, view, sem_dim)?;
     }
-    let parts: Vec<(GaussianScene, Vec<u32>)> = views.par_iter().map(|view| backproject_view(view, sem_dim)).collect();
+    let parts: Vec<(GaussianScene, Vec<u32>)> =
+        views.par_iter().map(|view| backproject_view(view, sem_dim)).collect();
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
     let total = parts.iter().map(|(s, _)| s.len()).sum();
     scene.reserve(total);
@@ -267,7 +272,10 @@ mod tests {
         for (i, m) in s.means.iter().enumerate() {
             let pc = cam.world_to_camera(Vec3::from(*m));
             let (u, v) = cam.project(pc);
-            assert!((u - ((i % 2) as f32 + 0.5)).abs() < 1e-4 && (v - ((i / 2) as f32 + 0.5)).abs() < 1e-4);
+            assert!(
+                (u - ((i % 2) as f32 + 0.5)).abs() < 1e-4
+                    && (v - ((i / 2) as f32 + 0.5)).abs() < 1e-4
+            );
             assert!((pc.z - 2.0).abs() < 1e-4);
         }
         // The world rotation, seen from the camera, is the camera-frame one.
@@ -291,6 +299,9 @@ mod tests {
         assert_eq!(b.to_pixels(&[1, 2, 3, 4]), [0, 0, 1, 2, 0, 0, 3, 4]);
         p.semantic.pop();
         let err = backproject(&[view(&cam, &planes(1)), view(&cam, &p)], 1).unwrap_err();
-        assert!(matches!(err, BackprojectError::Shape { view: 1, tensor: "semantic", .. }), "{err}");
+        assert!(
+            matches!(err, BackprojectError::Shape { view: 1, tensor: "semantic", .. }),
+            "{err}"
+        );
     }
 }

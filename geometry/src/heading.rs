@@ -18,9 +18,9 @@ use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, GaussianScene};
 use rayon::prelude::*;
 
+use crate::target_pose::downsample;
 use inssplat_raster::masks::{MASK_ALPHA, MaskError, colours, splats};
 use inssplat_raster::render::{Splats, render};
-use crate::target_pose::downsample;
 
 /// Tunables of [`place_by_heading`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -51,13 +51,21 @@ impl HeadingParams {
             return f64::INFINITY;
         }
         let c = f64::from(fit.coverage);
-        c * (fit.error + f64::from(self.depth_weight) * fit.depth_error) + (1.0 - c) * f64::from(self.uncovered_cost)
+        c * (fit.error + f64::from(self.depth_weight) * fit.depth_error)
+            + (1.0 - c) * f64::from(self.uncovered_cost)
     }
 }
 
 impl Default for HeadingParams {
     fn default() -> Self {
-        Self { candidates: 36, factor: 4, min_coverage: 0.25, max_error_ratio: 0.9, uncovered_cost: 0.05, depth_weight: 0.05 }
+        Self {
+            candidates: 36,
+            factor: 4,
+            min_coverage: 0.25,
+            max_error_ratio: 0.9,
+            uncovered_cost: 0.05,
+            depth_weight: 0.05,
+        }
     }
 }
 
@@ -142,13 +150,19 @@ fn place_component(
             let k = cameras[v].intrinsics;
             let (w, h) = (k.width as usize / params.factor, k.height as usize / params.factor);
             let cam = Camera { intrinsics: k.scaled_to(w as u32, h as u32), ..cameras[v] };
-            (cam, downsample(photos[v], w, h, params.factor), downsample(depths[v], w, h, params.factor))
+            (
+                cam,
+                downsample(photos[v], w, h, params.factor),
+                downsample(depths[v], w, h, params.factor),
+            )
         })
         .collect();
     let pivot = cameras[root].center();
     let angle_of = |k: usize| k as f32 * std::f32::consts::TAU / params.candidates as f32;
-    let fits: Vec<Fit> =
-        (0..params.candidates).into_par_iter().map(|k| fit(&splats, &small, up, pivot, angle_of(k))).collect::<Result<_, _>>()?;
+    let fits: Vec<Fit> = (0..params.candidates)
+        .into_par_iter()
+        .map(|k| fit(&splats, &small, up, pivot, angle_of(k)))
+        .collect::<Result<_, _>>()?;
     let continued = fits[0];
     let (best_k, best) = fits
         .iter()
@@ -167,7 +181,12 @@ fn place_component(
         }
     }
     let turn = angle.to_degrees();
-    Ok(HeadingChoice { root, turn_deg: if turn > 180.0 { turn - 360.0 } else { turn }, continued, best })
+    Ok(HeadingChoice {
+        root,
+        turn_deg: if turn > 180.0 { turn - 360.0 } else { turn },
+        continued,
+        best,
+    })
 }
 
 /// The world's up direction as the linked cameras see it: the direction most nearly at right
@@ -184,7 +203,9 @@ fn up_axis(cameras: &[&Camera]) -> Option<Vec3> {
     // on trace(M)·I − M from the prior.
     const PRIOR: f32 = 0.01;
     let rows: Vec<Vec3> = cameras.iter().map(|c| c.rotation.conjugate() * Vec3::X).collect();
-    let apply = |u: Vec3| -> Vec3 { rows.iter().map(|x| *x * x.dot(u)).sum::<Vec3>() + PRIOR * (u - prior * prior.dot(u)) };
+    let apply = |u: Vec3| -> Vec3 {
+        rows.iter().map(|x| *x * x.dot(u)).sum::<Vec3>() + PRIOR * (u - prior * prior.dot(u))
+    };
     let trace = rows.iter().map(|x| x.length_squared()).sum::<f32>() + 2.0 * PRIOR;
     let mut u = prior;
     for _ in 0..100 {
@@ -205,7 +226,13 @@ fn turned(camera: &Camera, up: Vec3, pivot: Vec3, angle: f32) -> Camera {
 /// The mean squared colour error and depth disagreement over the pixels the render covers
 /// (alpha above [`MASK_ALPHA`]) of the component's `views` turned by `angle`, and the covered
 /// share.
-fn fit(splats: &Splats<'_>, views: &[(Camera, Vec<f32>, Vec<f32>)], up: Vec3, pivot: Vec3, angle: f32) -> Result<Fit, MaskError> {
+fn fit(
+    splats: &Splats<'_>,
+    views: &[(Camera, Vec<f32>, Vec<f32>)],
+    up: Vec3,
+    pivot: Vec3,
+    angle: f32,
+) -> Result<Fit, MaskError> {
     let (mut error, mut covered, mut pixels, mut depth_error) = (0.0f64, 0usize, 0usize, 0.0f64);
     for (camera, photo, depth) in views {
         let (image, _) = render(splats, &turned(camera, up, pivot, angle), &[0.0; 3])?;
@@ -214,15 +241,22 @@ fn fit(splats: &Splats<'_>, views: &[(Camera, Vec<f32>, Vec<f32>)], up: Vec3, pi
         for (p, &a) in image.alpha.iter().enumerate() {
             if a > MASK_ALPHA {
                 covered += 1;
-                depth_error += f64::from((image.depth[p].max(1e-6) / depth[p].max(1e-6)).ln().abs());
+                depth_error +=
+                    f64::from((image.depth[p].max(1e-6) / depth[p].max(1e-6)).ln().abs());
                 // Compared un-premultiplied, so that a half-covered pixel is not judged dark.
-                error += (0..3).map(|c| f64::from(image.features[c * n + p] / a - photo[c * n + p]).powi(2)).sum::<f64>();
+                error += (0..3)
+                    .map(|c| f64::from(image.features[c * n + p] / a - photo[c * n + p]).powi(2))
+                    .sum::<f64>();
             }
         }
     }
     Ok(match covered {
         0 => Fit { error: f64::INFINITY, coverage: 0.0, depth_error: f64::INFINITY },
-        _ => Fit { error: error / (3 * covered) as f64, coverage: covered as f32 / pixels as f32, depth_error: depth_error / covered as f64 },
+        _ => Fit {
+            error: error / (3 * covered) as f64,
+            coverage: covered as f32 / pixels as f32,
+            depth_error: depth_error / covered as f64,
+        },
     })
 }
 

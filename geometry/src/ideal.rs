@@ -110,7 +110,10 @@ pub fn ideal_view(
             v.gaussians[c * px + p] = value;
         }
         let id = usize::from(id);
-        assert!(id < INSTANCE_DIM, "instance id {id} has no one-hot code in {INSTANCE_DIM} dimensions");
+        assert!(
+            id < INSTANCE_DIM,
+            "instance id {id} has no one-hot code in {INSTANCE_DIM} dimensions"
+        );
         for k in 0..INSTANCE_DIM {
             v.instance[k * px + p] = f32::from(u8::from(k == id)) + noise();
         }
@@ -145,10 +148,16 @@ pub fn depth_normals(frame: &Frame) -> Vec<Vec3> {
         .map(|p| {
             let (x, y) = (p % w, p / w);
             let Some(c) = point(x, y) else { return Vec3::ZERO };
-            let dx =
-                step(c, x.checked_sub(1).and_then(|x| point(x, y)), (x + 1 < w).then(|| point(x + 1, y)).flatten());
-            let dy =
-                step(c, y.checked_sub(1).and_then(|y| point(x, y)), (y + 1 < h).then(|| point(x, y + 1)).flatten());
+            let dx = step(
+                c,
+                x.checked_sub(1).and_then(|x| point(x, y)),
+                (x + 1 < w).then(|| point(x + 1, y)).flatten(),
+            );
+            let dy = step(
+                c,
+                y.checked_sub(1).and_then(|y| point(x, y)),
+                (y + 1 < h).then(|| point(x, y + 1)).flatten(),
+            );
             let (Some(dx), Some(dy)) = (dx, dy) else { return Vec3::ZERO };
             let n = dx.cross(dy).normalize_or_zero();
             // Facing the camera (which sits at the origin of camera space).

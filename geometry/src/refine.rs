@@ -15,9 +15,9 @@ use inssplat_proto::gaussian::rgb_to_sh_dc;
 use inssplat_proto::{Camera, GaussianScene};
 
 use crate::adam::{Adam, PoseAdam};
+use crate::target_pose::median_distance;
 use inssplat_raster::masks::{MaskError, colours, splats};
 use inssplat_raster::render::{render, render_backward};
-use crate::target_pose::median_distance;
 
 /// Adam's step on the positions, as a share of the median distance from the first camera to
 /// the Gaussians (the predicted frame's scale is the depth's, not metres).
@@ -101,7 +101,12 @@ pub fn refine_scene(
     let mut colours = colours(scene);
     let mse_before = mean_error(scene, &colours, cameras, views)?;
     if steps == 0 || views.is_empty() || scene.is_empty() {
-        return Ok(SceneRefinement { steps: 0, mse_before, mse_after: mse_before, gains: vec![1.0; views.len()] });
+        return Ok(SceneRefinement {
+            steps: 0,
+            mse_before,
+            mse_after: mse_before,
+            gains: vec![1.0; views.len()],
+        });
     }
     let n = scene.len();
     let distance = median_distance(scene, &cameras[0]);
@@ -129,13 +134,30 @@ pub fn refine_scene(
         let pixels = image.alpha.len();
         let zeros = vec![0.0; pixels];
         let g = render_backward(&splats, &camera, &state, &d_features, &zeros, &zeros);
-        adam.means.step(scene.means.as_flattened_mut(), g.means.as_flattened(), &[decay * LR_MEAN * distance]);
-        adam.log_scales.step(scene.log_scales.as_flattened_mut(), g.log_scales.as_flattened(), &[decay * LR_LOG_SCALE]);
-        adam.rotations.step(scene.rotations.as_flattened_mut(), g.rotations.as_flattened(), &[decay * LR_ROTATION]);
+        adam.means.step(
+            scene.means.as_flattened_mut(),
+            g.means.as_flattened(),
+            &[decay * LR_MEAN * distance],
+        );
+        adam.log_scales.step(
+            scene.log_scales.as_flattened_mut(),
+            g.log_scales.as_flattened(),
+            &[decay * LR_LOG_SCALE],
+        );
+        adam.rotations.step(
+            scene.rotations.as_flattened_mut(),
+            g.rotations.as_flattened(),
+            &[decay * LR_ROTATION],
+        );
         adam.opacity.step(&mut scene.logit_opacity, &g.logit_opacity, &[decay * LR_OPACITY]);
         adam.colours.step(&mut colours, &g.features, &[decay * LR_COLOUR]);
         if params.cameras && v > 0 {
-            adam.poses[v].step(&mut cameras[v], &g.camera, decay * LR_POSE_ROTATION, decay * LR_POSE_TRANSLATION * distance);
+            adam.poses[v].step(
+                &mut cameras[v],
+                &g.camera,
+                decay * LR_POSE_ROTATION,
+                decay * LR_POSE_TRANSLATION * distance,
+            );
         }
         adam.exposure[v].step(&mut log_gains[v..=v], &[d_gain], &[decay * LR_EXPOSURE]);
         let mean = log_gains.iter().sum::<f32>() / log_gains.len() as f32;
@@ -151,7 +173,12 @@ pub fn refine_scene(
         *sh = [0, 1, 2].map(|c| rgb_to_sh_dc(rgb[c]));
     }
     let mse_after = mean_error(scene, &colours, cameras, views)?;
-    Ok(SceneRefinement { steps, mse_before, mse_after, gains: log_gains.iter().map(|e| e.exp()).collect() })
+    Ok(SceneRefinement {
+        steps,
+        mse_before,
+        mse_after,
+        gains: log_gains.iter().map(|e| e.exp()).collect(),
+    })
 }
 
 /// The Adam moments of each parameter group.
@@ -188,14 +215,24 @@ fn residual(rendered: &[f32], view: RefineView<'_>, camera: &Camera, gain: f32) 
 }
 
 /// Mean over the views of the mean squared colour error inside each view's rect.
-fn mean_error(scene: &GaussianScene, colours: &[f32], cameras: &[Camera], views: &[RefineView<'_>]) -> Result<f64, MaskError> {
+fn mean_error(
+    scene: &GaussianScene,
+    colours: &[f32],
+    cameras: &[Camera],
+    views: &[RefineView<'_>],
+) -> Result<f64, MaskError> {
     let splats = splats(scene, colours, 3);
     let mut total = 0.0;
     for (camera, view) in cameras.iter().zip(views) {
         let (image, _) = render(&splats, camera, &[0.0; 3])?;
         let gradient = residual(&image.features, *view, camera, 1.0);
         // Each entry of the residual is 2(a − b)/count, so Σ (a − b)² / count = Σ g·(a − b) / 2.
-        total += gradient.iter().zip(&image.features).zip(view.photo).map(|((g, a), b)| f64::from(g * (a - b)) / 2.0).sum::<f64>();
+        total += gradient
+            .iter()
+            .zip(&image.features)
+            .zip(view.photo)
+            .map(|((g, a), b)| f64::from(g * (a - b)) / 2.0)
+            .sum::<f64>();
     }
     Ok(total / views.len().max(1) as f64)
 }

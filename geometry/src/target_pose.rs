@@ -37,7 +37,12 @@ pub struct PoseRefinement {
 /// Refines `camera`'s pose over `steps` Adam steps so that `scene`'s colours seen from it
 /// match `photo` (planar `[3][H][W]` in 0..1, the camera's size). Returns the given pose when
 /// the refined one matches worse.
-pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps: usize) -> Result<PoseRefinement, MaskError> {
+pub fn refine_pose(
+    scene: &GaussianScene,
+    camera: &Camera,
+    photo: &[f32],
+    steps: usize,
+) -> Result<PoseRefinement, MaskError> {
     scene.validate()?;
     let (w, h) = (camera.intrinsics.width as usize, camera.intrinsics.height as usize);
     if photo.len() != 3 * w * h {
@@ -47,7 +52,8 @@ pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps:
     let splats = splats(scene, &colours, 3);
     let mse = |cam: &Camera| -> Result<f64, MaskError> {
         let (image, _) = render(&splats, cam, &[0.0; 3])?;
-        Ok(image.features.iter().zip(photo).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>() / photo.len() as f64)
+        Ok(image.features.iter().zip(photo).map(|(a, b)| f64::from(a - b).powi(2)).sum::<f64>()
+            / photo.len() as f64)
     };
     let mse_before = mse(camera)?;
     let lr_t = LR_TRANSLATION * median_distance(scene, camera);
@@ -65,7 +71,8 @@ pub fn refine_pose(scene: &GaussianScene, camera: &Camera, photo: &[f32], steps:
             let (image, state) = render(&splats, &view, &[0.0; 3])?;
             let rendered = blur(&image.features, w, h, sigma);
             let n = rendered.len() as f32;
-            let residual: Vec<f32> = rendered.iter().zip(&target).map(|(a, b)| 2.0 * (a - b) / n).collect();
+            let residual: Vec<f32> =
+                rendered.iter().zip(&target).map(|(a, b)| 2.0 * (a - b) / n).collect();
             // The blur is symmetric (zero padding), so its adjoint is itself.
             let d_features = blur(&residual, w, h, sigma);
             let grads = render_backward(&splats, &view, &state, &d_features, &zeros, &zeros).camera;
@@ -93,7 +100,10 @@ pub(crate) fn downsample(planes: &[f32], w: usize, h: usize, factor: usize) -> V
         .flat_map(|plane| {
             (0..h * w).map(move |p| {
                 let (x, y) = (p % w * factor, p / w * factor);
-                (0..factor).flat_map(|dy| (0..factor).map(move |dx| plane[(y + dy) * fw + x + dx])).sum::<f32>() * norm
+                (0..factor)
+                    .flat_map(|dy| (0..factor).map(move |dx| plane[(y + dy) * fw + x + dx]))
+                    .sum::<f32>()
+                    * norm
             })
         })
         .collect()
@@ -122,7 +132,8 @@ fn blur(planes: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
         return planes.to_vec();
     }
     let r = (3.0 * sigma).ceil() as isize;
-    let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let kernel: Vec<f32> =
+        (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
     let sum: f32 = kernel.iter().sum();
     let kernel: Vec<f32> = kernel.iter().map(|k| k / sum).collect();
     let tap = |src: &[f32], len: usize, at: usize, stride: usize, base: usize| -> f32 {
@@ -165,7 +176,12 @@ mod tests {
         let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| p * q).sum::<f32>();
         // ⟨Ba, b⟩ = ⟨a, Bb⟩: the backward may use the blur as its own adjoint.
         let (ba, bb) = (blur(&a, w, h, 1.2), blur(&b, w, h, 1.2));
-        assert!((dot(&ba, &b) - dot(&a, &bb)).abs() < 1e-3 * dot(&a, &b).abs(), "{} vs {}", dot(&ba, &b), dot(&a, &bb));
+        assert!(
+            (dot(&ba, &b) - dot(&a, &bb)).abs() < 1e-3 * dot(&a, &b).abs(),
+            "{} vs {}",
+            dot(&ba, &b),
+            dot(&a, &bb)
+        );
         let flat = blur(&vec![2.0; 64 * 64], 64, 64, 1.5);
         assert!((flat[32 * 64 + 32] - 2.0).abs() < 1e-4, "interior {}", flat[32 * 64 + 32]);
         assert!(flat[0] < 1.5, "the corner sees the zero padding: {}", flat[0]);
@@ -175,7 +191,8 @@ mod tests {
     #[test]
     fn downsampling_averages_blocks_per_plane() {
         // Two 4×2 planes → two 2×1 planes.
-        let planes = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0, 4.0, 4.0];
+        let planes =
+            [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0, 4.0, 4.0];
         assert_eq!(downsample(&planes, 2, 1, 2), [3.5, 5.5, 0.0, 4.0]);
     }
 }

@@ -7,7 +7,8 @@
 //! direction carries meaning; L is averaged raw because Φ_sem is affine); the covariance is
 //! the weighted second moment Σ wᵢ (Σᵢ + (μᵢ−μ)(μᵢ−μ)ᵀ), turned back into scale and rotation
 //! by eigen-decomposition; confidences add up. Opacity either is a weighted mean too, or keeps
-//! the members' optical depth (see [`OpacityMerge`]). Binning is a parallel sort on the integer voxel
+//! the members' optical depth (see [`OpacityMerge`]). Binning is a parallel sort on the integer
+//! voxel
 //! key (an unbounded grid, no hash table to size), merging runs in parallel over runs of
 //! equal keys, so the output order is deterministic.
 
@@ -104,8 +105,13 @@ impl Voxelized {
     /// photo's superpixels) so reach the Gaussians, and through them the views rendered anew.
     pub fn adopt_member_majority(&mut self, input_ids: &[u32]) {
         assert_eq!(input_ids.len(), self.voxel_of.len(), "one id per input Gaussian");
-        let mut pairs: Vec<(u32, u32)> =
-            self.voxel_of.iter().zip(input_ids).filter(|(v, _)| **v != DROPPED).map(|(&v, &id)| (v, id)).collect();
+        let mut pairs: Vec<(u32, u32)> = self
+            .voxel_of
+            .iter()
+            .zip(input_ids)
+            .filter(|(v, _)| **v != DROPPED)
+            .map(|(&v, &id)| (v, id))
+            .collect();
         pairs.par_sort_unstable();
         // Runs of one (merged Gaussian, id) pair, in order: the longest run of each Gaussian
         // wins, and of equal runs the first, the smaller id.
@@ -187,7 +193,10 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized
     }
     let kept: Vec<u32> = (0..scene.len() as u32)
         .into_par_iter()
-        .filter(|&i| usable(scene, i as usize) && sigmoid(scene.logit_opacity[i as usize]) >= params.min_opacity)
+        .filter(|&i| {
+            usable(scene, i as usize)
+                && sigmoid(scene.logit_opacity[i as usize]) >= params.min_opacity
+        })
         .collect();
     let kept_means: Vec<[f32; 3]> = kept.iter().map(|&i| scene.means[i as usize]).collect();
     let extent = robust_extent(&kept_means);
@@ -199,7 +208,8 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized
         .map(|(m, &i)| ([0, 1, 2].map(|a| (m[a] * inv).floor() as i64), i))
         .collect();
     keyed.par_sort_unstable();
-    let mut starts: Vec<usize> = (0..keyed.len()).filter(|&j| j == 0 || keyed[j].0 != keyed[j - 1].0).collect();
+    let mut starts: Vec<usize> =
+        (0..keyed.len()).filter(|&j| j == 0 || keyed[j].0 != keyed[j - 1].0).collect();
     starts.push(keyed.len());
     let members: Vec<u32> = keyed.into_iter().map(|(_, i)| i).collect();
     let voxels = starts.len() - 1;
@@ -224,7 +234,8 @@ pub fn voxelize(scene: &GaussianScene, params: &VoxelParams) -> Result<Voxelized
             out
         })
         .collect();
-    let mut out = GaussianScene { meta: scene.meta.clone(), ..GaussianScene::with_sem_dim(scene.sem_dim) };
+    let mut out =
+        GaussianScene { meta: scene.meta.clone(), ..GaussianScene::with_sem_dim(scene.sem_dim) };
     out.reserve(voxels);
     for part in parts {
         out.append(part);
@@ -264,7 +275,13 @@ impl Merger {
         Self { weights: Vec::new(), semantic: vec![0.0; sem_dim] }
     }
 
-    fn merge_into(&mut self, scene: &GaussianScene, idx: &[u32], params: &VoxelParams, out: &mut GaussianScene) {
+    fn merge_into(
+        &mut self,
+        scene: &GaussianScene,
+        idx: &[u32],
+        params: &VoxelParams,
+        out: &mut GaussianScene,
+    ) {
         if let [i] = idx {
             let i = *i as usize;
             out.push(Gaussian {
@@ -322,9 +339,15 @@ impl Merger {
             let d = Vec3::from(scene.means[i]) - mean;
             cov += (covariance(scene.log_scales[i], scene.rotations[i]) + outer(d, d)) * w;
         }
-        let (log_scale, rotation) = scale_rotation(cov).unwrap_or((scene.log_scales[best], scene.rotations[best]));
+        let (log_scale, rotation) =
+            scale_rotation(cov).unwrap_or((scene.log_scales[best], scene.rotations[best]));
         if params.opacity == OpacityMerge::Coverage {
-            let depth: f32 = idx.iter().map(|&i| optical_depth(scene.logit_opacity[i as usize], scene.log_scales[i as usize])).sum();
+            let depth: f32 = idx
+                .iter()
+                .map(|&i| {
+                    optical_depth(scene.logit_opacity[i as usize], scene.log_scales[i as usize])
+                })
+                .sum();
             opacity = (1.0 - (-depth / face_area(log_scale)).exp()).min(MAX_MERGED_OPACITY);
         }
         out.push(Gaussian {
@@ -378,7 +401,9 @@ pub fn scale_rotation(cov: Mat3) -> Option<([f32; 3], [f32; 4])> {
     if !eig.eigenvalues.iter().all(|v| v.is_finite()) {
         return None;
     }
-    let col = |k: usize| Vec3::new(eig.eigenvectors[(0, k)], eig.eigenvectors[(1, k)], eig.eigenvectors[(2, k)]);
+    let col = |k: usize| {
+        Vec3::new(eig.eigenvectors[(0, k)], eig.eigenvectors[(1, k)], eig.eigenvectors[(2, k)])
+    };
     let (a, b) = (col(0).normalize(), col(1).normalize());
     // A right-handed frame: the third axis follows from the first two.
     let r = Mat3::from_cols(a, b, a.cross(b).normalize());
@@ -392,7 +417,14 @@ pub fn scale_rotation(cov: Mat3) -> Option<([f32; 3], [f32; 4])> {
 mod tests {
     use super::*;
 
-    fn push(s: &mut GaussianScene, mean: [f32; 3], log_scale: [f32; 3], conf: f32, emb: f32, sem: f32) {
+    fn push(
+        s: &mut GaussianScene,
+        mean: [f32; 3],
+        log_scale: [f32; 3],
+        conf: f32,
+        emb: f32,
+        sem: f32,
+    ) {
         let mut e = [0.0; INSTANCE_DIM];
         e[0] = emb;
         e[1] = 1.0 - emb;
@@ -432,7 +464,11 @@ mod tests {
         // Voxel size 9/9 = 1: both land in voxel (20, 20, 20) with weights 1/4 and 3/4.
         push(&mut s, [20.1, 20.5, 20.5], [-3.0; 3], 1.0, 1.0, 4.0);
         push(&mut s, [20.5, 20.5, 20.5], [-3.0; 3], 3.0, 0.0, 8.0);
-        let params = VoxelParams { extent_fraction: 1.0 / 9.0, opacity: OpacityMerge::Mean, ..VoxelParams::default() };
+        let params = VoxelParams {
+            extent_fraction: 1.0 / 9.0,
+            opacity: OpacityMerge::Mean,
+            ..VoxelParams::default()
+        };
         let Voxelized { scene: out, report, voxel_of } = voxelize(&s, &params).unwrap();
         assert_eq!((report.gaussians_in, report.gaussians_out, report.voxel_size), (102, 101, 1.0));
         let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
@@ -457,7 +493,11 @@ mod tests {
 
     #[test]
     fn coverage_opacity_keeps_a_stacks_composite_and_a_rows_own_opacity() {
-        let coverage = VoxelParams { extent_fraction: 1.0 / 9.0, opacity: OpacityMerge::Coverage, ..VoxelParams::default() };
+        let coverage = VoxelParams {
+            extent_fraction: 1.0 / 9.0,
+            opacity: OpacityMerge::Coverage,
+            ..VoxelParams::default()
+        };
         let merged = |s: &GaussianScene| {
             let out = voxelize(s, &coverage).unwrap().scene;
             let m = out.means.iter().position(|m| m[0] > 15.0).unwrap();
@@ -525,7 +565,8 @@ mod tests {
         push(&mut s, [1.0, 1.0, 0.0], [f32::INFINITY, 0.0, 0.0], 1.0, 1.0, 0.0);
         push(&mut s, [1.0, 1.0, 0.0], [0.0; 3], 1.0, 1.0, 0.0);
         *s.rotations.last_mut().unwrap() = [0.0; 4];
-        let Voxelized { scene: mut out, report, voxel_of } = voxelize(&s, &VoxelParams::default()).unwrap();
+        let Voxelized { scene: mut out, report, voxel_of } =
+            voxelize(&s, &VoxelParams::default()).unwrap();
         assert_eq!((report.dropped, out.len()), (4, 100));
         // The dropped ones point nowhere and take id 0; the others take their voxel's id.
         assert_eq!(&voxel_of[100..], &[DROPPED; 4]);
@@ -535,7 +576,11 @@ mod tests {
         assert_eq!(&ids[100..], &[0; 4]);
         let mut kept = ids[..100].to_vec();
         kept.sort_unstable();
-        assert_eq!(kept, (1..=100).collect::<Vec<u32>>(), "one grid point per voxel, each its own id");
+        assert_eq!(
+            kept,
+            (1..=100).collect::<Vec<u32>>(),
+            "one grid point per voxel, each its own id"
+        );
         let out = merged.scene;
         assert!(out.log_scales.iter().flatten().all(|l| *l == -3.0));
         assert_eq!(scale_rotation(Mat3::from_diagonal(Vec3::new(f32::NAN, 1.0, 1.0))), None);
@@ -560,7 +605,10 @@ mod tests {
         let mut merged = voxelize(&s, &params).unwrap();
         merged.scene.instance_id = vec![9; merged.scene.len()];
         let (a, b) = (merged.voxel_of[100] as usize, merged.voxel_of[103] as usize);
-        assert_eq!((merged.voxel_of[102] as usize, merged.voxel_of[104] as usize, merged.voxel_of[105]), (a, b, DROPPED));
+        assert_eq!(
+            (merged.voxel_of[102] as usize, merged.voxel_of[104] as usize, merged.voxel_of[105]),
+            (a, b, DROPPED)
+        );
         // The grid keeps its own ids; the triple votes 2 against 1 for id 5, the pair ties
         // between 7 and 4 (the smaller wins), and the dropped member's vote counts nowhere.
         let mut input: Vec<u32> = (0..100).map(|i| i % 3).collect();

@@ -3,7 +3,6 @@
 //! back-projection and voxelization of ideal views.
 
 mod heading;
-mod post_scene;
 mod refine;
 mod register_learned;
 mod ring_room;

@@ -1,4 +1,5 @@
-//! Registration on learned descriptors: the analytic room of `post_scene.rs` seen by eight
+//! Registration on learned descriptors: the analytic room of `inssplat_geometry::analytic_room`
+//! seen by eight
 //! cameras on a ring (45° apart), with textureless photos (one flat grey: no keypoint
 //! anywhere) and, per pixel, an ideal descriptor, a function of the world point the pixel
 //! sees (16 random Fourier features: sin and cos of 8 random projections of it), as a
@@ -8,12 +9,12 @@
 use std::time::Instant;
 
 use glam::{Quat, Vec3};
-use inssplat_proto::Camera;
 use inssplat_geometry::register::{Descriptors, RegisterParams, RegisterView, register};
+use inssplat_proto::Camera;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::post_scene::{render_scene, ring_cameras};
+use inssplat_geometry::analytic_room::{render_scene, ring_cameras};
 
 const SIZE: u32 = 128;
 const VIEWS: usize = 8;
@@ -32,7 +33,8 @@ fn ideal_descriptors(camera: &Camera, depth: &[f32], frequencies: &[(Vec3, f32)]
     let (w, pixels) = (SIZE as usize, depth.len());
     let mut out = vec![0.0; DIM * pixels];
     for (p, &z) in depth.iter().enumerate().filter(|(_, z)| **z > 0.0) {
-        let world = camera.camera_to_world(camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, z));
+        let world =
+            camera.camera_to_world(camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, z));
         for (k, (omega, phase)) in frequencies.iter().enumerate() {
             let (s, c) = (omega.dot(world) + phase).sin_cos();
             out[2 * k * pixels + p] = s;
@@ -47,7 +49,11 @@ fn random_frequencies(seed: u64) -> Vec<(Vec3, f32)> {
     (0..FREQUENCIES)
         .map(|_| {
             let dir = loop {
-                let v = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let v = Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
                 if (0.1..1.0).contains(&v.length_squared()) {
                     break v.normalize();
                 }
@@ -66,10 +72,18 @@ fn registered(params: &RegisterParams) -> (inssplat_geometry::register::Registra
     let scene = render_scene(&truths);
     let frequencies = random_frequencies(3);
     let grey = vec![0.5f32; 3 * (SIZE * SIZE) as usize];
-    let depths: Vec<&[f32]> = scene.frames.iter().map(|f| f.depth.as_deref().expect("rendered depth")).collect();
-    let descriptors: Vec<Vec<f32>> = truths.iter().zip(&depths).map(|(c, d)| ideal_descriptors(c, d, &frequencies)).collect();
-    let blank: Vec<Camera> =
-        truths.iter().map(|c| Camera { rotation: Quat::IDENTITY, translation: Vec3::ZERO, intrinsics: c.intrinsics }).collect();
+    let depths: Vec<&[f32]> =
+        scene.frames.iter().map(|f| f.depth.as_deref().expect("rendered depth")).collect();
+    let descriptors: Vec<Vec<f32>> =
+        truths.iter().zip(&depths).map(|(c, d)| ideal_descriptors(c, d, &frequencies)).collect();
+    let blank: Vec<Camera> = truths
+        .iter()
+        .map(|c| Camera {
+            rotation: Quat::IDENTITY,
+            translation: Vec3::ZERO,
+            intrinsics: c.intrinsics,
+        })
+        .collect();
     let views: Vec<RegisterView<'_>> = (0..VIEWS)
         .map(|v| RegisterView {
             rgb: &grey,
@@ -83,7 +97,10 @@ fn registered(params: &RegisterParams) -> (inssplat_geometry::register::Registra
     let start = Instant::now();
     let registration = register(&views, params);
     let used = if params.use_descriptors { "with" } else { "without" };
-    eprintln!("register: {VIEWS} views of {SIZE}², {used} descriptors (D = {DIM}): {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
+    eprintln!(
+        "register: {VIEWS} views of {SIZE}², {used} descriptors (D = {DIM}): {:.1} ms",
+        start.elapsed().as_secs_f64() * 1e3
+    );
     (registration, truths)
 }
 
@@ -96,7 +113,10 @@ fn learned_descriptors_register_textureless_views() {
         // The true pose relative to view 0 (world = view 0's camera).
         let rotation = (truth.rotation * reference.rotation.conjugate()).normalize();
         let translation = truth.translation - rotation * reference.translation;
-        let error = (cam.rotation * rotation.conjugate()).normalize().angle_between(Quat::IDENTITY).to_degrees();
+        let error = (cam.rotation * rotation.conjugate())
+            .normalize()
+            .angle_between(Quat::IDENTITY)
+            .to_degrees();
         let centre = (cam.center() - -(rotation.conjugate() * translation)).length();
         eprintln!("view {v}: rotation off by {error:.3}°, centre by {centre:.4} m");
         assert!(error < MAX_ROTATION_DEG, "view {v}: rotation off by {error}°");

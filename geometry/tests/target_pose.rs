@@ -3,12 +3,12 @@
 //! no context frame saw finds its way back toward the true pose, and the colour error falls.
 
 use glam::{Quat, Vec3};
-use inssplat_proto::{Camera, Intrinsics};
 use inssplat_geometry::rotation::turn_deg;
 use inssplat_geometry::target_pose::refine_pose;
+use inssplat_proto::{Camera, Intrinsics};
 
-use crate::post_scene::render_scene;
 use crate::ring_room::ring_reconstruction;
+use inssplat_geometry::analytic_room::render_scene;
 
 #[test]
 fn a_displaced_target_camera_is_brought_back_by_its_photo() {
@@ -20,12 +20,16 @@ fn a_displaced_target_camera_is_brought_back_by_its_photo() {
     let truth = Camera::look_at(k, Vec3::new(6.0, 4.0, 4.0), Vec3::new(0.0, 0.5, 0.0), Vec3::Y);
     let photo = render_scene(&[truth]).frames[0].planar_rgb();
     let mut start = truth;
-    start.rotation = (Quat::from_axis_angle(Vec3::new(0.3, 1.0, 0.2).normalize(), 3f32.to_radians()) * truth.rotation).normalize();
+    start.rotation =
+        (Quat::from_axis_angle(Vec3::new(0.3, 1.0, 0.2).normalize(), 3f32.to_radians())
+            * truth.rotation)
+            .normalize();
     start.translation += Vec3::new(0.15, -0.1, 0.1);
 
     let refined = refine_pose(&scene, &start, &photo, 90).unwrap();
     let (before, after) = (turn_deg(&start, &truth), turn_deg(&refined.camera, &truth));
-    let (moved_before, moved_after) = (start.center().distance(truth.center()), refined.camera.center().distance(truth.center()));
+    let (moved_before, moved_after) =
+        (start.center().distance(truth.center()), refined.camera.center().distance(truth.center()));
     assert!(after < before / 3.0, "rotation error {before:.2}° → {after:.2}°");
     assert!(moved_after < moved_before, "centre off by {moved_before:.3} → {moved_after:.3}");
     assert!(refined.mse_after < 0.5 * refined.mse_before, "{refined:?}");

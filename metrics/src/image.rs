@@ -13,17 +13,31 @@ pub const SSIM_SIGMA: f64 = 1.5;
 /// PSNR in dB for data range 1 (+∞ for identical images).
 pub fn psnr(pred: &[f32], gt: &[f32]) -> Result<f64, MetricError> {
     same_len("images", pred.len(), gt.len())?;
-    let mse = pred.iter().zip(gt).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum::<f64>()
-        / pred.len().max(1) as f64;
+    let mse =
+        pred.iter().zip(gt).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum::<f64>()
+            / pred.len().max(1) as f64;
     Ok(-10.0 * mse.log10())
 }
 
 /// Mean SSIM of two planar images of `channels` × `height` × `width`.
-pub fn ssim(pred: &[f32], gt: &[f32], channels: usize, width: usize, height: usize) -> Result<f64, MetricError> {
+pub fn ssim(
+    pred: &[f32],
+    gt: &[f32],
+    channels: usize,
+    width: usize,
+    height: usize,
+) -> Result<f64, MetricError> {
     same_len("images", pred.len(), gt.len())?;
     let expected = channels * width * height;
     if pred.len() != expected {
-        return Err(MetricError::Shape { what: "SSIM image", width, height, channels, expected, actual: pred.len() });
+        return Err(MetricError::Shape {
+            what: "SSIM image",
+            width,
+            height,
+            channels,
+            expected,
+            actual: pred.len(),
+        });
     }
     if width < SSIM_WINDOW || height < SSIM_WINDOW {
         return Err(MetricError::TooSmall { width, height });
@@ -35,13 +49,15 @@ pub fn ssim(pred: &[f32], gt: &[f32], channels: usize, width: usize, height: usi
     for c in 0..channels {
         let x: Vec<f64> = pred[c * plane..(c + 1) * plane].iter().map(|&v| f64::from(v)).collect();
         let y: Vec<f64> = gt[c * plane..(c + 1) * plane].iter().map(|&v| f64::from(v)).collect();
-        let filt =
-            |f: &dyn Fn(usize) -> f64| filter_valid(&(0..plane).map(f).collect::<Vec<_>>(), width, height, &window);
+        let filt = |f: &dyn Fn(usize) -> f64| {
+            filter_valid(&(0..plane).map(f).collect::<Vec<_>>(), width, height, &window)
+        };
         let (mx, my) = (filt(&|i| x[i]), filt(&|i| y[i]));
         let (xx, yy, xy) = (filt(&|i| x[i] * x[i]), filt(&|i| y[i] * y[i]), filt(&|i| x[i] * y[i]));
         let mut sum = 0.0;
         for i in 0..mx.len() {
-            let (vx, vy, cxy) = (xx[i] - mx[i] * mx[i], yy[i] - my[i] * my[i], xy[i] - mx[i] * my[i]);
+            let (vx, vy, cxy) =
+                (xx[i] - mx[i] * mx[i], yy[i] - my[i] * my[i], xy[i] - mx[i] * my[i]);
             sum += ((2.0 * mx[i] * my[i] + c1) * (2.0 * cxy + c2))
                 / ((mx[i] * mx[i] + my[i] * my[i] + c1) * (vx + vy + c2));
         }
@@ -53,8 +69,9 @@ pub fn ssim(pred: &[f32], gt: &[f32], channels: usize, width: usize, height: usi
 /// Normalized 1D Gaussian of [`SSIM_WINDOW`] taps, σ = [`SSIM_SIGMA`].
 fn gaussian_window() -> Vec<f64> {
     let half = (SSIM_WINDOW / 2) as f64;
-    let w: Vec<f64> =
-        (0..SSIM_WINDOW).map(|i| (-((i as f64 - half).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp()).collect();
+    let w: Vec<f64> = (0..SSIM_WINDOW)
+        .map(|i| (-((i as f64 - half).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp())
+        .collect();
     let s: f64 = w.iter().sum();
     w.into_iter().map(|v| v / s).collect()
 }
@@ -99,7 +116,8 @@ pub fn depth_abs_rel(pred: &[f32], gt: &[f32]) -> Result<Option<DepthScores>, Me
         let n = v.len();
         if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
     };
-    let scale = median(pairs.iter().map(|p| p.1).collect()) / median(pairs.iter().map(|p| p.0).collect());
+    let scale =
+        median(pairs.iter().map(|p| p.1).collect()) / median(pairs.iter().map(|p| p.0).collect());
     let pixels = pairs.len();
     let abs_rel = mean_abs_rel(pairs.into_iter(), scale).expect("pairs are not empty");
     Ok(Some(DepthScores { abs_rel, scale, pixels }))
@@ -107,7 +125,12 @@ pub fn depth_abs_rel(pred: &[f32], gt: &[f32]) -> Result<Option<DepthScores>, Me
 
 /// AbsRel of `scale`·`pred` over the pixels valid on both sides where `keep` is true (a part of
 /// the image, scored at the scale [`depth_abs_rel`] found for the whole); `None` without one.
-pub fn depth_abs_rel_where(pred: &[f32], gt: &[f32], scale: f64, keep: &[bool]) -> Result<Option<f64>, MetricError> {
+pub fn depth_abs_rel_where(
+    pred: &[f32],
+    gt: &[f32],
+    scale: f64,
+    keep: &[bool],
+) -> Result<Option<f64>, MetricError> {
     same_len("depth maps", pred.len(), gt.len())?;
     same_len("pixel selection", gt.len(), keep.len())?;
     Ok(mean_abs_rel(valid_depth_pairs(pred, gt, |i| keep[i]), scale))
@@ -128,7 +151,8 @@ fn valid_depth_pairs<'a>(
 }
 
 fn mean_abs_rel(pairs: impl Iterator<Item = (f64, f64)>, scale: f64) -> Option<f64> {
-    let (sum, n) = pairs.fold((0.0, 0usize), |(sum, n), (p, g)| (sum + (scale * p - g).abs() / g, n + 1));
+    let (sum, n) =
+        pairs.fold((0.0, 0usize), |(sum, n), (p, g)| (sum + (scale * p - g).abs() / g, n + 1));
     (n > 0).then(|| sum / n as f64)
 }
 
@@ -155,13 +179,22 @@ mod tests {
                 for ty in 0..11 {
                     for tx in 0..11 {
                         let wt = g[ty] * g[tx];
-                        let (a, b) = (f64::from(x[(oy + ty) * w + ox + tx]), f64::from(y[(oy + ty) * w + ox + tx]));
-                        (mx, my, xx, yy, xy) =
-                            (mx + wt * a, my + wt * b, xx + wt * a * a, yy + wt * b * b, xy + wt * a * b);
+                        let (a, b) = (
+                            f64::from(x[(oy + ty) * w + ox + tx]),
+                            f64::from(y[(oy + ty) * w + ox + tx]),
+                        );
+                        (mx, my, xx, yy, xy) = (
+                            mx + wt * a,
+                            my + wt * b,
+                            xx + wt * a * a,
+                            yy + wt * b * b,
+                            xy + wt * a * b,
+                        );
                     }
                 }
                 let (vx, vy, cxy) = (xx - mx * mx, yy - my * my, xy - mx * my);
-                sum += ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+                sum += ((2.0 * mx * my + c1) * (2.0 * cxy + c2))
+                    / ((mx * mx + my * my + c1) * (vx + vy + c2));
             }
         }
         sum / ((w - 10) * (h - 10)) as f64
@@ -178,11 +211,18 @@ mod tests {
         let (a, b) = (f64::from(a), f64::from(b));
         assert!((s - (2.0 * a * b + 1e-4) / (a * a + b * b + 1e-4)).abs() < 1e-6, "{s}");
         // A noisy, contrast-changed copy agrees with the direct 2D computation.
-        let y: Vec<f32> = x.iter().enumerate().map(|(i, v)| 0.5 * v + 0.1 * ((i * 13 % 7) as f32) / 7.0).collect();
+        let y: Vec<f32> = x
+            .iter()
+            .enumerate()
+            .map(|(i, v)| 0.5 * v + 0.1 * ((i * 13 % 7) as f32) / 7.0)
+            .collect();
         let s = ssim(&x, &y, 1, w, h).unwrap();
         assert!((s - ssim_direct(&x, &y, w, h)).abs() < 1e-9, "{s}");
         assert!(s < 0.95);
-        assert_eq!(ssim(&x[..100], &x[..100], 1, 10, 10).unwrap_err(), MetricError::TooSmall { width: 10, height: 10 });
+        assert_eq!(
+            ssim(&x[..100], &x[..100], 1, 10, 10).unwrap_err(),
+            MetricError::TooSmall { width: 10, height: 10 }
+        );
     }
 
     #[test]

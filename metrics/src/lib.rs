@@ -9,11 +9,13 @@ pub mod image;
 pub mod pose;
 pub mod segmentation;
 
-pub use image::{DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, depth_abs_rel_where, psnr, ssim};
+pub use image::{
+    DepthScores, SSIM_SIGMA, SSIM_WINDOW, depth_abs_rel, depth_abs_rel_where, psnr, ssim,
+};
 pub use pose::{AlignScale, PoseScores, Similarity, camera_errors, pose_alignment};
 pub use segmentation::{
-    ConsistencyScores, InstanceMatch, InstancePool, InstanceScores, PanopticCounts, SemanticScores, consistency_scores, instance_scores,
-    mask_iou, semantic_scores,
+    ConsistencyScores, InstanceMatch, InstancePool, InstanceScores, PanopticCounts, SemanticScores,
+    consistency_scores, instance_scores, mask_iou, semantic_scores,
 };
 
 /// Why a metric cannot be computed from its inputs.
@@ -22,7 +24,14 @@ pub enum MetricError {
     #[error("{what}: prediction has {pred} values, ground truth {gt}")]
     Length { what: &'static str, pred: usize, gt: usize },
     #[error("{what}: {width}×{height}×{channels} needs {expected} values, got {actual}")]
-    Shape { what: &'static str, width: usize, height: usize, channels: usize, expected: usize, actual: usize },
+    Shape {
+        what: &'static str,
+        width: usize,
+        height: usize,
+        channels: usize,
+        expected: usize,
+        actual: usize,
+    },
     #[error("SSIM needs images of at least {SSIM_WINDOW}×{SSIM_WINDOW}, got {width}×{height}")]
     TooSmall { width: usize, height: usize },
 }

@@ -36,7 +36,11 @@ impl Similarity {
 
     pub fn inverse(&self) -> Self {
         let rt = self.rotation.transpose();
-        Self { scale: 1.0 / self.scale, rotation: rt, translation: -(rt * self.translation) / self.scale }
+        Self {
+            scale: 1.0 / self.scale,
+            rotation: rt,
+            translation: -(rt * self.translation) / self.scale,
+        }
     }
 
     /// The same physical camera expressed in the target frame: it sees the mapped scene as
@@ -81,17 +85,28 @@ pub enum AlignScale {
 /// R_gt,i·R_pred,iᵀ (camera-to-world), which every camera fixes, however close together the
 /// centres are; its scale comes from `scale`, and its translation then maps the mean predicted
 /// centre onto the mean true one.
-pub fn pose_alignment(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<Similarity>, MetricError> {
+pub fn pose_alignment(
+    pred: &[Camera],
+    gt: &[Camera],
+    scale: AlignScale,
+) -> Result<Option<Similarity>, MetricError> {
     same_len("camera lists", pred.len(), gt.len())?;
     Ok(fit(pred, gt, &centres(pred), &centres(gt), scale))
 }
 
 /// [`pose_alignment`] given both lists' centres.
-fn fit(pred: &[Camera], gt: &[Camera], cp: &[DVec3], cg: &[DVec3], scale: AlignScale) -> Option<Similarity> {
+fn fit(
+    pred: &[Camera],
+    gt: &[Camera],
+    cp: &[DVec3],
+    cg: &[DVec3],
+    scale: AlignScale,
+) -> Option<Similarity> {
     if pred.is_empty() {
         return None;
     }
-    let sum: DMat3 = pred.iter().zip(gt).fold(DMat3::ZERO, |sum, (p, g)| sum + c2w(g) * c2w(p).transpose());
+    let sum: DMat3 =
+        pred.iter().zip(gt).fold(DMat3::ZERO, |sum, (p, g)| sum + c2w(g) * c2w(p).transpose());
     let rotation = nearest_rotation(sum)?;
     let mean = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len() as f64;
     let (ms, md) = (mean(cp), mean(cg));
@@ -120,7 +135,11 @@ fn centres(c: &[Camera]) -> Vec<DVec3> {
 
 /// Camera errors of `pred` against `gt` (same order, view 0 first) after
 /// [`pose_alignment`] with `scale`; `None` for no camera.
-pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Result<Option<PoseScores>, MetricError> {
+pub fn camera_errors(
+    pred: &[Camera],
+    gt: &[Camera],
+    scale: AlignScale,
+) -> Result<Option<PoseScores>, MetricError> {
     same_len("camera lists", pred.len(), gt.len())?;
     let (cp, cg) = (centres(pred), centres(gt));
     let Some(alignment) = fit(pred, gt, &cp, &cg, scale) else { return Ok(None) };
@@ -129,7 +148,8 @@ pub fn camera_errors(pred: &[Camera], gt: &[Camera], scale: AlignScale) -> Resul
         .zip(gt)
         .map(|(p, g)| angle_deg(c2w(g).transpose() * alignment.rotation * c2w(p)))
         .collect();
-    let trans: Vec<f64> = cp.iter().zip(&cg).map(|(p, g)| (alignment.apply(*p) - *g).length()).collect();
+    let trans: Vec<f64> =
+        cp.iter().zip(&cg).map(|(p, g)| (alignment.apply(*p) - *g).length()).collect();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     Ok(Some(PoseScores {
         rotation_deg: mean(&rot),
@@ -151,7 +171,8 @@ mod tests {
         (0..n)
             .map(|i| {
                 let a = i as f32 * std::f32::consts::TAU / n as f32;
-                let eye = glam::Vec3::new(radius * a.cos(), height + 0.1 * i as f32, radius * a.sin());
+                let eye =
+                    glam::Vec3::new(radius * a.cos(), height + 0.1 * i as f32, radius * a.sin());
                 Camera::look_at(k, eye, glam::Vec3::ZERO, glam::Vec3::Y)
             })
             .collect()
@@ -198,7 +219,8 @@ mod tests {
         // turns the fitted alignment by a fifth of that: the turned camera errs by 8°, the
         // others by 2°.
         let centre = pred[3].center();
-        pred[3].rotation = (Quat::from_rotation_z(10f32.to_radians()) * pred[3].rotation).normalize();
+        pred[3].rotation =
+            (Quat::from_rotation_z(10f32.to_radians()) * pred[3].rotation).normalize();
         pred[3].translation = -(pred[3].rotation * centre);
         let p = camera_errors(&pred, &gt, AlignScale::Centres).unwrap().unwrap();
         assert!((p.rotation_deg_per_camera[3] - 8.0).abs() < 0.05, "{p:?}");
@@ -220,7 +242,8 @@ mod tests {
     fn noisy_centres_of_a_camera_turning_on_the_spot_do_not_turn_the_alignment() {
         // A person turning on the spot: centres within 5 cm. Predicted orientations are exact,
         // predicted centres carry noise as large as their spread.
-        let (gt, pred) = on_the_spot(|i| glam::Vec3::new(0.03 * i.sin(), -0.02 * (i * 1.7).cos(), 0.025));
+        let (gt, pred) =
+            on_the_spot(|i| glam::Vec3::new(0.03 * i.sin(), -0.02 * (i * 1.7).cos(), 0.025));
         let p = camera_errors(&pred, &gt, AlignScale::Centres).unwrap().unwrap();
         assert!(p.rotation_deg < 1e-3, "{p:?}");
         assert!(p.alignment.rotation.abs_diff_eq(sim().rotation, 1e-6), "{p:?}");
@@ -230,24 +253,32 @@ mod tests {
     #[test]
     fn a_fixed_scale_places_target_cameras_where_noisy_centres_on_the_spot_do_not() {
         // Turning on the spot (centres within 5 cm, 12.5 cm in the predicted frame) with centres
-        // predicted up to 50 cm off, as registration's translations are on such a scene: the centres
+        // predicted up to 50 cm off, as registration's translations are on such a scene: the
+        // centres
         // misjudge the scale, and a target camera 1 m away is mapped far from where it sees
         // the predicted scene as it saw the true one. The known scale puts it back.
-        let (gt, pred) = on_the_spot(|i| glam::Vec3::new(0.5 * (i * 2.3).sin(), -0.4 * (i * 1.7).cos(), 0.3 * i.sin()));
+        let (gt, pred) = on_the_spot(|i| {
+            glam::Vec3::new(0.5 * (i * 2.3).sin(), -0.4 * (i * 1.7).cos(), 0.3 * i.sin())
+        });
         let to_pred = sim().inverse();
         let k = Intrinsics::from_fov_y(64, 64, 1.0);
-        let target = Camera::look_at(k, glam::Vec3::new(1.0, 1.6, 0.3), glam::Vec3::ZERO, glam::Vec3::Y);
+        let target =
+            Camera::look_at(k, glam::Vec3::new(1.0, 1.6, 0.3), glam::Vec3::ZERO, glam::Vec3::Y);
         let x = glam::Vec3::new(0.3, 0.2, -0.4);
         let (u, v) = target.project(target.world_to_camera(x));
         let pixel_error = |scale: AlignScale| {
             let a = pose_alignment(&pred, &gt, scale).unwrap().unwrap();
-            let (cam, xp) = (a.inverse().map_camera(&target), to_pred.apply(x.as_dvec3()).as_vec3());
+            let (cam, xp) =
+                (a.inverse().map_camera(&target), to_pred.apply(x.as_dvec3()).as_vec3());
             let (u1, v1) = cam.project(cam.world_to_camera(xp));
             (a.scale, (u1 - u).hypot(v1 - v))
         };
         let (centre_scale, centre_px) = pixel_error(AlignScale::Centres);
         let (fixed_scale, fixed_px) = pixel_error(AlignScale::Fixed(0.4));
-        assert!((centre_scale / 0.4 - 1.0).abs() > 0.2, "the centres misjudge the scale: {centre_scale}");
+        assert!(
+            (centre_scale / 0.4 - 1.0).abs() > 0.2,
+            "the centres misjudge the scale: {centre_scale}"
+        );
         assert!(centre_px > 5.0, "{centre_px}");
         assert_eq!(fixed_scale, 0.4);
         assert!(fixed_px < 2.0 && fixed_px < centre_px / 4.0, "{fixed_px} vs {centre_px}");

@@ -132,7 +132,8 @@ impl PanopticCounts {
 
     /// PQ in [0, 1]; `None` when neither side has a segment.
     pub fn pq(&self) -> Option<f64> {
-        let denominator = self.true_positives as f64 + 0.5 * (self.false_positives + self.false_negatives) as f64;
+        let denominator =
+            self.true_positives as f64 + 0.5 * (self.false_positives + self.false_negatives) as f64;
         (denominator > 0.0).then(|| self.matched_iou / denominator)
     }
 }
@@ -189,7 +190,9 @@ impl InstancePool {
     }
 
     pub fn acc_25(&self) -> Option<f64> {
-        (!self.ious.is_empty()).then(|| self.ious.iter().filter(|&&x| x > 0.25).count() as f64 / self.ious.len() as f64)
+        (!self.ious.is_empty()).then(|| {
+            self.ious.iter().filter(|&&x| x > 0.25).count() as f64 / self.ious.len() as f64
+        })
     }
 
     pub fn pq(&self) -> Option<f64> {
@@ -208,7 +211,10 @@ fn panoptic_counts(o: &Overlap, best: &[InstanceMatch]) -> PanopticCounts {
     let false_positives = o
         .pred
         .iter()
-        .filter(|&(p, &size)| !matched.iter().any(|m| m.pred == *p) && 2 * labelled.get(p).copied().unwrap_or(0) >= size)
+        .filter(|&(p, &size)| {
+            !matched.iter().any(|m| m.pred == *p)
+                && 2 * labelled.get(p).copied().unwrap_or(0) >= size
+        })
         .count();
     PanopticCounts {
         matched_iou: matched.iter().map(|m| m.iou).sum(),
@@ -228,7 +234,9 @@ pub struct ConsistencyScores {
 
 /// T-mIoU and T-SR@0.5 over views given as (predicted ids, ground-truth ids) pairs; `None`
 /// when no view shows a ground-truth instance.
-pub fn consistency_scores(views: &[(&[u32], &[u32])]) -> Result<Option<ConsistencyScores>, MetricError> {
+pub fn consistency_scores(
+    views: &[(&[u32], &[u32])],
+) -> Result<Option<ConsistencyScores>, MetricError> {
     let mut overlaps = Vec::with_capacity(views.len());
     for (pred, gt) in views {
         same_len("instance id maps of a view", pred.len(), gt.len())?;
@@ -264,7 +272,11 @@ pub fn consistency_scores(views: &[(&[u32], &[u32])]) -> Result<Option<Consisten
         successes += usize::from(ious.iter().all(|&iou| iou >= 0.5));
     }
     let n = gts.len();
-    Ok(Some(ConsistencyScores { t_miou: sum / n as f64, t_sr: successes as f64 / n as f64, instances: n }))
+    Ok(Some(ConsistencyScores {
+        t_miou: sum / n as f64,
+        t_sr: successes as f64 / n as f64,
+        instances: n,
+    }))
 }
 
 /// IoU of two masks; `None` when both are empty.
@@ -304,7 +316,10 @@ mod tests {
         let s = instance_scores(&pred, &gt).unwrap().unwrap();
         let m = &s.matches;
         assert_eq!((m[0].pred, m[1].pred, m[2].pred), (7, 8, 0));
-        assert!((m[0].iou - 0.75).abs() < 1e-12 && (m[1].iou - 0.5).abs() < 1e-12 && m[2].iou == 0.0, "{m:?}");
+        assert!(
+            (m[0].iou - 0.75).abs() < 1e-12 && (m[1].iou - 0.5).abs() < 1e-12 && m[2].iou == 0.0,
+            "{m:?}"
+        );
         assert!((s.miou - 1.25 / 3.0).abs() < 1e-12);
         assert!((s.acc_25 - 2.0 / 3.0).abs() < 1e-12);
         // Only (7, 1) is above ½; pred 8 (3 of 4 px labelled) is a false positive, gts 2 and 3
@@ -326,8 +341,13 @@ mod tests {
         let whole = instance_scores(&[4; 8], &gt).unwrap().unwrap();
         assert_eq!(whole.panoptic.pq(), Some(1.0));
         // A prediction mostly on unlabelled pixels is no false positive; counts of views add.
-        let mut both = instance_scores(&[4, 4, 5, 5, 5], &[1, 1, 0, 0, 1]).unwrap().unwrap().panoptic;
-        assert_eq!((both.true_positives, both.false_positives, both.false_negatives), (1, 0, 0), "{both:?}");
+        let mut both =
+            instance_scores(&[4, 4, 5, 5, 5], &[1, 1, 0, 0, 1]).unwrap().unwrap().panoptic;
+        assert_eq!(
+            (both.true_positives, both.false_positives, both.false_negatives),
+            (1, 0, 0),
+            "{both:?}"
+        );
         both.add(&split.panoptic);
         assert_eq!((both.true_positives, both.false_positives, both.false_negatives), (2, 1, 0));
         assert_eq!(PanopticCounts::default().pq(), None);
@@ -363,7 +383,10 @@ mod tests {
 
     #[test]
     fn mask_iou_by_hand() {
-        assert_eq!(mask_iou(&[true, true, false, false], &[true, false, true, false]).unwrap(), Some(1.0 / 3.0));
+        assert_eq!(
+            mask_iou(&[true, true, false, false], &[true, false, true, false]).unwrap(),
+            Some(1.0 / 3.0)
+        );
         assert_eq!(mask_iou(&[false], &[false]).unwrap(), None);
     }
 }

@@ -21,7 +21,10 @@ pub fn photo_paths(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
                 .with_context(|| format!("cannot list {}", dir.display()))?
                 .flatten()
                 .map(|e| e.path())
-                .filter(|p| p.extension().is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x))))
+                .filter(|p| {
+                    p.extension()
+                        .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x)))
+                })
                 .collect();
             files.sort();
             if files.is_empty() {
@@ -46,11 +49,12 @@ fn dataset_frames(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let json = dir.join("transforms.json");
     let t = TransformsJson::read(&json)?;
     let n = t.frames.len();
-    let chosen: Vec<usize> = match t.eval.as_ref().and_then(|e| (2..=MAX_VIEWS).rev().find_map(|v| e.context_for(v))) {
-        Some(ctx) => ctx.to_vec(),
-        None if n <= MAX_VIEWS => (0..n).collect(),
-        None => (0..MAX_VIEWS).map(|i| i * n / MAX_VIEWS).collect(),
-    };
+    let chosen: Vec<usize> =
+        match t.eval.as_ref().and_then(|e| (2..=MAX_VIEWS).rev().find_map(|v| e.context_for(v))) {
+            Some(ctx) => ctx.to_vec(),
+            None if n <= MAX_VIEWS => (0..n).collect(),
+            None => (0..MAX_VIEWS).map(|i| i * n / MAX_VIEWS).collect(),
+        };
     Ok(chosen.into_iter().map(|i| dir.join(&t.frames[i].file_path)).collect())
 }
 

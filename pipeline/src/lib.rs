@@ -1,16 +1,17 @@
 //! inssplat-pipeline: the request path. Photos in, a reconstruction out: decode → network →
 //! superpixels → register → heading → rays → back-project → voxelize → cluster → vote →
-//! label → refine → masks ([`reconstruct`], one file a stage in [`stages`]), the network behind the [`backend::Backend`] trait (ONNX Runtime today),
+//! label → refine → masks ([`reconstruct`], one file a stage in [`stages`]), the network behind the
+//! [`backend::Backend`] trait (ONNX Runtime today),
 //! the inputs a user gives ([`inputs`], [`vocab`]) and the outputs written and read back
 //! ([`output`], [`saved`], [`query`], [`render_view`]). No HTTP, no evaluation.
 
 pub mod backend;
-pub mod stages;
 pub mod inputs;
 pub mod output;
 pub mod query;
 pub mod reconstruct;
 pub mod render_view;
 pub mod saved;
+pub mod stages;
 pub mod switches;
 pub mod vocab;

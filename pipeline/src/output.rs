@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use image::{Rgb, RgbImage};
-use inssplat_proto::api::{CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut};
+use inssplat_proto::api::{
+    CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut,
+};
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::masks::NO_LABEL;
 use serde::{Deserialize, Serialize};
@@ -41,13 +43,15 @@ pub fn palette(i: u32) -> [u8; 3] {
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     let tmp = path.with_extension("partial");
     std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
 }
 
 /// `img` encoded as PNG in memory.
 pub fn png_bytes(img: &RgbImage) -> Vec<u8> {
     let mut bytes = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut bytes, image::ImageFormat::Png).expect("PNG encoding into memory cannot fail");
+    img.write_to(&mut bytes, image::ImageFormat::Png)
+        .expect("PNG encoding into memory cannot fail");
     bytes.into_inner()
 }
 
@@ -57,19 +61,31 @@ pub fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
 }
 
 /// An id or label map coloured by `colour`.
-pub fn colour_map(width: u32, height: u32, values: &[u32], colour: impl Fn(u32) -> [u8; 3]) -> RgbImage {
+pub fn colour_map(
+    width: u32,
+    height: u32,
+    values: &[u32],
+    colour: impl Fn(u32) -> [u8; 3],
+) -> RgbImage {
     RgbImage::from_fn(width, height, |x, y| Rgb(colour(values[(y * width + x) as usize])))
 }
 
 /// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.
 fn depth_image(width: u32, height: u32, depth: &[f32]) -> RgbImage {
-    let mut sorted: Vec<f32> = depth.iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect();
+    let mut sorted: Vec<f32> =
+        depth.iter().copied().filter(|d| d.is_finite() && *d > 0.0).collect();
     sorted.sort_by(f32::total_cmp);
-    let pick = |q: f32| sorted.get(((sorted.len().max(1) - 1) as f32 * q) as usize).copied().unwrap_or(1.0);
+    let pick = |q: f32| {
+        sorted.get(((sorted.len().max(1) - 1) as f32 * q) as usize).copied().unwrap_or(1.0)
+    };
     let (lo, hi) = (pick(0.02), pick(0.98).max(pick(0.02) + 1e-6));
     RgbImage::from_fn(width, height, |x, y| {
         let d = depth[(y * width + x) as usize];
-        let v = if d > 0.0 { (255.0 * (1.0 - ((d - lo) / (hi - lo)).clamp(0.0, 1.0))) as u8 } else { 0 };
+        let v = if d > 0.0 {
+            (255.0 * (1.0 - ((d - lo) / (hi - lo)).clamp(0.0, 1.0))) as u8
+        } else {
+            0
+        };
         Rgb([v, v, v])
     })
 }
@@ -120,9 +136,14 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
 
 /// Writes every artefact of `rec` into `out`; `names` are the input files (for
 /// `transforms.json`). Returns the paths written.
-pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) -> anyhow::Result<Vec<PathBuf>> {
+pub fn write_reconstruction(
+    rec: &Reconstruction,
+    names: &[String],
+    out: &Path,
+) -> anyhow::Result<Vec<PathBuf>> {
     for sub in ["instances", "labels"] {
-        std::fs::create_dir_all(out.join(sub)).with_context(|| format!("cannot create {}", out.join(sub).display()))?;
+        std::fs::create_dir_all(out.join(sub))
+            .with_context(|| format!("cannot create {}", out.join(sub).display()))?;
     }
     let mut written = Vec::new();
     let mut ply = Vec::new();
@@ -168,7 +189,8 @@ pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) 
     for (i, v) in rec.views.iter().enumerate() {
         let (w, h) = (v.camera.intrinsics.width, v.camera.intrinsics.height);
         let inst = colour_map(w, h, &v.instance_ids, palette);
-        let labels = colour_map(w, h, &v.labels, |l| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) });
+        let labels =
+            colour_map(w, h, &v.labels, |l| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) });
         for (dir, img) in [("instances", &inst), ("labels", &labels)] {
             let path = out.join(dir).join(format!("{i:03}.png"));
             save_png(&path, img)?;
@@ -185,11 +207,20 @@ pub fn write_reconstruction(rec: &Reconstruction, names: &[String], out: &Path) 
         instances: rec.instances.clone(),
         vocabulary: rec.vocabulary.clone(),
         instance_colours: rec.instances.iter().map(|i| (i.id, palette(i.id))).collect(),
-        label_colours: rec.vocabulary.iter().enumerate().map(|(l, name)| (name.clone(), palette(l as u32 + 1))).collect(),
+        label_colours: rec
+            .vocabulary
+            .iter()
+            .enumerate()
+            .map(|(l, name)| (name.clone(), palette(l as u32 + 1)))
+            .collect(),
         prototypes: rec
             .prototypes
             .iter()
-            .map(|p| PrototypeOut { id: p.id, embedding: p.embedding.clone(), gaussians: p.gaussians })
+            .map(|p| PrototypeOut {
+                id: p.id,
+                embedding: p.embedding.clone(),
+                gaussians: p.gaussians,
+            })
             .collect(),
     };
     let path = out.join("instances.json");
@@ -209,7 +240,12 @@ pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
         gaussians_kept: rec.voxel.gaussians_out,
         refinement: rec.refinement.as_ref().map(|r| {
             let [input_psnr_before, input_psnr_after] = r.psnr();
-            RefinementOut { steps: r.steps, input_psnr_before, input_psnr_after, photo_gains: r.gains.clone() }
+            RefinementOut {
+                steps: r.steps,
+                input_psnr_before,
+                input_psnr_after,
+                photo_gains: r.gains.clone(),
+            }
         }),
     }
 }
@@ -224,7 +260,10 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
         s.instances.len()
     );
     for i in &s.instances {
-        text.push_str(&format!("  #{:<3} {:<20} score {:.2}  {} Gaussians\n", i.id, i.label, i.score, i.gaussians));
+        text.push_str(&format!(
+            "  #{:<3} {:<20} score {:.2}  {} Gaussians\n",
+            i.id, i.label, i.score, i.gaussians
+        ));
     }
     text.push_str(&describe_cameras(&s.cameras));
     if let Some(r) = &s.refinement {
@@ -237,7 +276,8 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
         ));
     }
     let total: f64 = s.timings.iter().map(|t| t.ms).sum();
-    let stages: Vec<String> = s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
+    let stages: Vec<String> =
+        s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
     text.push_str(&format!("outputs in {} (scene.ply, transforms.json, instances/, labels/, instances.json, preview.png)", out.display()));
     text
@@ -247,14 +287,18 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
 /// otherwise, and the field of view.
 fn describe_cameras(cameras: &[CameraOut]) -> String {
     let views = |p: Placement| -> String {
-        let list: Vec<String> = cameras.iter().filter(|c| c.placement == Some(p)).map(|c| c.view.to_string()).collect();
+        let list: Vec<String> =
+            cameras.iter().filter(|c| c.placement == Some(p)).map(|c| c.view.to_string()).collect();
         match list.len() {
             0 => String::new(),
             1 => format!("view {}", list[0]),
             _ => format!("views {}", list.join(", ")),
         }
     };
-    let linked = cameras.iter().filter(|c| matches!(c.placement, Some(Placement::Reference | Placement::Registered))).count();
+    let linked = cameras
+        .iter()
+        .filter(|c| matches!(c.placement, Some(Placement::Reference | Placement::Registered)))
+        .count();
     let mut parts = vec![format!("{linked} of {} views registered to view 0", cameras.len())];
     let continued = views(Placement::Continued);
     if !continued.is_empty() {
@@ -270,11 +314,16 @@ fn describe_cameras(cameras: &[CameraOut]) -> String {
     if let Some(c) = cameras.first() {
         let source = match c.focal {
             Some(FocalSource::Measured) => " (measured from the matches)",
-            Some(FocalSource::CameraHead) => " (the camera head's guess: the matches do not pin it down)",
+            Some(FocalSource::CameraHead) => {
+                " (the camera head's guess: the matches do not pin it down)"
+            }
             Some(FocalSource::Given) => " (given)",
             None => "",
         };
-        parts.push(format!("field of view {:.1}°{source}", (2.0 * (0.5 * c.h as f32 / c.fl_y).atan()).to_degrees()));
+        parts.push(format!(
+            "field of view {:.1}°{source}",
+            (2.0 * (0.5 * c.h as f32 / c.fl_y).atan()).to_degrees()
+        ));
     }
     format!("cameras: {}\n", parts.join("; "))
 }
@@ -283,10 +332,19 @@ fn describe_cameras(cameras: &[CameraOut]) -> String {
 fn contact_sheet(rows: &[[RgbImage; 4]]) -> RgbImage {
     let (tw, th) = rows.first().map_or((1, 1), |r| r[0].dimensions());
     let gap = 2;
-    let mut sheet = RgbImage::from_pixel(4 * (tw + gap) + gap, rows.len() as u32 * (th + gap) + gap, Rgb([255, 255, 255]));
+    let mut sheet = RgbImage::from_pixel(
+        4 * (tw + gap) + gap,
+        rows.len() as u32 * (th + gap) + gap,
+        Rgb([255, 255, 255]),
+    );
     for (r, row) in rows.iter().enumerate() {
         for (c, tile) in row.iter().enumerate() {
-            image::imageops::overlay(&mut sheet, tile, i64::from(gap + c as u32 * (tw + gap)), i64::from(gap + r as u32 * (th + gap)));
+            image::imageops::overlay(
+                &mut sheet,
+                tile,
+                i64::from(gap + c as u32 * (tw + gap)),
+                i64::from(gap + r as u32 * (th + gap)),
+            );
         }
     }
     sheet

@@ -9,8 +9,8 @@ use anyhow::Context;
 use image::{GrayImage, Luma};
 use inssplat_proto::api::{QueryMatch, QueryResponse, RleMask, ViewMask};
 use inssplat_raster::masks::{ids_mask, render_instance_ids};
-use inssplat_understand::label::{QueryRule, query};
 use inssplat_text::LabelCache;
+use inssplat_understand::label::{QueryRule, query};
 use rayon::prelude::*;
 
 use crate::output::write_atomic;
@@ -19,13 +19,21 @@ use crate::saved::Saved;
 
 /// A file-name-safe form of the query text.
 fn slug(text: &str) -> String {
-    let s: String = text.trim().chars().map(|c| if c.is_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();
+    let s: String = text
+        .trim()
+        .chars()
+        .map(|c| if c.is_alphanumeric() { c.to_ascii_lowercase() } else { '_' })
+        .collect();
     if s.is_empty() { "query".into() } else { s }
 }
 
 /// Answers `text` on `saved`: the matching instances, best first, each with its mask in every
 /// view (run-length encoded, and as `DIR/id<ID>_view<NNN>.png`); returns the answer and DIR.
-pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Result<(QueryResponse, PathBuf)> {
+pub fn run_query(
+    saved: &Saved,
+    labels: &LabelCache,
+    text: &str,
+) -> anyhow::Result<(QueryResponse, PathBuf)> {
     if text.trim().is_empty() {
         anyhow::bail!("the query text is empty");
     }
@@ -41,21 +49,39 @@ pub fn run_query(saved: &Saved, labels: &LabelCache, text: &str) -> anyhow::Resu
         .par_iter()
         .map(|camera| render_instance_ids(&saved.scene, camera, k))
         .collect::<Result<_, _>>()?;
-    let label_of = |id: u32| saved.doc.instances.iter().find(|i| i.id == id).map_or_else(|| "unknown".into(), |i| i.label.clone());
+    let label_of = |id: u32| {
+        saved
+            .doc
+            .instances
+            .iter()
+            .find(|i| i.id == id)
+            .map_or_else(|| "unknown".into(), |i| i.label.clone())
+    };
     let mut matches = Vec::new();
     for hit in &hits {
         let mut masks = Vec::new();
         for (view, (map, camera)) in maps.iter().zip(&saved.cameras).enumerate() {
             let mask = ids_mask(map, &[hit.id]);
             let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-            let img = GrayImage::from_fn(w, h, |x, y| Luma([if mask[(y * w + x) as usize] { 255 } else { 0 }]));
+            let img = GrayImage::from_fn(w, h, |x, y| {
+                Luma([if mask[(y * w + x) as usize] { 255 } else { 0 }])
+            });
             let mut bytes = std::io::Cursor::new(Vec::new());
             img.write_to(&mut bytes, image::ImageFormat::Png)?;
             let path = dir.join(format!("id{}_view{view:03}.png", hit.id));
             write_atomic(&path, bytes.get_ref())?;
-            masks.push(ViewMask { view, png_url: path.display().to_string(), rle: RleMask::encode(w, h, &mask) });
+            masks.push(ViewMask {
+                view,
+                png_url: path.display().to_string(),
+                rle: RleMask::encode(w, h, &mask),
+            });
         }
-        matches.push(QueryMatch { instance_id: hit.id, label: label_of(hit.id), score: hit.score, masks });
+        matches.push(QueryMatch {
+            instance_id: hit.id,
+            label: label_of(hit.id),
+            score: hit.score,
+            masks,
+        });
     }
     let message = matches.is_empty().then(|| {
         let rule = QueryRule::default();

@@ -28,12 +28,15 @@ use crate::stages::decode::{DecodeError, Letterbox, decode};
 use crate::stages::label::LabelInputs;
 pub use crate::stages::network::Known;
 use crate::stages::{
-    Stopwatch, backproject, cameras, cluster, heading, label, masks, network, rays, refine, superpixels, vote, voxelize,
+    Stopwatch, backproject, cameras, cluster, heading, label, masks, network, rays, refine,
+    superpixels, vote, voxelize,
 };
 
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {
-    #[error("{0} images given; inssplat needs between {MIN_VIEWS} and {MAX_VIEWS} views of one scene")]
+    #[error(
+        "{0} images given; inssplat needs between {MIN_VIEWS} and {MAX_VIEWS} views of one scene"
+    )]
     ViewCount(usize),
     #[error(transparent)]
     Decode(#[from] DecodeError),
@@ -43,9 +46,13 @@ pub enum PipelineError {
     EmptyVocabulary,
     #[error("{given} known camera poses for {views} views; give one per view, in order")]
     Poses { given: usize, views: usize },
-    #[error("{given} known depth values for {views} views of {pixels} pixels; give one per pixel of every view at the model resolution")]
+    #[error(
+        "{given} known depth values for {views} views of {pixels} pixels; give one per pixel of every view at the model resolution"
+    )]
     Depth { given: usize, views: usize, pixels: usize },
-    #[error("this network reads its cameras as rays: known camera poses need the scene's median depth in their units beside them")]
+    #[error(
+        "this network reads its cameras as rays: known camera poses need the scene's median depth in their units beside them"
+    )]
     RaysNeedScale,
     #[error("{stage}: {message}")]
     Stage { stage: &'static str, message: String },
@@ -210,28 +217,35 @@ pub fn reconstruct_with(
     let res = backend.network().resolution as u32;
     let detail = config.register.as_ref().map_or(0, |r| r.photo_size);
     let decoded = clock.time("decode", || {
-        images.par_iter().map(|i| decode(&i.name, &i.bytes, res, detail)).collect::<Result<Vec<_>, _>>()
+        images
+            .par_iter()
+            .map(|i| decode(&i.name, &i.bytes, res, detail))
+            .collect::<Result<Vec<_>, _>>()
     })?;
     let mut pass = clock.time("model", || network::run(backend, &decoded, &config.known))?;
     let pixels = pass.out.height * pass.out.width;
-    let segments = config
-        .superpixels
-        .as_ref()
-        .map(|params| clock.time("superpixels", || superpixels::run(&mut pass.out, &decoded, params)));
+    let segments = config.superpixels.as_ref().map(|params| {
+        clock.time("superpixels", || superpixels::run(&mut pass.out, &decoded, params))
+    });
     let known_poses = config.known.poses.as_deref();
-    let found = cameras::run(&mut clock, &pass.out, &decoded, known_poses, config.register.as_ref())?;
+    let found =
+        cameras::run(&mut clock, &pass.out, &decoded, known_poses, config.register.as_ref())?;
     let cameras::Cameras { mut cameras, placements, focal, component } = found;
     if let (Some(params), Some(component)) = (&config.heading, &component) {
-        clock.time("heading", || heading::run(&mut cameras, component, &pass.out, &decoded, params))?;
+        clock.time("heading", || {
+            heading::run(&mut cameras, component, &pass.out, &decoded, params)
+        })?;
     }
-    if let Some(input) = backend.network().rays.filter(|_| known_poses.is_none() && config.ray_pass) {
+    if let Some(input) = backend.network().rays.filter(|_| known_poses.is_none() && config.ray_pass)
+    {
         clock.time("rays", || rays::run(backend, input, &mut pass, &cameras, segments.as_ref()))?;
     }
     let out = &pass.out;
     let all: Vec<usize> = (0..out.views).collect();
     let per_pixel = clock.time("backproject", || backproject::run(out, &cameras, &all))?;
     let mut voxelized = clock.time("voxelize", || voxelize::run(&per_pixel, &config.voxel))?;
-    clock.time("cluster", || cluster::run(&mut voxelized, &config.cluster, config.split.as_ref()))?;
+    clock
+        .time("cluster", || cluster::run(&mut voxelized, &config.cluster, config.split.as_ref()))?;
     if let Some(segments) = segments.as_ref().filter(|_| config.vote == VoteScope::Gaussians) {
         clock.time("vote", || vote::run(&mut voxelized, &per_pixel, segments, pixels));
     }
@@ -254,7 +268,8 @@ pub fn reconstruct_with(
         })?),
     };
     let instances = naming.instance_table(&voxelized.scene, vocabulary);
-    let id_maps = clock.time("masks", || masks::run(&voxelized, &per_pixel, segments.as_ref(), pixels));
+    let id_maps =
+        clock.time("masks", || masks::run(&voxelized, &per_pixel, segments.as_ref(), pixels));
     let parts = masks::ViewParts {
         out,
         cameras: &cameras,
@@ -300,5 +315,8 @@ pub fn label_table(instances: &[InstanceOut], vocabulary: &[String]) -> Vec<Opti
 
 /// Each prototype's own-label score (its instance's `score`), as `query` takes it.
 pub fn own_label_scores(prototypes: &[InstancePrototype], instances: &[InstanceOut]) -> Vec<f32> {
-    prototypes.iter().map(|p| instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score)).collect()
+    prototypes
+        .iter()
+        .map(|p| instances.iter().find(|i| i.id == p.id).map_or(f32::MIN, |i| i.score))
+        .collect()
 }

@@ -12,9 +12,9 @@ use anyhow::{Context, bail};
 use image::{Rgb, RgbImage};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::TransformsJson;
+use inssplat_raster::masks::NO_LABEL;
 use inssplat_raster::masks::{fill_uncovered, label_map, render_colour, render_instance_ids_on};
 use inssplat_raster::render::{Backend, GpuRenderer};
-use inssplat_raster::masks::NO_LABEL;
 
 use crate::output::{colour_map, palette, save_png};
 use crate::reconstruct::label_table;
@@ -26,29 +26,40 @@ pub fn cameras(saved: &Saved, spec: &str) -> anyhow::Result<Vec<Camera>> {
         let parts: Vec<&str> = args.split(',').map(str::trim).collect();
         let [i, j, t] = parts.as_slice() else { bail!("--camera {spec}: expected interp:i,j,t") };
         let view = |s: &str| -> anyhow::Result<usize> {
-            let v: usize = s.parse().with_context(|| format!("--camera {spec}: `{s}` is not a view index"))?;
+            let v: usize =
+                s.parse().with_context(|| format!("--camera {spec}: `{s}` is not a view index"))?;
             if v >= saved.cameras.len() {
-                bail!("--camera {spec}: view {v} does not exist (the reconstruction has {} views)", saved.cameras.len());
+                bail!(
+                    "--camera {spec}: view {v} does not exist (the reconstruction has {} views)",
+                    saved.cameras.len()
+                );
             }
             Ok(v)
         };
         let (a, b) = (saved.cameras[view(i)?], saved.cameras[view(j)?]);
-        let t: f32 = t.parse().with_context(|| format!("--camera {spec}: `{t}` is not a number"))?;
+        let t: f32 =
+            t.parse().with_context(|| format!("--camera {spec}: `{t}` is not a number"))?;
         if !(0.0..=1.0).contains(&t) {
             bail!("--camera {spec}: t = {t} is outside 0-1");
         }
         let rotation = a.rotation.slerp(b.rotation, t).normalize();
         let centre = a.center().lerp(b.center(), t);
-        return Ok(vec![Camera { intrinsics: a.intrinsics, rotation, translation: -(rotation * centre) }]);
+        return Ok(vec![Camera {
+            intrinsics: a.intrinsics,
+            rotation,
+            translation: -(rotation * centre),
+        }]);
     }
     let path = Path::new(spec);
-    let t = TransformsJson::read(path).with_context(|| format!("--camera {spec}: give a transforms.json or interp:i,j,t"))?;
+    let t = TransformsJson::read(path)
+        .with_context(|| format!("--camera {spec}: give a transforms.json or interp:i,j,t"))?;
     Ok(t.cameras(path)?)
 }
 
 /// Renders every camera into `out`, the instance masks on `gpu` when given (the CPU if it
 /// fails), with what no Gaussian covers filled from around it unless `fill` is off
-/// ([`inssplat_raster::fill`]); returns the files written and where the masks were rendered (the CPU if any view's
+/// ([`inssplat_raster::fill`]); returns the files written and where the masks were rendered (the
+/// CPU if any view's
 /// were).
 pub fn render_views(
     saved: &Saved,
@@ -78,11 +89,17 @@ pub fn render_views(
         if fill {
             fill_uncovered(&mut ids, Some(&mut labels), w as usize, h as usize);
         }
-        let images = [
-            ("rgb", rgb),
-            ("instances", colour_map(w, h, &ids, palette)),
-            ("labels", colour_map(w, h, &labels, |l| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) })),
-        ];
+        let images =
+            [
+                ("rgb", rgb),
+                ("instances", colour_map(w, h, &ids, palette)),
+                (
+                    "labels",
+                    colour_map(w, h, &labels, |l| {
+                        if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) }
+                    }),
+                ),
+            ];
         for (kind, img) in images {
             let path = out.join(format!("{kind}_{v:03}.png"));
             save_png(&path, &img)?;

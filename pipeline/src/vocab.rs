@@ -11,10 +11,48 @@ use inssplat_text::{LabelCache, TextEmbedder};
 /// objects of `inssplat-train synth`, and the room shell: ceiling, floor, wall), so a user gets
 /// the names the model was taught.
 pub const DEFAULT_VOCABULARY: &[&str] = &[
-    "armchair", "ball", "bathtub", "bed", "bench", "bookcase", "box", "cabinet", "ceiling", "chair", "coffee table",
-    "computer", "desk", "dresser", "fan", "fireplace", "floor", "guitar", "lamp", "nightstand", "office chair", "oven",
-    "piano", "picture", "plant", "pool table", "radiator", "refrigerator", "rug", "sink", "sofa", "speaker",
-    "stool", "table", "toilet", "trash can", "tv", "tv stand", "vase", "wall", "wardrobe", "washing machine",
+    "armchair",
+    "ball",
+    "bathtub",
+    "bed",
+    "bench",
+    "bookcase",
+    "box",
+    "cabinet",
+    "ceiling",
+    "chair",
+    "coffee table",
+    "computer",
+    "desk",
+    "dresser",
+    "fan",
+    "fireplace",
+    "floor",
+    "guitar",
+    "lamp",
+    "nightstand",
+    "office chair",
+    "oven",
+    "piano",
+    "picture",
+    "plant",
+    "pool table",
+    "radiator",
+    "refrigerator",
+    "rug",
+    "sink",
+    "sofa",
+    "speaker",
+    "stool",
+    "table",
+    "toilet",
+    "trash can",
+    "tv",
+    "tv stand",
+    "vase",
+    "wall",
+    "wardrobe",
+    "washing machine",
 ];
 
 /// The text encoder of `INSSPLAT_TEXT_MODEL` (or the setup step's copy), behind its cache of
@@ -48,7 +86,8 @@ pub fn from_list(text: &str) -> Vec<String> {
 
 /// Trimmed, non-empty, sorted, de-duplicated labels.
 fn normalize(raw: Vec<String>) -> Vec<String> {
-    let mut v: Vec<String> = raw.into_iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
+    let mut v: Vec<String> =
+        raw.into_iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect();
     v.sort();
     v.dedup();
     v

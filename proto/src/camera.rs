@@ -38,7 +38,14 @@ impl Intrinsics {
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let sx = width as f32 / self.width as f32;
         let sy = height as f32 / self.height as f32;
-        Self { fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy, width, height }
+        Self {
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            width,
+            height,
+        }
     }
 }
 
@@ -132,7 +139,10 @@ impl Camera {
     /// in `transforms.json`. Rejects non-finite, non-affine and singular matrices. A matrix
     /// whose rotation part carries scale is orthonormalized (its scale is not a camera
     /// property).
-    pub fn from_nerfstudio(intrinsics: Intrinsics, c2w_rows: &[[f64; 4]; 4]) -> Result<Self, CameraError> {
+    pub fn from_nerfstudio(
+        intrinsics: Intrinsics,
+        c2w_rows: &[[f64; 4]; 4],
+    ) -> Result<Self, CameraError> {
         for (row, r) in c2w_rows.iter().enumerate() {
             for (col, v) in r.iter().enumerate() {
                 if !v.is_finite() {
@@ -177,7 +187,8 @@ mod tests {
 
     #[test]
     fn nerfstudio_round_trip_is_exact_to_float_precision() {
-        let cam = Camera::look_at(k(), Vec3::new(1.0, 1.5, -2.0), Vec3::new(0.2, 0.5, 0.3), Vec3::Y);
+        let cam =
+            Camera::look_at(k(), Vec3::new(1.0, 1.5, -2.0), Vec3::new(0.2, 0.5, 0.3), Vec3::Y);
         let back = Camera::from_nerfstudio(k(), &cam.to_nerfstudio()).unwrap();
         assert!(back.rotation.dot(cam.rotation).abs() > 1.0 - 1e-6, "{back:?} vs {cam:?}");
         assert!((back.translation - cam.translation).length() < 1e-5);
@@ -185,7 +196,12 @@ mod tests {
 
     #[test]
     fn opengl_identity_looks_down_negative_z_with_y_up() {
-        let id = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        let id = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
         let cam = Camera::from_nerfstudio(k(), &id).unwrap();
         // A point in front of an OpenGL camera is at world −z; above it is world +y.
         let p = cam.world_to_camera(Vec3::new(0.0, 1.0, -5.0));
@@ -197,11 +213,16 @@ mod tests {
 
     #[test]
     fn pixel_of_finds_the_pixel_a_point_falls_in_and_nothing_outside() {
-        let cam = Camera::look_at(k(), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.3, -0.2, 4.0), Vec3::Y);
+        let cam =
+            Camera::look_at(k(), Vec3::new(-1.0, 2.0, 0.5), Vec3::new(0.3, -0.2, 4.0), Vec3::Y);
         let (w, h) = (cam.intrinsics.width as f32, cam.intrinsics.height as f32);
         for (u, v) in [(0.25, 0.75), (70.5, 30.2), (w - 0.01, h - 0.01)] {
             let p = cam.unproject(u, v, 2.5);
-            assert_eq!(cam.pixel_of(p), Some((u.floor() as usize, v.floor() as usize)), "({u}, {v})");
+            assert_eq!(
+                cam.pixel_of(p),
+                Some((u.floor() as usize, v.floor() as usize)),
+                "({u}, {v})"
+            );
         }
         for (u, v) in [(-0.01, 10.0), (10.0, -0.01), (w, 10.0), (10.0, h)] {
             assert_eq!(cam.pixel_of(cam.unproject(u, v, 2.5)), None, "({u}, {v}) is outside");
@@ -225,13 +246,34 @@ mod tests {
 
     #[test]
     fn rejects_bad_matrices() {
-        let mut m = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        let mut m = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
         m[1][2] = f64::NAN;
-        assert_eq!(Camera::from_nerfstudio(k(), &m).unwrap_err(), CameraError::NonFinite { row: 1, col: 2 });
-        let singular = [[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        assert_eq!(
+            Camera::from_nerfstudio(k(), &m).unwrap_err(),
+            CameraError::NonFinite { row: 1, col: 2 }
+        );
+        let singular = [
+            [1.0, 0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
         assert!(matches!(Camera::from_nerfstudio(k(), &singular), Err(CameraError::Singular(_))));
-        let projective = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]];
-        assert!(matches!(Camera::from_nerfstudio(k(), &projective), Err(CameraError::NotAffine(_))));
+        let projective = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0, 1.0],
+        ];
+        assert!(matches!(
+            Camera::from_nerfstudio(k(), &projective),
+            Err(CameraError::NotAffine(_))
+        ));
     }
 
     #[test]

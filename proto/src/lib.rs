@@ -12,7 +12,7 @@ pub mod rays;
 
 pub use camera::{Camera, CameraError, Intrinsics};
 pub use gaussian::{GaussianScene, INSTANCE_DIM};
+pub mod api;
 pub mod dataset;
 pub mod shape;
 pub mod signature;
-pub mod api;

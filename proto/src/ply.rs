@@ -12,8 +12,8 @@ use std::io::{Cursor, Read, Write};
 
 use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{
-    Addable, ElementDef, Encoding, Header, Property, PropertyAccess, PropertyAccessResult, PropertyDef,
-    PropertyType, ScalarType,
+    Addable, ElementDef, Encoding, Header, Property, PropertyAccess, PropertyAccessResult,
+    PropertyDef, PropertyType, ScalarType,
 };
 use ply_rs_bw::writer::Writer;
 
@@ -21,14 +21,14 @@ use crate::gaussian::{GaussianScene, INSTANCE_DIM, LengthMismatch, SceneMeta};
 
 /// The standard 3DGS vertex properties, in order.
 pub const STANDARD_PROPERTIES: [&str; 17] = [
-    "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-    "rot_0", "rot_1", "rot_2", "rot_3",
+    "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+    "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
 ];
 
 /// Properties a reader cannot do without.
 const REQUIRED: [&str; 14] = [
-    "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1",
-    "rot_2", "rot_3",
+    "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+    "rot_0", "rot_1", "rot_2", "rot_3",
 ];
 
 #[derive(Debug, thiserror::Error)]
@@ -66,7 +66,9 @@ pub fn write_ply<W: Write>(out: &mut W, scene: &GaussianScene) -> Result<(), Ply
         vertex.properties.add(PropertyDef::new(name.to_string(), float.clone()));
     }
     vertex.properties.add(PropertyDef::new("confidence".into(), float.clone()));
-    vertex.properties.add(PropertyDef::new("instance_id".into(), PropertyType::Scalar(ScalarType::UInt)));
+    vertex
+        .properties
+        .add(PropertyDef::new("instance_id".into(), PropertyType::Scalar(ScalarType::UInt)));
     for i in 0..INSTANCE_DIM {
         vertex.properties.add(PropertyDef::new(format!("ins_{i}"), float.clone()));
     }
@@ -98,7 +100,10 @@ pub fn write_ply<W: Write>(out: &mut W, scene: &GaussianScene) -> Result<(), Ply
 }
 
 fn meta_comments(meta: &SceneMeta, sem_dim: usize) -> Vec<String> {
-    let mut c = vec![format!("producer {}", if meta.producer.is_empty() { "inssplat" } else { &meta.producer })];
+    let mut c = vec![format!(
+        "producer {}",
+        if meta.producer.is_empty() { "inssplat" } else { &meta.producer }
+    )];
     if let Some(v) = &meta.model_version {
         c.push(format!("model_version {v}"));
     }
@@ -145,7 +150,9 @@ pub fn read_ply<R: Read>(input: &mut R) -> Result<GaussianScene, PlyError> {
     };
     for name in REQUIRED {
         match vertex.properties.get(name) {
-            None => return Err(PlyError::MissingProperty { element: "vertex".into(), property: name }),
+            None => {
+                return Err(PlyError::MissingProperty { element: "vertex".into(), property: name });
+            }
             Some(p) if !matches!(p.data_type, PropertyType::Scalar(_)) => {
                 return Err(PlyError::BadType {
                     element: "vertex".into(),
@@ -163,9 +170,9 @@ pub fn read_ply<R: Read>(input: &mut R) -> Result<GaussianScene, PlyError> {
     let mut scene = GaussianScene::with_sem_dim(sem_dim);
     scene.meta = parse_meta(&header.comments);
     for (name, element) in &header.elements {
-        let records = parser.read_payload_for_element(&mut reader, element, &header).map_err(|e| {
-            PlyError::Payload { element: name.clone(), message: e.to_string() }
-        })?;
+        let records = parser
+            .read_payload_for_element(&mut reader, element, &header)
+            .map_err(|e| PlyError::Payload { element: name.clone(), message: e.to_string() })?;
         if name != "vertex" {
             continue;
         }
@@ -223,7 +230,12 @@ fn check_binary_length(header: &Header, available: usize) -> Result<(), PlyError
                 }
                 within -= size;
             }
-            return Err(PlyError::Truncated { element: name.clone(), index, count: element.count, property });
+            return Err(PlyError::Truncated {
+                element: name.clone(),
+                index,
+                count: element.count,
+                property,
+            });
         }
         offset += need;
     }

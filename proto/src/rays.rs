@@ -51,8 +51,8 @@ pub fn median_depth(depth: &[f32]) -> Option<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Vec3;
     use crate::camera::Intrinsics;
+    use glam::Vec3;
 
     /// A point that two cameras both see lies on a ray of each: the rays' reciprocal product
     /// d₁·m₂ + d₂·m₁ of two rays that meet is zero, and it is not for rays that miss.
@@ -74,7 +74,10 @@ mod tests {
         let ra = (Vec3::from_slice(&rays[0..3]), Vec3::from_slice(&rays[3..6]));
         assert!(reciprocal(ra, ray(&b, u, v)).abs() < 1e-5);
         assert!(reciprocal(ra, ray(&b, u + 3.0, v)).abs() > 1e-3);
-        assert!((ra.0 - ray(&a, 2.0, 2.0).0).length() < 1e-6, "sub-ray 0 of patch 0 passes pixel (2, 2)");
+        assert!(
+            (ra.0 - ray(&a, 2.0, 2.0).0).length() < 1e-6,
+            "sub-ray 0 of patch 0 passes pixel (2, 2)"
+        );
     }
 
     /// The rays are the same whatever world frame the cameras are given in: they are
@@ -82,17 +85,26 @@ mod tests {
     #[test]
     fn rays_do_not_depend_on_the_world_frame() {
         let k = Intrinsics::from_fov_y(16, 16, 1.0);
-        let a = Camera::look_at(k, Vec3::new(0.3, -0.2, 0.1), Vec3::new(0.5, 0.0, 3.0), Vec3::NEG_Y);
+        let a =
+            Camera::look_at(k, Vec3::new(0.3, -0.2, 0.1), Vec3::new(0.5, 0.0, 3.0), Vec3::NEG_Y);
         let b = Camera::look_at(k, Vec3::new(1.0, 0.2, 0.5), Vec3::new(0.0, 0.4, 3.0), Vec3::NEG_Y);
         let turn = glam::Quat::from_euler(glam::EulerRot::YXZ, 0.7, -0.3, 0.2);
         let shift = Vec3::new(4.0, -1.0, 2.5);
-        // The world moved by p ↦ turn·p + shift: each camera's world→camera map composes with its inverse.
-        let moved = |c: &Camera| Camera { intrinsics: c.intrinsics, rotation: c.rotation * turn.inverse(), translation: c.translation - c.rotation * turn.inverse() * shift };
+        // The world moved by p ↦ turn·p + shift: each camera's world→camera map composes with its
+        // inverse.
+        let moved = |c: &Camera| Camera {
+            intrinsics: c.intrinsics,
+            rotation: c.rotation * turn.inverse(),
+            translation: c.translation - c.rotation * turn.inverse() * shift,
+        };
         assert!((moved(&a).center() - (turn * a.center() + shift)).length() < 1e-5);
         let here = patch_rays(&[a, b], 16, 8, 2, 2.0);
         let there = patch_rays(&[moved(&a), moved(&b)], 16, 8, 2, 2.0);
         let worst = here.iter().zip(&there).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
         assert!(worst < 1e-5, "rays moved by {worst}");
-        assert!(here[..ray_channels(2)].chunks(6).all(|r| r[3..].iter().all(|m| m.abs() < 1e-6)), "view 0's rays pass its centre, the origin");
+        assert!(
+            here[..ray_channels(2)].chunks(6).all(|r| r[3..].iter().all(|m| m.abs() < 1e-6)),
+            "view 0's rays pass its centre, the origin"
+        );
     }
 }

@@ -115,14 +115,21 @@ impl ShapeClassifier {
         let bad = |m: String| Err(ShapeError::Invalid(m));
         let d = self.input_width();
         if self.mean.len() != d || self.std.len() != d {
-            return bad(format!("mean/std have {}/{} entries, the input {d}", self.mean.len(), self.std.len()));
+            return bad(format!(
+                "mean/std have {}/{} entries, the input {d}",
+                self.mean.len(),
+                self.std.len()
+            ));
         }
         if self.std.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
             return bad("std has an entry that is not positive and finite".into());
         }
         let mut width = d;
         for (i, l) in self.layers.iter().enumerate() {
-            if l.inputs != width || l.weight.len() != l.inputs * l.outputs || l.bias.len() != l.outputs {
+            if l.inputs != width
+                || l.weight.len() != l.inputs * l.outputs
+                || l.bias.len() != l.outputs
+            {
                 return bad(format!(
                     "layer {i}: {} inputs (expected {width}), {} weights and {} biases for {} outputs",
                     l.inputs,
@@ -137,7 +144,11 @@ impl ShapeClassifier {
             width = l.outputs;
         }
         if self.layers.is_empty() || width != self.labels.len() {
-            return bad(format!("{} layers end in {width} outputs for {} labels", self.layers.len(), self.labels.len()));
+            return bad(format!(
+                "{} layers end in {width} outputs for {} labels",
+                self.layers.len(),
+                self.labels.len()
+            ));
         }
         Ok(())
     }
@@ -149,7 +160,8 @@ impl ShapeClassifier {
         let semantic: &[f32] = if self.semantic { cosines } else { &[] };
         assert_eq!(semantic.len() + DESCRIPTOR.len(), self.input_width(), "one cosine a label");
         let input = descriptor.iter().chain(semantic);
-        let mut x: Vec<f32> = input.zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
+        let mut x: Vec<f32> =
+            input.zip(&self.mean).zip(&self.std).map(|((v, m), s)| (v - m) / s).collect();
         for (i, l) in self.layers.iter().enumerate() {
             let relu = i + 1 < self.layers.len();
             x = l
@@ -218,7 +230,11 @@ mod tests {
         c.validate().unwrap();
         let texts = [vec![1.0, 0.0], vec![0.0, 3.0]];
         let cos = label_cosines(&[0.2, 2.0], &texts);
-        assert!((cos[1] - 2.0 / 4.04f32.sqrt()).abs() < 1e-6 && (cos[0] - 0.2 / 4.04f32.sqrt()).abs() < 1e-6, "{cos:?}");
+        assert!(
+            (cos[1] - 2.0 / 4.04f32.sqrt()).abs() < 1e-6
+                && (cos[0] - 0.2 / 4.04f32.sqrt()).abs() < 1e-6,
+            "{cos:?}"
+        );
         let p = c.probabilities(&[0.0; DESCRIPTOR.len()], &cos);
         assert!(p[1] > 0.95, "{p:?}");
         assert_eq!(label_cosines(&[0.0, 0.0], &texts), [0.0, 0.0]);

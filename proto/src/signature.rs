@@ -39,7 +39,12 @@ pub struct TensorSpec {
     pub meaning: &'static str,
 }
 
-const fn f32_tensor(name: &'static str, shape: &'static str, rank: usize, meaning: &'static str) -> TensorSpec {
+const fn f32_tensor(
+    name: &'static str,
+    shape: &'static str,
+    rank: usize,
+    meaning: &'static str,
+) -> TensorSpec {
     TensorSpec { name, element: ElementType::F32, shape, rank, meaning }
 }
 
@@ -48,8 +53,12 @@ pub const INPUT_IMAGES: TensorSpec =
 
 /// Optional: read only by networks trained with the cameras as input (the trainer's
 /// `--camera-rays K`); the service gives it the known cameras ([`crate::rays::patch_rays`]).
-pub const INPUT_RAYS: TensorSpec =
-    f32_tensor("rays", "[N, T, 6·K²]", 3, "each patch's K×K Plücker rays (direction, moment) in view 0's frame, centres over the scene's median depth");
+pub const INPUT_RAYS: TensorSpec = f32_tensor(
+    "rays",
+    "[N, T, 6·K²]",
+    3,
+    "each patch's K×K Plücker rays (direction, moment) in view 0's frame, centres over the scene's median depth",
+);
 
 pub const OUTPUT_CAMERA: TensorSpec = f32_tensor(
     "camera",
@@ -67,8 +76,12 @@ pub const OUTPUT_GAUSSIANS: TensorSpec = f32_tensor(
     4,
     "per-pixel Gaussian: offset xyz (camera frame, metres), log-scale xyz, rotation w,x,y,z (camera frame, unnormalized), opacity logit, SH DC rgb",
 );
-pub const OUTPUT_INSTANCE: TensorSpec =
-    f32_tensor("instance", "[N, 8, H, W]", 4, "instance embedding S (compared after L2 normalization)");
+pub const OUTPUT_INSTANCE: TensorSpec = f32_tensor(
+    "instance",
+    "[N, 8, H, W]",
+    4,
+    "instance embedding S (compared after L2 normalization)",
+);
 pub const OUTPUT_SEMANTIC: TensorSpec =
     f32_tensor("semantic", "[N, d_s, H, W]", 4, "compact semantic feature L");
 pub const OUTPUT_SEM_PROJ_WEIGHT: TensorSpec =
@@ -76,13 +89,21 @@ pub const OUTPUT_SEM_PROJ_WEIGHT: TensorSpec =
 pub const OUTPUT_SEM_PROJ_BIAS: TensorSpec = f32_tensor("sem_proj_bias", "[384]", 1, "Φ_sem bias");
 
 /// Optional: written only by networks with a point-map head; the server does not read it.
-pub const OUTPUT_POINT_MAP: TensorSpec =
-    f32_tensor("point_map", "[N, 3, H, W]", 4, "each pixel's point in the world frame (view 0's camera), metres");
+pub const OUTPUT_POINT_MAP: TensorSpec = f32_tensor(
+    "point_map",
+    "[N, 3, H, W]",
+    4,
+    "each pixel's point in the world frame (view 0's camera), metres",
+);
 
 /// Optional: written only by networks with a descriptor head; registration matches the views
 /// on it beside its keypoints when present.
-pub const OUTPUT_DESCRIPTORS: TensorSpec =
-    f32_tensor("descriptors", "[N, D, H, W]", 4, "per-pixel matching descriptor (compared after L2 normalization)");
+pub const OUTPUT_DESCRIPTORS: TensorSpec = f32_tensor(
+    "descriptors",
+    "[N, D, H, W]",
+    4,
+    "per-pixel matching descriptor (compared after L2 normalization)",
+);
 
 pub const INPUTS: [TensorSpec; 1] = [INPUT_IMAGES];
 pub const OUTPUTS: [TensorSpec; 8] = [

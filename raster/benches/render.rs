@@ -46,8 +46,14 @@ fn surfel(rng: &mut ChaCha8Rng, s: &mut Scene, p: Vec3, normal: Vec3, spacing: f
 /// wide as the spacing between neighbours (≈ 2 px at 128² for 30k Gaussians).
 fn scene(n: usize, channels: usize) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(n as u64);
-    let mut s =
-        Scene { means: vec![], log_scales: vec![], rotations: vec![], logits: vec![], features: vec![], channels };
+    let mut s = Scene {
+        means: vec![],
+        log_scales: vec![],
+        rotations: vec![],
+        logits: vec![],
+        features: vec![],
+        channels,
+    };
     let half = Vec3::new(2.0, 1.5, 2.0);
     let walls = n * 6 / 10;
     let area = 8.0 * (half.x * half.y + half.y * half.z + half.z * half.x);
@@ -55,8 +61,11 @@ fn scene(n: usize, channels: usize) -> Scene {
     while s.means.len() < walls {
         let axis = rng.random_range(0..3usize);
         let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-        let mut p =
-            Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)) * half;
+        let mut p = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        ) * half;
         // Faces of a larger area are picked proportionally more often.
         let face_area = match axis {
             0 => half.y * half.z,
@@ -81,7 +90,11 @@ fn scene(n: usize, channels: usize) -> Scene {
     let spacing = (sphere_area / (n - walls) as f32).sqrt();
     while s.means.len() < n {
         let (c, r) = spheres[rng.random_range(0..spheres.len())];
-        let d = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let d = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
         if d.length() > 1.0 || d.length() < 0.1 {
             continue;
         }
@@ -100,7 +113,8 @@ fn cpu_time() -> Duration {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // Fields after the parenthesized command name; utime and stime are the 12th and 13th.
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let ticks: u64 = rest.split_whitespace().skip(11).take(2).filter_map(|v| v.parse::<u64>().ok()).sum();
+    let ticks: u64 =
+        rest.split_whitespace().skip(11).take(2).filter_map(|v| v.parse::<u64>().ok()).sum();
     Duration::from_millis(ticks * 10) // USER_HZ = 100 on Linux
 }
 
@@ -145,7 +159,9 @@ fn main() {
         bw / 1e9,
         load.trim()
     );
-    println!("times: median wall ms of 9 runs (CPU ms per run, all threads, in brackets; 10 ms resolution)");
+    println!(
+        "times: median wall ms of 9 runs (CPU ms per run, all threads, in brackets; 10 ms resolution)"
+    );
     println!("wgpu: {}", gpu.as_ref().map_or("no adapter".into(), |g| g.adapter()));
     println!();
     println!(
@@ -164,14 +180,18 @@ fn main() {
                 let (fwd, fwd_cpu) = time(9, || render(&splats, &cam, &[]).unwrap());
                 let d_features = vec![1e-3f32; image.features.len()];
                 let d_other = vec![1e-3f32; pixels];
-                let (bwd, bwd_cpu) =
-                    time(9, || render_backward(&splats, &cam, &state, &d_features, &d_other, &d_other));
+                let (bwd, bwd_cpu) = time(9, || {
+                    render_backward(&splats, &cam, &state, &d_features, &d_other, &d_other)
+                });
                 let params = n * (11 + channels) * 4;
                 let planes = pixels * (channels + 2) * 4;
                 let fwd_bytes = params + planes + 2 * isects * 4;
                 let bwd_bytes = 2 * params + planes + 2 * isects * 4;
                 let wgpu = match &gpu {
-                    Some(g) => format!("{:.1}", ms(time(3, || render_any(Some(g), &splats, &cam, &[]).unwrap()).0)),
+                    Some(g) => format!(
+                        "{:.1}",
+                        ms(time(3, || render_any(Some(g), &splats, &cam, &[]).unwrap()).0)
+                    ),
                     None => "-".into(),
                 };
                 println!(
@@ -191,16 +211,22 @@ fn main() {
     println!("serving case: 8 views × 19 channels, 30k Gaussians, 128² (target ≤ 50 ms)");
     let s = scene(30_000, 19);
     let cams: Vec<Camera> = (0..8).map(|i| camera(128, i as f32 * 0.4)).collect();
-    let (wall, cpu) = time(7, || cams.iter().map(|c| render(&s.splats(), c, &[]).unwrap().0).collect::<Vec<_>>());
+    let (wall, cpu) =
+        time(7, || cams.iter().map(|c| render(&s.splats(), c, &[]).unwrap().0).collect::<Vec<_>>());
     println!("cpu rasterizer: {:.1} ms wall ({:.0} ms CPU)", ms(wall), ms(cpu));
     if let Some(g) = &gpu {
-        let (t, _) =
-            time(5, || cams.iter().map(|c| render_any(Some(g), &s.splats(), c, &[]).unwrap()).collect::<Vec<_>>());
+        let (t, _) = time(5, || {
+            cams.iter()
+                .map(|c| render_any(Some(g), &s.splats(), c, &[]).unwrap())
+                .collect::<Vec<_>>()
+        });
         println!("wgpu ({}): {:.1} ms wall", g.adapter(), ms(t));
     }
 
     println!();
-    println!("a new view's fill (push-pull colours, nearest covered pixel for ids), against its 3-channel forward, 30k Gaussians");
+    println!(
+        "a new view's fill (push-pull colours, nearest covered pixel for ids), against its 3-channel forward, 30k Gaussians"
+    );
     println!("| size | uncovered | forward ms | fill ms | fill / forward |");
     println!("|---|---|---|---|---|");
     let s = scene(30_000, 3);
@@ -212,8 +238,19 @@ fn main() {
         let (w, h) = (size as usize, size as usize);
         let covered: Vec<bool> = image.alpha.iter().map(|&a| a > MASK_ALPHA).collect();
         let (fwd, _) = time(9, || render(&s.splats(), &cam, &[]).unwrap());
-        let (fill, _) = time(9, || (fill_colour(&image.features, &image.alpha, w, h, MASK_ALPHA), nearest_covered(&covered, w, h)));
+        let (fill, _) = time(9, || {
+            (
+                fill_colour(&image.features, &image.alpha, w, h, MASK_ALPHA),
+                nearest_covered(&covered, w, h),
+            )
+        });
         let open = covered.iter().filter(|&&c| !c).count() as f64 / covered.len() as f64;
-        println!("| {size}² | {:.0}% | {:.2} | {:.2} | {:.2} |", 100.0 * open, ms(fwd), ms(fill), fill.as_secs_f64() / fwd.as_secs_f64());
+        println!(
+            "| {size}² | {:.0}% | {:.2} | {:.2} | {:.2} |",
+            100.0 * open,
+            ms(fwd),
+            ms(fill),
+            fill.as_secs_f64() / fwd.as_secs_f64()
+        );
     }
 }

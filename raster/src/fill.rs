@@ -6,7 +6,8 @@
 //! pyramid, then each level's uncovered share is taken from the coarser level, bilinearly,
 //! so a hole takes the colours around it, blended smoothly across it. The pixels above the
 //! bound keep their render: their colours were fitted over black (by the network's training
-//! and the test-time refinement), and a fill behind them would brighten them. [`nearest_covered`] finds for every pixel without an instance the
+//! and the test-time refinement), and a fill behind them would brighten them. [`nearest_covered`]
+//! finds for every pixel without an instance the
 //! nearest pixel with one (breadth first over the 4-neighbours, so the nearest along the
 //! image, ties to the first reached), whose id and label it then takes. Covered pixels keep
 //! what they rendered.
@@ -17,7 +18,13 @@ use std::collections::VecDeque;
 /// composited over their own push-pull fill by `alpha` (`[H][W]`) where alpha is at most
 /// `open` (pixel = colour + (1 − alpha) · fill); above it a pixel keeps its render, whose
 /// colours were fitted over black. Without any covered pixel the image stays as it is.
-pub fn fill_colour(premultiplied: &[f32], alpha: &[f32], width: usize, height: usize, open: f32) -> Vec<f32> {
+pub fn fill_colour(
+    premultiplied: &[f32],
+    alpha: &[f32],
+    width: usize,
+    height: usize,
+    open: f32,
+) -> Vec<f32> {
     let pixels = width * height;
     assert_eq!(alpha.len(), pixels, "alpha must be [height][width]");
     assert_eq!(premultiplied.len() % pixels.max(1), 0, "colours must be [channels][height][width]");
@@ -26,7 +33,12 @@ pub fn fill_colour(premultiplied: &[f32], alpha: &[f32], width: usize, height: u
     }
     let weight: Vec<f32> = alpha.iter().map(|a| a.clamp(0.0, 1.0)).collect();
     let filled = pull(premultiplied, &weight, width, height);
-    filled.iter().zip(premultiplied).enumerate().map(|(i, (&f, &p))| if alpha[i % pixels] <= open { f } else { p }).collect()
+    filled
+        .iter()
+        .zip(premultiplied)
+        .enumerate()
+        .map(|(i, (&f, &p))| if alpha[i % pixels] <= open { f } else { p })
+        .collect()
 }
 
 /// Premultiplied colours `p` (planar `[C][H][W]`) with coverage `w` (each at most 1)
@@ -91,7 +103,8 @@ fn bilinear(plane: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
 /// filled by reading each pixel's source.
 pub fn nearest_covered(covered: &[bool], width: usize, height: usize) -> Vec<usize> {
     assert_eq!(covered.len(), width * height, "the coverage must be [height][width]");
-    let mut source: Vec<Option<usize>> = covered.iter().enumerate().map(|(p, &c)| c.then_some(p)).collect();
+    let mut source: Vec<Option<usize>> =
+        covered.iter().enumerate().map(|(p, &c)| c.then_some(p)).collect();
     let mut queue: VecDeque<usize> = (0..covered.len()).filter(|&p| covered[p]).collect();
     while let Some(p) = queue.pop_front() {
         let (x, y) = (p % width, p / width);
@@ -135,7 +148,10 @@ mod tests {
         assert_eq!(out[w - 1], 0.8);
         // The hole's left edge lies nearer the left colours, its right edge the right ones.
         let (left, right) = (out[8 * w + 6], out[8 * w + 9]);
-        assert!((0.2..0.8).contains(&left) && (0.2..0.8).contains(&right) && left < right, "{left} {right}");
+        assert!(
+            (0.2..0.8).contains(&left) && (0.2..0.8).contains(&right) && left < right,
+            "{left} {right}"
+        );
         // Half covered by 0.2 (premultiplied 0.1): the other half is filled near 0.2.
         assert!((out[2 * w + 2] - 0.2).abs() < 0.05, "{}", out[2 * w + 2]);
         // Nothing covered: nothing to fill from.

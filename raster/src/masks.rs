@@ -21,7 +21,9 @@ pub enum MaskError {
     Scene(#[from] LengthMismatch),
     #[error("rendering the instance channels: {0}")]
     Render(#[from] RenderError),
-    #[error("the photo has {got} values where the camera's size needs {expected} (three planes of width × height)")]
+    #[error(
+        "the photo has {got} values where the camera's size needs {expected} (three planes of width × height)"
+    )]
     PhotoSize { expected: usize, got: usize },
 }
 
@@ -42,7 +44,11 @@ pub fn splats<'a>(scene: &'a GaussianScene, features: &'a [f32], channels: usize
 
 /// Renders `scene.instance_id` (ids 1..=`instances`; others count as none) seen by `camera`
 /// into an id map, row-major `[H][W]`, 0 = none, on the CPU.
-pub fn render_instance_ids(scene: &GaussianScene, camera: &Camera, instances: usize) -> Result<Vec<u32>, MaskError> {
+pub fn render_instance_ids(
+    scene: &GaussianScene,
+    camera: &Camera,
+    instances: usize,
+) -> Result<Vec<u32>, MaskError> {
     render_instance_ids_on(None, scene, camera, instances).map(|(ids, _)| ids)
 }
 
@@ -59,7 +65,8 @@ pub fn render_instance_ids_on(
         return Ok((vec![0; pixels], Backend::Cpu));
     }
     // Ids past the instance count are no instance.
-    let ids: Vec<u32> = scene.instance_id.iter().map(|&id| if id as usize <= instances { id } else { 0 }).collect();
+    let ids: Vec<u32> =
+        scene.instance_id.iter().map(|&id| if id as usize <= instances { id } else { 0 }).collect();
     let (image, backend) = render_ids_any(gpu, &splats(scene, &[], 0), &ids, camera, MASK_ALPHA)?;
     Ok((image.ids, backend))
 }
@@ -67,11 +74,21 @@ pub fn render_instance_ids_on(
 /// The scene's colours (SH degree 0) seen by `camera` over black: planar `[3][H][W]`, not
 /// clamped (a metric clamps if it needs to). With `fill`, what no Gaussian covers takes the
 /// colours around it ([`fill_colour`] on the pixels without an instance): a new view's render.
-pub fn render_colour(scene: &GaussianScene, camera: &Camera, fill: bool) -> Result<Vec<f32>, MaskError> {
+pub fn render_colour(
+    scene: &GaussianScene,
+    camera: &Camera,
+    fill: bool,
+) -> Result<Vec<f32>, MaskError> {
     scene.validate()?;
     let (image, _) = render(&splats(scene, &colours(scene), 3), camera, &[0.0; 3])?;
     Ok(match fill {
-        true => fill_colour(&image.features, &image.alpha, image.width as usize, image.height as usize, MASK_ALPHA),
+        true => fill_colour(
+            &image.features,
+            &image.alpha,
+            image.width as usize,
+            image.height as usize,
+            MASK_ALPHA,
+        ),
         false => image.features,
     })
 }
@@ -128,7 +145,8 @@ pub fn render_features(scene: &GaussianScene, camera: &Camera) -> Result<Feature
 pub fn label_map(ids: &[u32], label_of_id: &[Option<usize>]) -> Vec<u32> {
     ids.iter()
         .map(|&id| {
-            let label = (id as usize).checked_sub(1).and_then(|k| label_of_id.get(k).copied().flatten());
+            let label =
+                (id as usize).checked_sub(1).and_then(|k| label_of_id.get(k).copied().flatten());
             label.map_or(NO_LABEL, |l| l as u32)
         })
         .collect()
@@ -149,7 +167,10 @@ mod tests {
     #[test]
     fn label_map_and_query_mask_follow_the_ids() {
         let ids = [0, 1, 2, 3, 2, 9];
-        assert_eq!(label_map(&ids, &[Some(4), None, Some(0)]), vec![NO_LABEL, 4, NO_LABEL, 0, NO_LABEL, NO_LABEL]);
+        assert_eq!(
+            label_map(&ids, &[Some(4), None, Some(0)]),
+            vec![NO_LABEL, 4, NO_LABEL, 0, NO_LABEL, NO_LABEL]
+        );
         assert_eq!(ids_mask(&ids, &[2, 9, 0]), vec![false, false, true, false, true, true]);
     }
 
@@ -184,8 +205,16 @@ mod tests {
         assert_eq!(ids[16 * 32 + 6], 1);
         assert_eq!(ids[16 * 32 + 25], 2);
         let left = (0..32 * 32).filter(|&p| p % 32 < 14 && (4..28).contains(&(p / 32)));
-        assert!(left.clone().all(|p| ids[p] == 1), "{:?}", left.map(|p| ids[p]).collect::<Vec<_>>());
-        assert!((0..32 * 32).filter(|&p| p % 32 > 18 && (4..28).contains(&(p / 32))).all(|p| ids[p] == 2));
+        assert!(
+            left.clone().all(|p| ids[p] == 1),
+            "{:?}",
+            left.map(|p| ids[p]).collect::<Vec<_>>()
+        );
+        assert!(
+            (0..32 * 32)
+                .filter(|&p| p % 32 > 18 && (4..28).contains(&(p / 32)))
+                .all(|p| ids[p] == 2)
+        );
         assert_eq!(render_instance_ids(&s, &cam, 0).unwrap(), vec![0; 32 * 32]);
     }
 }

@@ -195,7 +195,10 @@ fn validate(splats: &Splats, camera: &Camera, background: &[f32]) -> Result<Vec<
     if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
         return Err(RenderError::Camera("intrinsics must be finite with positive focal lengths"));
     }
-    if !camera.rotation.is_finite() || camera.rotation.length() < 1e-6 || !camera.translation.is_finite() {
+    if !camera.rotation.is_finite()
+        || camera.rotation.length() < 1e-6
+        || !camera.translation.is_finite()
+    {
         return Err(RenderError::Camera("pose must be finite with a nonzero rotation"));
     }
     match background.len() {
@@ -252,14 +255,25 @@ fn composite_tiles<S: composite::TileSink, T: Send>(
         .map(|tile| {
             let origin = [(tile as u32 % bins.tiles_x) * TILE, (tile as u32 / bins.tiles_x) * TILE];
             let mut s = sink();
-            let cov = composite::composite_tile(bins.isects(tile), &bins.sorted, cutoff, origin, size, &mut s);
+            let cov = composite::composite_tile(
+                bins.isects(tile),
+                &bins.sorted,
+                cutoff,
+                origin,
+                size,
+                &mut s,
+            );
             finish(s, cov)
         })
         .collect()
 }
 
 /// Renders with the hard alpha cutoff; see [`render_with`].
-pub fn render(splats: &Splats, camera: &Camera, background: &[f32]) -> Result<(Image, ForwardState), RenderError> {
+pub fn render(
+    splats: &Splats,
+    camera: &Camera,
+    background: &[f32],
+) -> Result<(Image, ForwardState), RenderError> {
     render_with(splats, camera, background, &RenderOptions::default())
 }
 
@@ -346,7 +360,11 @@ pub fn render_backward(
     d_alpha: &[f32],
 ) -> SplatGrads {
     let pixels = state.width as usize * state.height as usize;
-    assert_eq!(d_features.len(), pixels * state.channels, "d_features must be [channels][height][width]");
+    assert_eq!(
+        d_features.len(),
+        pixels * state.channels,
+        "d_features must be [channels][height][width]"
+    );
     assert_eq!(d_depth.len(), pixels, "d_depth must be [height][width]");
     assert_eq!(d_alpha.len(), pixels, "d_alpha must be [height][width]");
     assert_eq!(splats.means.len(), state.projected.len(), "splats differ from the forward's");

@@ -8,8 +8,8 @@
 use glam::{DMat3, DQuat, DVec3, Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::render::{
-    ALPHA_MAX, ALPHA_MIN, Backend, IdImage, Image, LOW_PASS, NEAR_PLANE, RenderError, Splats, T_MIN, render,
-    render_any, render_ids, render_ids_any,
+    ALPHA_MAX, ALPHA_MIN, Backend, IdImage, Image, LOW_PASS, NEAR_PLANE, RenderError, Splats,
+    T_MIN, render, render_any, render_ids, render_ids_any,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -17,7 +17,14 @@ use rand_chacha::ChaCha8Rng;
 use crate::support::Scene;
 
 impl Scene {
-    fn push(&mut self, mean: [f32; 3], log_scale: [f32; 3], rotation: [f32; 4], logit: f32, rng: &mut ChaCha8Rng) {
+    fn push(
+        &mut self,
+        mean: [f32; 3],
+        log_scale: [f32; 3],
+        rotation: [f32; 4],
+        logit: f32,
+        rng: &mut ChaCha8Rng,
+    ) {
         self.means.push(mean);
         self.log_scales.push(log_scale);
         self.rotations.push(rotation);
@@ -77,7 +84,12 @@ fn reference(s: &Splats, cam: &Camera, background: &[f32]) -> Reference {
     let mut gs = Vec::new();
     for i in 0..s.means.len() {
         let f = &s.features[i * c..(i + 1) * c];
-        let finite = s.means[i].iter().chain(&s.log_scales[i]).chain(&s.rotations[i]).chain(f).all(|v| v.is_finite());
+        let finite = s.means[i]
+            .iter()
+            .chain(&s.log_scales[i])
+            .chain(&s.rotations[i])
+            .chain(f)
+            .all(|v| v.is_finite());
         if !finite || !s.logit_opacity[i].is_finite() {
             continue;
         }
@@ -100,7 +112,8 @@ fn reference(s: &Splats, cam: &Camera, background: &[f32]) -> Reference {
             DVec3::new(-fx * tx / (p.z * p.z), -fy * ty / (p.z * p.z), 0.0),
         );
         let cov = j * sigma_cam * j.transpose();
-        let (a, b, cc) = (cov.x_axis.x + LOW_PASS as f64, cov.y_axis.x, cov.y_axis.y + LOW_PASS as f64);
+        let (a, b, cc) =
+            (cov.x_axis.x + LOW_PASS as f64, cov.y_axis.x, cov.y_axis.y + LOW_PASS as f64);
         let det = a * cc - b * b;
         if det.is_nan() || det <= 0.0 {
             continue;
@@ -116,7 +129,11 @@ fn reference(s: &Splats, cam: &Camera, background: &[f32]) -> Reference {
     gs.sort_by(|a, b| (a.z as f32).total_cmp(&(b.z as f32)).then(a.gid.cmp(&b.gid)));
 
     let pixels = w * h;
-    let mut out = Reference { features: vec![0.0; c * pixels], depth: vec![0.0; pixels], alpha: vec![0.0; pixels] };
+    let mut out = Reference {
+        features: vec![0.0; c * pixels],
+        depth: vec![0.0; pixels],
+        alpha: vec![0.0; pixels],
+    };
     for y in 0..h {
         for x in 0..w {
             let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
@@ -144,7 +161,8 @@ fn reference(s: &Splats, cam: &Camera, background: &[f32]) -> Reference {
             }
             let pix = y * w + x;
             for (ch, a) in acc.iter().enumerate() {
-                out.features[ch * pixels + pix] = a + t * background.get(ch).map_or(0.0, |&b| b as f64);
+                out.features[ch * pixels + pix] =
+                    a + t * background.get(ch).map_or(0.0, |&b| b as f64);
             }
             out.alpha[pix] = 1.0 - t;
             out.depth[pix] = depth / (1.0 - t).max(1e-10);
@@ -161,8 +179,9 @@ fn assert_close(what: &str, got: &[f32], want: &[f64], width: usize, atol: f64, 
     if let Some(&i) = nan.first() {
         panic!("{what}: {} NaN values, first at pixel x={}, y={}", nan.len(), i % width, i / width);
     }
-    let bad: Vec<usize> =
-        (0..got.len()).filter(|&i| (got[i] as f64 - want[i]).abs() > atol + rtol * want[i].abs()).collect();
+    let bad: Vec<usize> = (0..got.len())
+        .filter(|&i| (got[i] as f64 - want[i]).abs() > atol + rtol * want[i].abs())
+        .collect();
     if let Some(&i) = bad.first() {
         panic!(
             "{what}: {} of {} pixels differ beyond {atol:e} + {rtol:e}·|want|; first at x={}, y={}: got {}, want {}",
@@ -183,7 +202,14 @@ fn compare_with_reference(scene: &Scene, cam: &Camera, background: &[f32]) -> Im
     let h = cam.intrinsics.height as usize;
     for ch in 0..scene.channels {
         let plane = ch * w * h..(ch + 1) * w * h;
-        assert_close(&format!("channel {ch}"), &image.features[plane.clone()], &want.features[plane], w, 1e-5, 1e-2);
+        assert_close(
+            &format!("channel {ch}"),
+            &image.features[plane.clone()],
+            &want.features[plane],
+            w,
+            1e-5,
+            1e-2,
+        );
     }
     assert_close("alpha", &image.alpha, &want.alpha, w, 1e-5, 1e-2);
     assert_close("depth", &image.depth, &want.depth, w, 1e-5, 1e-2);
@@ -192,7 +218,9 @@ fn compare_with_reference(scene: &Scene, cam: &Camera, background: &[f32]) -> Im
 
 #[test]
 fn cpu_matches_reference_on_random_scenes() {
-    for (seed, (w, h, n, c)) in [(37, 29, 60, 3), (64, 48, 300, 11), (50, 70, 150, 1)].into_iter().enumerate() {
+    for (seed, (w, h, n, c)) in
+        [(37, 29, 60, 3), (64, 48, 300, 11), (50, 70, 150, 1)].into_iter().enumerate()
+    {
         let cam = camera(w, h);
         let scene = random_scene(n, c, &cam, seed as u64);
         let bg: Vec<f32> = (0..c).map(|i| 0.1 * i as f32).collect();
@@ -236,7 +264,13 @@ fn cpu_matches_reference_on_edge_cases() {
     scene.push(world([0.0, 0.0, 2.0]), [-1.0; 3], [0.0; 4], 3.0, &mut rng);
     scene.push(world([0.1, 0.0, 2.0]), [-1.0; 3], [1e-40, 0.0, 0.0, 0.0], 3.0, &mut rng);
     // Unnormalized quaternion, large norm.
-    scene.push(world([0.1, -0.2, 2.5]), [-2.0, -1.0, -3.0], [300.0, -40.0, 120.0, 9.0], 1.0, &mut rng);
+    scene.push(
+        world([0.1, -0.2, 2.5]),
+        [-2.0, -1.0, -3.0],
+        [300.0, -40.0, 120.0, 9.0],
+        1.0,
+        &mut rng,
+    );
     compare_with_reference(&scene, &cam, &[0.2, 0.0, 1.0]);
 }
 
@@ -273,10 +307,19 @@ fn bad_arguments_are_errors() {
     let cam = camera(16, 16);
     let scene = random_scene(4, 3, &cam, 1);
     let mut s = scene.splats();
-    assert!(matches!(render(&s, &cam, &[1.0]), Err(RenderError::Background { expected: 3, got: 1 })));
-    assert!(matches!(render(&s, &cam, &[1.0, f32::NAN, 0.0]), Err(RenderError::NonFiniteBackground(_))));
+    assert!(matches!(
+        render(&s, &cam, &[1.0]),
+        Err(RenderError::Background { expected: 3, got: 1 })
+    ));
+    assert!(matches!(
+        render(&s, &cam, &[1.0, f32::NAN, 0.0]),
+        Err(RenderError::NonFiniteBackground(_))
+    ));
     s.logit_opacity = &scene.logits[..3];
-    assert!(matches!(render(&s, &cam, &[]), Err(RenderError::Length { field: "logit_opacity", .. })));
+    assert!(matches!(
+        render(&s, &cam, &[]),
+        Err(RenderError::Length { field: "logit_opacity", .. })
+    ));
     let mut bad_cam = cam;
     bad_cam.intrinsics.width = 0;
     assert!(matches!(render(&scene.splats(), &bad_cam, &[]), Err(RenderError::EmptyImage { .. })));
@@ -300,13 +343,22 @@ fn one_hot_scene(n: usize, ids: u32, cam: &Camera, seed: u64) -> (Scene, Vec<u32
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1d);
     let id_of: Vec<u32> = (0..n).map(|_| rng.random_range(0..=ids)).collect();
     scene.channels = ids as usize;
-    scene.features = id_of.iter().flat_map(|&id| (1..=ids).map(move |k| if k == id { 1.0 } else { 0.0 })).collect();
+    scene.features = id_of
+        .iter()
+        .flat_map(|&id| (1..=ids).map(move |k| if k == id { 1.0 } else { 0.0 }))
+        .collect();
     (scene, id_of)
 }
 
 /// Pixels where two id maps differ, as (pixel, a, b), at most 10.
 fn id_differences(a: &[u32], b: &[u32]) -> Vec<(usize, u32, u32)> {
-    a.iter().zip(b).enumerate().filter(|(_, (x, y))| x != y).map(|(p, (&x, &y))| (p, x, y)).take(10).collect()
+    a.iter()
+        .zip(b)
+        .enumerate()
+        .filter(|(_, (x, y))| x != y)
+        .map(|(p, (&x, &y))| (p, x, y))
+        .take(10)
+        .collect()
 }
 
 #[test]
@@ -321,7 +373,8 @@ fn ids_render_like_one_hot_channels() {
         for min_alpha in [0.0, 0.5, 0.9] {
             let want = IdImage::from_one_hot(&one_hot, min_alpha);
             let got = render_ids(&scene.splats(), &ids, &cam, min_alpha).unwrap();
-            let what = format!("case {seed}, alpha > {min_alpha}: (pixel, ids, one-hot) that differ");
+            let what =
+                format!("case {seed}, alpha > {min_alpha}: (pixel, ids, one-hot) that differ");
             assert_eq!(id_differences(&got.ids, &want.ids), vec![], "{what}");
             let covered = got.ids.iter().filter(|&&id| id != 0).count();
             assert!(covered * 10 > got.ids.len(), "case {seed}: only {covered} pixels have an id");
@@ -369,9 +422,30 @@ fn wgpu_matches_cpu() {
         let (got, backend) = render_any(Some(&gpu), &scene.splats(), &cam, &bg).unwrap();
         assert_eq!(backend, Backend::Wgpu);
         let cpu64 = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
-        assert_close(&format!("case {seed} features"), &got.features, &cpu64(&cpu.features), w as usize, 1e-4, 1e-3);
-        assert_close(&format!("case {seed} alpha"), &got.alpha, &cpu64(&cpu.alpha), w as usize, 1e-4, 1e-3);
-        assert_close(&format!("case {seed} depth"), &got.depth, &cpu64(&cpu.depth), w as usize, 1e-4, 1e-3);
+        assert_close(
+            &format!("case {seed} features"),
+            &got.features,
+            &cpu64(&cpu.features),
+            w as usize,
+            1e-4,
+            1e-3,
+        );
+        assert_close(
+            &format!("case {seed} alpha"),
+            &got.alpha,
+            &cpu64(&cpu.alpha),
+            w as usize,
+            1e-4,
+            1e-3,
+        );
+        assert_close(
+            &format!("case {seed} depth"),
+            &got.depth,
+            &cpu64(&cpu.depth),
+            w as usize,
+            1e-4,
+            1e-3,
+        );
     }
 }
 

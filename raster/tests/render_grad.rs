@@ -120,7 +120,8 @@ const OPTIONS: RenderOptions = RenderOptions { cutoff: AlphaCutoff::Smooth };
 
 fn loss(scene: &Scene, cam: &Camera, background: &[f32], w: &Weights) -> f64 {
     let (image, _) = render_with(&scene.splats(), cam, background, &OPTIONS).unwrap();
-    let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum::<f64>();
+    let dot =
+        |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(&x, &y)| x as f64 * y as f64).sum::<f64>();
     dot(&image.features, &w.features) + dot(&image.depth, &w.depth) + dot(&image.alpha, &w.alpha)
 }
 
@@ -138,7 +139,10 @@ fn check(scene: &Scene, cam: &Camera, background: &[f32], which: Outputs, seed: 
     for (wd, &a) in w.depth.iter_mut().zip(&image.alpha) {
         *wd *= (a > 0.1) as u8 as f32;
     }
-    assert!(image.alpha.iter().all(|&a| a < 0.99), "scene must stay away from the transmittance stop");
+    assert!(
+        image.alpha.iter().all(|&a| a < 0.99),
+        "scene must stay away from the transmittance stop"
+    );
     let grads = render_backward(&scene.splats(), cam, &state, &w.features, &w.depth, &w.alpha);
     let mut failures = Vec::new();
     for kind in KINDS {
@@ -155,17 +159,23 @@ fn check(scene: &Scene, cam: &Camera, background: &[f32], which: Outputs, seed: 
                 *plus.param(kind, i) += h;
                 let mut minus = scene.clone();
                 *minus.param(kind, i) -= h;
-                (loss(&plus, cam, background, &w) - loss(&minus, cam, background, &w)) / (2.0 * h as f64)
+                (loss(&plus, cam, background, &w) - loss(&minus, cam, background, &w))
+                    / (2.0 * h as f64)
             })
             .collect();
         let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if !matches!(kind, Kind::Feature) || matches!(which, Outputs::All | Outputs::FeaturesOnly) {
-            assert!(scale > 1e-2, "{kind:?}: the scene should give this kind a gradient (max |fd| {scale})");
+            assert!(
+                scale > 1e-2,
+                "{kind:?}: the scene should give this kind a gradient (max |fd| {scale})"
+            );
         }
         for (i, (&a, &f)) in analytic.iter().zip(&fd).enumerate() {
             let tol = 2e-2 * f.abs() + 2e-3 * scale;
             if !a.is_finite() || (a as f64 - f).abs() > tol {
-                failures.push(format!("{kind:?}[{i}]: analytic {a}, finite difference {f} (tolerance {tol:.2e})"));
+                failures.push(format!(
+                    "{kind:?}[{i}]: analytic {a}, finite difference {f} (tolerance {tol:.2e})"
+                ));
             }
         }
     }
@@ -241,7 +251,12 @@ fn skipped_gaussians_get_zero_finite_gradients() {
         assert_eq!(g.logit_opacity[i], 0.0);
         assert_eq!(&g.features[2 * i..2 * i + 2], &[0.0, 0.0]);
     }
-    let all = g.means.iter().flatten().chain(g.log_scales.iter().flatten()).chain(g.rotations.iter().flatten());
+    let all = g
+        .means
+        .iter()
+        .flatten()
+        .chain(g.log_scales.iter().flatten())
+        .chain(g.rotations.iter().flatten());
     assert!(all.chain(&g.logit_opacity).chain(&g.features).all(|v| v.is_finite()));
     assert!(g.means[..n - 3].iter().flatten().any(|&v| v != 0.0));
 }
@@ -273,11 +288,13 @@ fn camera_pose_gradients() {
     };
     let fd: Vec<f64> = (0..7)
         .map(|i| {
-            (loss(&scene, &perturbed(i, h), &background, &w) - loss(&scene, &perturbed(i, -h), &background, &w))
+            (loss(&scene, &perturbed(i, h), &background, &w)
+                - loss(&scene, &perturbed(i, -h), &background, &w))
                 / (2.0 * h as f64)
         })
         .collect();
-    let analytic: Vec<f32> = grads.camera.rotation.iter().chain(&grads.camera.translation).copied().collect();
+    let analytic: Vec<f32> =
+        grads.camera.rotation.iter().chain(&grads.camera.translation).copied().collect();
     let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     assert!(scale > 1e-2, "the camera should get a gradient");
     for (i, (&a, &f)) in analytic.iter().zip(&fd).enumerate() {

@@ -23,7 +23,8 @@ pub struct SceneSummary {
 
 /// Loads and validates the scene in `dir`.
 pub fn check_scene(dir: &Path) -> anyhow::Result<SceneSummary> {
-    let scene = Scene::load(dir).with_context(|| format!("scene {} is not valid", dir.display()))?;
+    let scene =
+        Scene::load(dir).with_context(|| format!("scene {} is not valid", dir.display()))?;
     let first = &scene.frames[0];
     Ok(SceneSummary {
         path: dir.display().to_string(),

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use inssplat_pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
 use inssplat_pipeline::backend::{Model, threads_or_all};
+use inssplat_pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
 use inssplat_pipeline::switches::PipelineSwitches;
 use inssplat_pipeline::vocab::label_cache;
 use inssplat_pipeline::{inputs, output, query, render_view, saved, vocab};
@@ -125,20 +125,38 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Reconstruct { inputs, out, model, vocab, shape_weight, switches, json, threads } => {
+        Command::Reconstruct {
+            inputs,
+            out,
+            model,
+            vocab,
+            shape_weight,
+            switches,
+            json,
+            threads,
+        } => {
             let paths = inputs::photo_paths(&inputs)?;
             let photos = inputs::read_photos(&paths)?;
             let vocabulary = vocab::vocabulary(vocab.as_deref())?;
             let mut model = Model::load(&model, threads_or_all(threads))?;
             let labels = label_cache()?;
-            let bar = if json { indicatif::ProgressBar::hidden() } else { indicatif::ProgressBar::new_spinner() };
-            bar.set_style(indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}").expect("template"));
+            let bar = if json {
+                indicatif::ProgressBar::hidden()
+            } else {
+                indicatif::ProgressBar::new_spinner()
+            };
+            bar.set_style(
+                indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}")
+                    .expect("template"),
+            );
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
-            let config = switches.apply(PipelineConfig { shape_weight, ..PipelineConfig::default() });
-            let rec = reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
-                bar.set_message(format!("{views} views: {stage}"))
-            });
+            let config =
+                switches.apply(PipelineConfig { shape_weight, ..PipelineConfig::default() });
+            let rec =
+                reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
+                    bar.set_message(format!("{views} views: {stage}"))
+                });
             bar.finish_and_clear();
             let rec = rec?;
             let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
@@ -159,8 +177,15 @@ fn main() -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string_pretty(&answer)?);
             } else {
                 for m in &answer.matches {
-                    let px: usize = m.masks.iter().map(|v| v.rle.decode().iter().filter(|b| **b).count()).sum();
-                    println!("#{:<3} {:<20} score {:.2}  {px} mask pixels over {} views", m.instance_id, m.label, m.score, m.masks.len());
+                    let px: usize =
+                        m.masks.iter().map(|v| v.rle.decode().iter().filter(|b| **b).count()).sum();
+                    println!(
+                        "#{:<3} {:<20} score {:.2}  {px} mask pixels over {} views",
+                        m.instance_id,
+                        m.label,
+                        m.score,
+                        m.masks.len()
+                    );
                 }
                 if let Some(msg) = &answer.message {
                     println!("{msg}");
@@ -175,7 +200,8 @@ fn main() -> anyhow::Result<()> {
             let cameras = render_view::cameras(&saved, &camera)?;
             let dir = to.unwrap_or_else(|| out.join("render"));
             let gpu = gpu_renderer(render)?;
-            let (files, backend) = render_view::render_views(&saved, &cameras, &dir, gpu.as_ref(), !no_fill)?;
+            let (files, backend) =
+                render_view::render_views(&saved, &cameras, &dir, gpu.as_ref(), !no_fill)?;
             println!(
                 "{} images from {} camera(s) in {} (masks rendered on {})",
                 files.len(),

@@ -11,7 +11,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use inssplat_proto::api::{JobState, StageTiming};
 
 /// Upper bounds of the latency buckets, seconds.
-const BUCKETS: [f64; 13] = [0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0];
+const BUCKETS: [f64; 13] =
+    [0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0];
 
 #[derive(Debug, Clone, Default)]
 struct Histogram {
@@ -71,7 +72,9 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 impl Metrics {
     /// Counts one answered request; `route` is the matched route template, never the raw path.
     pub fn record_request(&self, method: &str, route: &str, status: u16, seconds: f64) {
-        *lock(&self.requests).entry((method.to_string(), route.to_string(), status)).or_default() += 1;
+        *lock(&self.requests)
+            .entry((method.to_string(), route.to_string(), status))
+            .or_default() += 1;
         lock(&self.request_seconds).entry(route.to_string()).or_default().observe(seconds);
     }
 
@@ -93,7 +96,10 @@ impl Metrics {
         let mut out = String::new();
         out.push_str("# HELP inssplat_http_requests_total HTTP requests answered.\n# TYPE inssplat_http_requests_total counter\n");
         for ((method, route, status), n) in lock(&self.requests).iter() {
-            let _ = writeln!(out, "inssplat_http_requests_total{{method=\"{method}\",route=\"{route}\",status=\"{status}\"}} {n}");
+            let _ = writeln!(
+                out,
+                "inssplat_http_requests_total{{method=\"{method}\",route=\"{route}\",status=\"{status}\"}} {n}"
+            );
         }
         out.push_str("# HELP inssplat_http_request_duration_seconds Request latency by route.\n# TYPE inssplat_http_request_duration_seconds histogram\n");
         for (route, h) in lock(&self.request_seconds).iter() {
@@ -111,13 +117,36 @@ impl Metrics {
         let gauge = |out: &mut String, name: &str, help: &str, value: f64| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {value}");
         };
-        gauge(&mut out, "inssplat_queue_depth", "Requests waiting for a model worker.", g.queue_depth as f64);
-        gauge(&mut out, "inssplat_queue_capacity", "Requests the queue holds before answering 429.", g.queue_capacity as f64);
-        gauge(&mut out, "inssplat_scene_bytes", "Bytes of stored scene artefacts.", g.scene_bytes as f64);
-        gauge(&mut out, "inssplat_ready", "1 once the model is loaded and warmed up.", if g.ready { 1.0 } else { 0.0 });
+        gauge(
+            &mut out,
+            "inssplat_queue_depth",
+            "Requests waiting for a model worker.",
+            g.queue_depth as f64,
+        );
+        gauge(
+            &mut out,
+            "inssplat_queue_capacity",
+            "Requests the queue holds before answering 429.",
+            g.queue_capacity as f64,
+        );
+        gauge(
+            &mut out,
+            "inssplat_scene_bytes",
+            "Bytes of stored scene artefacts.",
+            g.scene_bytes as f64,
+        );
+        gauge(
+            &mut out,
+            "inssplat_ready",
+            "1 once the model is loaded and warmed up.",
+            if g.ready { 1.0 } else { 0.0 },
+        );
         out.push_str("# HELP inssplat_jobs Batch jobs by state.\n# TYPE inssplat_jobs gauge\n");
         for (state, n) in &g.jobs_by_state {
-            let state = serde_json::to_value(state).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
+            let state = serde_json::to_value(state)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string))
+                .unwrap_or_default();
             let _ = writeln!(out, "inssplat_jobs{{state=\"{state}\"}} {n}");
         }
         out
@@ -134,11 +163,25 @@ mod tests {
         m.record_request("POST", "/v1/reconstruct", 200, 0.02);
         m.record_request("POST", "/v1/reconstruct", 429, 0.001);
         m.record_stages(&[StageTiming { stage: "model".into(), ms: 300.0 }]);
-        let text = m.render(&Gauges { queue_depth: 3, jobs_by_state: vec![(JobState::Running, 2)], ..Gauges::default() });
+        let text = m.render(&Gauges {
+            queue_depth: 3,
+            jobs_by_state: vec![(JobState::Running, 2)],
+            ..Gauges::default()
+        });
         assert!(text.contains("inssplat_http_requests_total{method=\"POST\",route=\"/v1/reconstruct\",status=\"429\"} 1"), "{text}");
         assert!(text.contains("inssplat_http_request_duration_seconds_bucket{route=\"/v1/reconstruct\",le=\"0.025\"} 2"), "{text}");
-        assert!(text.contains("inssplat_stage_duration_seconds_bucket{stage=\"model\",le=\"0.25\"} 0"), "{text}");
-        assert!(text.contains("inssplat_stage_duration_seconds_bucket{stage=\"model\",le=\"0.5\"} 1"), "{text}");
-        assert!(text.contains("inssplat_queue_depth 3") && text.contains("inssplat_jobs{state=\"running\"} 2"), "{text}");
+        assert!(
+            text.contains("inssplat_stage_duration_seconds_bucket{stage=\"model\",le=\"0.25\"} 0"),
+            "{text}"
+        );
+        assert!(
+            text.contains("inssplat_stage_duration_seconds_bucket{stage=\"model\",le=\"0.5\"} 1"),
+            "{text}"
+        );
+        assert!(
+            text.contains("inssplat_queue_depth 3")
+                && text.contains("inssplat_jobs{state=\"running\"} 2"),
+            "{text}"
+        );
     }
 }

@@ -37,7 +37,11 @@ impl std::str::FromStr for SceneId {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        if is_id(s) { Ok(Self(s.to_string())) } else { Err(format!("`{}` is not a scene id (32 lower-case hex digits)", s.escape_debug())) }
+        if is_id(s) {
+            Ok(Self(s.to_string()))
+        } else {
+            Err(format!("`{}` is not a scene id (32 lower-case hex digits)", s.escape_debug()))
+        }
     }
 }
 
@@ -64,10 +68,15 @@ pub struct SceneStore {
 impl SceneStore {
     /// Opens (creating) `root` and removes staging folders a crash left behind.
     pub fn open(root: &Path, quota_bytes: u64, expiry: Option<Duration>) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(root).with_context(|| format!("cannot create the scene folder {}", root.display()))?;
-        for entry in std::fs::read_dir(root).with_context(|| format!("cannot list {}", root.display()))?.flatten() {
+        std::fs::create_dir_all(root)
+            .with_context(|| format!("cannot create the scene folder {}", root.display()))?;
+        for entry in std::fs::read_dir(root)
+            .with_context(|| format!("cannot list {}", root.display()))?
+            .flatten()
+        {
             if entry.file_name().to_string_lossy().starts_with(STAGING) {
-                std::fs::remove_dir_all(entry.path()).with_context(|| format!("cannot remove {}", entry.path().display()))?;
+                std::fs::remove_dir_all(entry.path())
+                    .with_context(|| format!("cannot remove {}", entry.path().display()))?;
             }
         }
         Ok(Self { root: root.to_path_buf(), quota_bytes, expiry })
@@ -77,9 +86,11 @@ impl SceneStore {
     pub fn staging(&self, id: &SceneId) -> anyhow::Result<PathBuf> {
         let dir = self.root.join(format!("{STAGING}{id}"));
         if dir.exists() {
-            std::fs::remove_dir_all(&dir).with_context(|| format!("cannot clear {}", dir.display()))?;
+            std::fs::remove_dir_all(&dir)
+                .with_context(|| format!("cannot clear {}", dir.display()))?;
         }
-        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
         Ok(dir)
     }
 
@@ -87,12 +98,15 @@ impl SceneStore {
     /// scenes as the quota and expiry require.
     pub fn commit(&self, id: &SceneId) -> anyhow::Result<()> {
         let staged = self.root.join(format!("{STAGING}{id}"));
-        std::fs::write(staged.join(USED), b"").with_context(|| format!("cannot write {}", staged.join(USED).display()))?;
+        std::fs::write(staged.join(USED), b"")
+            .with_context(|| format!("cannot write {}", staged.join(USED).display()))?;
         let dir = self.root.join(id.to_string());
         if dir.exists() {
-            std::fs::remove_dir_all(&dir).with_context(|| format!("cannot replace {}", dir.display()))?;
+            std::fs::remove_dir_all(&dir)
+                .with_context(|| format!("cannot replace {}", dir.display()))?;
         }
-        std::fs::rename(&staged, &dir).with_context(|| format!("cannot move {} to {}", staged.display(), dir.display()))?;
+        std::fs::rename(&staged, &dir)
+            .with_context(|| format!("cannot move {} to {}", staged.display(), dir.display()))?;
         self.evict(Some(id))?;
         Ok(())
     }
@@ -123,10 +137,12 @@ impl SceneStore {
             if keep.is_some_and(|k| k.0 == s.id) {
                 continue;
             }
-            let expired = self.expiry.is_some_and(|e| now.duration_since(s.used).unwrap_or_default() > e);
+            let expired =
+                self.expiry.is_some_and(|e| now.duration_since(s.used).unwrap_or_default() > e);
             if expired || total > self.quota_bytes {
                 let dir = self.root.join(&s.id);
-                std::fs::remove_dir_all(&dir).with_context(|| format!("cannot remove {}", dir.display()))?;
+                std::fs::remove_dir_all(&dir)
+                    .with_context(|| format!("cannot remove {}", dir.display()))?;
                 total -= s.bytes;
                 removed += 1;
             }
@@ -143,7 +159,9 @@ impl SceneStore {
                 if !is_id(&id) {
                     return None;
                 }
-                let used = std::fs::metadata(e.path().join(USED)).and_then(|m| m.modified()).unwrap_or(SystemTime::UNIX_EPOCH);
+                let used = std::fs::metadata(e.path().join(USED))
+                    .and_then(|m| m.modified())
+                    .unwrap_or(SystemTime::UNIX_EPOCH);
                 Some(StoredScene { bytes: folder_bytes(&e.path()), id, used })
             })
             .collect()
@@ -183,7 +201,13 @@ mod tests {
     #[test]
     fn ids_refuse_anything_but_32_hex_digits() {
         assert!("0123456789abcdef0123456789abcdef".parse::<SceneId>().is_ok());
-        for bad in ["", "..", "../../etc/passwd", "0123456789ABCDEF0123456789ABCDEF", "0123456789abcdef0123456789abcde/"] {
+        for bad in [
+            "",
+            "..",
+            "../../etc/passwd",
+            "0123456789ABCDEF0123456789ABCDEF",
+            "0123456789abcdef0123456789abcde/",
+        ] {
             assert!(bad.parse::<SceneId>().is_err(), "{bad}");
         }
     }
@@ -208,7 +232,8 @@ mod tests {
     #[test]
     fn expired_scenes_and_crash_leftovers_go() {
         let dir = tempfile::tempdir().unwrap();
-        let store = SceneStore::open(dir.path(), u64::MAX, Some(Duration::from_millis(10))).unwrap();
+        let store =
+            SceneStore::open(dir.path(), u64::MAX, Some(Duration::from_millis(10))).unwrap();
         let old = store_scene(&store, 10);
         let half = SceneId::new();
         store.staging(&half).unwrap();

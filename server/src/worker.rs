@@ -21,10 +21,10 @@ use tokio::sync::{broadcast, oneshot};
 
 use crate::jobs::{JobStore, SceneOutcome, SceneTask};
 use crate::metrics::Metrics;
-use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, PipelineError, reconstruct};
-use inssplat_pipeline::backend::Model;
-use inssplat_pipeline::saved::Saved;
 use crate::scene_store::{SceneId, SceneStore};
+use inssplat_pipeline::backend::Model;
+use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, PipelineError, reconstruct};
+use inssplat_pipeline::saved::Saved;
 use inssplat_pipeline::{output, query};
 
 /// How long an idle worker waits on the queue before looking for job scenes again.
@@ -72,7 +72,9 @@ impl Task {
 pub enum SubmitError {
     #[error("the model is still loading")]
     NotReady,
-    #[error("the service is busy: {capacity} requests are already waiting; retry in {retry_after_s} s")]
+    #[error(
+        "the service is busy: {capacity} requests are already waiting; retry in {retry_after_s} s"
+    )]
     Overloaded { capacity: usize, retry_after_s: u64 },
     #[error("the service is shutting down")]
     Stopped,
@@ -123,7 +125,10 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 impl Pool {
     /// Starts loading the text encoder and one model per worker in the background; the
     /// receiver gets the model version when all are warm, or the error that stopped them.
-    pub fn start(config: WorkerConfig, shared: Arc<Shared>) -> (Arc<Pool>, oneshot::Receiver<anyhow::Result<String>>) {
+    pub fn start(
+        config: WorkerConfig,
+        shared: Arc<Shared>,
+    ) -> (Arc<Pool>, oneshot::Receiver<anyhow::Result<String>>) {
         let (tx, rx) = std::sync::mpsc::sync_channel(config.queue);
         let state = Arc::new(PoolState {
             depth: AtomicUsize::new(0),
@@ -133,7 +138,11 @@ impl Pool {
             stop: AtomicBool::new(false),
             mean_task_ms: AtomicU64::new(1000),
         });
-        let pool = Arc::new(Pool { tx: Mutex::new(Some(tx)), state: state.clone(), handles: Arc::default() });
+        let pool = Arc::new(Pool {
+            tx: Mutex::new(Some(tx)),
+            state: state.clone(),
+            handles: Arc::default(),
+        });
         let (started, startup) = oneshot::channel();
         let handles = pool.handles.clone();
         let loader = std::thread::Builder::new().name("model-loader".into()).spawn(move || {
@@ -174,8 +183,12 @@ impl Pool {
                 Err(match e {
                     TrySendError::Full(_) => {
                         let waiting = (self.state.capacity + self.state.workers) as u64;
-                        let ms = self.state.mean_task_ms.load(Ordering::Relaxed) * waiting / self.state.workers as u64;
-                        SubmitError::Overloaded { capacity: self.state.capacity, retry_after_s: ms.div_ceil(1000).max(1) }
+                        let ms = self.state.mean_task_ms.load(Ordering::Relaxed) * waiting
+                            / self.state.workers as u64;
+                        SubmitError::Overloaded {
+                            capacity: self.state.capacity,
+                            retry_after_s: ms.div_ceil(1000).max(1),
+                        }
                     }
                     TrySendError::Disconnected(_) => SubmitError::Stopped,
                 })
@@ -205,12 +218,22 @@ fn load_and_spawn(
     handles: &Mutex<Vec<JoinHandle<()>>>,
 ) -> anyhow::Result<String> {
     let labels = Arc::new(inssplat_pipeline::vocab::label_cache()?);
-    let models = (0..state.workers).map(|_| Model::load(&config.model, config.threads)).collect::<Result<Vec<_>, _>>()?;
+    let models = (0..state.workers)
+        .map(|_| Model::load(&config.model, config.threads))
+        .collect::<Result<Vec<_>, _>>()?;
     let version = models[0].network.model_version.clone();
     for (i, model) in models.into_iter().enumerate() {
-        let worker = Worker { model, labels: labels.clone(), pipeline: config.pipeline.clone(), shared: shared.clone(), state: state.clone() };
+        let worker = Worker {
+            model,
+            labels: labels.clone(),
+            pipeline: config.pipeline.clone(),
+            shared: shared.clone(),
+            state: state.clone(),
+        };
         let rx = rx.clone();
-        let handle = std::thread::Builder::new().name(format!("model-worker-{i}")).spawn(move || worker.run(&rx))?;
+        let handle = std::thread::Builder::new()
+            .name(format!("model-worker-{i}"))
+            .spawn(move || worker.run(&rx))?;
         lock(handles).push(handle);
     }
     let _ = state.ready.set(version.clone());
@@ -296,18 +319,29 @@ impl Worker {
             Task::Query { dir, text, reply } => {
                 let result = catch(|| {
                     let saved = Saved::load(&dir).map_err(|e| internal(format!("{e:#}")))?;
-                    query::run_query(&saved, &self.labels, &text).map(|(answer, _)| answer).map_err(|e| internal(format!("{e:#}")))
+                    query::run_query(&saved, &self.labels, &text)
+                        .map(|(answer, _)| answer)
+                        .map_err(|e| internal(format!("{e:#}")))
                 });
                 let _ = reply.send(result);
             }
         }
     }
 
-    fn reconstruct(&mut self, images: &[InputImage], vocabulary: &[String], config: &PipelineConfig) -> Result<ReconstructResponse, TaskError> {
-        let rec = reconstruct(&mut self.model, &self.labels, images, vocabulary, config).map_err(|e| match e {
-            PipelineError::ViewCount(_) | PipelineError::Decode(_) | PipelineError::EmptyVocabulary => TaskError::Invalid(e.to_string()),
-            other => internal(other),
-        })?;
+    fn reconstruct(
+        &mut self,
+        images: &[InputImage],
+        vocabulary: &[String],
+        config: &PipelineConfig,
+    ) -> Result<ReconstructResponse, TaskError> {
+        let rec = reconstruct(&mut self.model, &self.labels, images, vocabulary, config).map_err(
+            |e| match e {
+                PipelineError::ViewCount(_)
+                | PipelineError::Decode(_)
+                | PipelineError::EmptyVocabulary => TaskError::Invalid(e.to_string()),
+                other => internal(other),
+            },
+        )?;
         self.shared.metrics.record_stages(&rec.timings);
         let id = SceneId::new();
         let names: Vec<String> = images.iter().map(|i| i.name.clone()).collect();
@@ -323,8 +357,14 @@ impl Worker {
         let result = catch(|| {
             let id: SceneId = task.scene_id.parse().map_err(TaskError::Internal)?;
             let dir = self.shared.scenes.staging(&id).map_err(internal)?;
-            let (timings, metrics) = crate::jobs::run::run_scene(&mut self.model, &self.labels, &self.pipeline, task, &dir)
-                .map_err(|e| internal(format!("{e:#}")))?;
+            let (timings, metrics) = crate::jobs::run::run_scene(
+                &mut self.model,
+                &self.labels,
+                &self.pipeline,
+                task,
+                &dir,
+            )
+            .map_err(|e| internal(format!("{e:#}")))?;
             self.shared.scenes.commit(&id).map_err(internal)?;
             self.shared.metrics.record_stages(&timings);
             Ok(metrics)
@@ -336,15 +376,27 @@ impl Worker {
         match self.shared.jobs.finish(task, &outcome) {
             Ok(()) => {
                 if let Err(e) = std::fs::remove_dir_all(&task.input) {
-                    tracing::warn!("job {}: cannot remove the input of scene {}: {e}", task.job_id, task.index);
+                    tracing::warn!(
+                        "job {}: cannot remove the input of scene {}: {e}",
+                        task.job_id,
+                        task.index
+                    );
                 }
             }
-            Err(e) => tracing::error!("job {}: cannot record scene {}: {e:#}", task.job_id, task.index),
+            Err(e) => {
+                tracing::error!("job {}: cannot record scene {}: {e:#}", task.job_id, task.index)
+            }
         }
-        tracing::info!("job {} scene {} ({}): {}", task.job_id, task.index, task.name, match &outcome {
-            SceneOutcome::Done { .. } => "done".to_string(),
-            SceneOutcome::Failed { error } => format!("failed: {error}"),
-        });
+        tracing::info!(
+            "job {} scene {} ({}): {}",
+            task.job_id,
+            task.index,
+            task.name,
+            match &outcome {
+                SceneOutcome::Done { .. } => "done".to_string(),
+                SceneOutcome::Failed { error } => format!("failed: {error}"),
+            }
+        );
         let _ = self.shared.job_events.send(task.job_id.clone());
     }
 }
@@ -352,7 +404,13 @@ impl Worker {
 /// Runs `f`, turning a panic into an internal error (a bad input must never take a worker down).
 fn catch<T>(f: impl FnOnce() -> Result<T, TaskError>) -> Result<T, TaskError> {
     std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|p| {
-        let what = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
-        Err(TaskError::Internal(format!("internal error: {}", what.unwrap_or_else(|| "panic".into()))))
+        let what = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
+        Err(TaskError::Internal(format!(
+            "internal error: {}",
+            what.unwrap_or_else(|| "panic".into())
+        )))
     })
 }

@@ -19,7 +19,13 @@ const OBJECT_CLEARANCE: f32 = 0.15;
 const MIN_VIEW_DISTANCE: f32 = 0.7;
 
 /// `n` cameras along one random path.
-pub fn cameras(world: &World, n: usize, overlap: f32, k: Intrinsics, rng: &mut impl Rng) -> Vec<Camera> {
+pub fn cameras(
+    world: &World,
+    n: usize,
+    overlap: f32,
+    k: Intrinsics,
+    rng: &mut impl Rng,
+) -> Vec<Camera> {
     let size = world.room.size;
     let targets = world.object_centres();
     for _ in 0..40 {
@@ -41,7 +47,8 @@ pub fn cameras(world: &World, n: usize, overlap: f32, k: Intrinsics, rng: &mut i
         }
         let step = Vec3::new(rng.random_range(-0.1..0.1), 0.0, rng.random_range(-0.1..0.1));
         let look = (0..3).map(|_| look_around(eye, &targets, rng)).collect();
-        let cams = sample(&Path { kind: Kind::Line { from: eye, to: eye + step }, look }, n, k, rng);
+        let cams =
+            sample(&Path { kind: Kind::Line { from: eye, to: eye + step }, look }, n, k, rng);
         if valid(world, &cams) {
             return cams;
         }
@@ -152,7 +159,11 @@ fn random_path(world: &World, targets: &[(Vec3, f32)], overlap: f32, rng: &mut i
         }
         1 => {
             // A walk across the room, looking at a few objects in turn.
-            let a = inner(Vec3::new(rng.random_range(0.0..size.x), height, rng.random_range(0.0..size.z)));
+            let a = inner(Vec3::new(
+                rng.random_range(0.0..size.x),
+                height,
+                rng.random_range(0.0..size.z),
+            ));
             let b = inner(Vec3::new(size.x - a.x, height, size.z - a.z));
             let len = (0.15 + 0.85 * reach) * rng.random_range(0.7..1.0);
             let mid = a.lerp(b, rng.random_range(0.0..1.0 - len));
@@ -220,10 +231,18 @@ fn sample(path: &Path, n: usize, k: Intrinsics, rng: &mut impl Rng) -> Vec<Camer
             if i > 0 {
                 s += steps[i] / total.max(1e-6);
             }
-            let shake = Vec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03));
+            let shake = Vec3::new(
+                rng.random_range(-0.03..0.03),
+                rng.random_range(-0.03..0.03),
+                rng.random_range(-0.03..0.03),
+            );
             let eye = path.eye(s) + Vec3::Y * 0.04 * (bob_phase + 9.0 * s).sin() + shake;
             let target = path.target(s)
-                + Vec3::new(rng.random_range(-0.15..0.15), rng.random_range(-0.1..0.1), rng.random_range(-0.15..0.15));
+                + Vec3::new(
+                    rng.random_range(-0.15..0.15),
+                    rng.random_range(-0.1..0.1),
+                    rng.random_range(-0.15..0.15),
+                );
             let target = level(eye, target, rng);
             let forward = (target - eye).normalize();
             let roll = rng.random_range(-0.05..0.05);

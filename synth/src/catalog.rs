@@ -67,7 +67,8 @@ impl Catalog {
     }
 
     fn read(dir: &Path) -> Result<Catalog, SynthError> {
-        let bad_dir = |problem: String| SynthError::FurnitureDir { dir: dir.to_path_buf(), problem };
+        let bad_dir =
+            |problem: String| SynthError::FurnitureDir { dir: dir.to_path_buf(), problem };
         let listing = std::fs::read_dir(dir).map_err(|e| bad_dir(e.to_string()))?;
         let mut archives: Vec<PathBuf> = listing
             .filter_map(|e| e.ok().map(|e| e.path()))
@@ -75,10 +76,15 @@ impl Catalog {
             .collect();
         archives.sort();
         if archives.is_empty() {
-            return Err(bad_dir("no *.sh3f furniture libraries in it (install sweethome3d-furniture)".into()));
+            return Err(bad_dir(
+                "no *.sh3f furniture libraries in it (install sweethome3d-furniture)".into(),
+            ));
         }
-        let reserved: BTreeSet<&str> =
-            RESERVED.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')).collect();
+        let reserved: BTreeSet<&str> = RESERVED
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .collect();
         let mut entries = Vec::new();
         for archive in &archives {
             let text = read_properties(archive)?;
@@ -102,8 +108,10 @@ fn read_properties(archive: &Path) -> Result<String, SynthError> {
         problem,
     };
     let file = std::fs::File::open(archive).map_err(|e| err(e.to_string()))?;
-    let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| err(e.to_string()))?;
-    let mut entry = zip.by_name("PluginFurnitureCatalog.properties").map_err(|e| err(e.to_string()))?;
+    let mut zip =
+        zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| err(e.to_string()))?;
+    let mut entry =
+        zip.by_name("PluginFurnitureCatalog.properties").map_err(|e| err(e.to_string()))?;
     let mut bytes = Vec::new();
     entry.read_to_end(&mut bytes).map_err(|e| err(e.to_string()))?;
     // ISO-8859-1: every byte is the code point of the same value.
@@ -116,7 +124,8 @@ fn parse_properties(text: &str) -> Vec<(String, String)> {
     let mut logical = String::new();
     for line in text.lines() {
         let line = if logical.is_empty() { line.trim_start() } else { line.trim() };
-        if logical.is_empty() && (line.starts_with('#') || line.starts_with('!') || line.is_empty()) {
+        if logical.is_empty() && (line.starts_with('#') || line.starts_with('!') || line.is_empty())
+        {
             continue;
         }
         if let Some(stripped) = line.strip_suffix('\\').filter(|s| !s.ends_with('\\')) {
@@ -184,26 +193,45 @@ fn entry_from_fields(
     }
     if matches!(
         get("category")?,
-        "Exterior" | "Doors and windows" | "Characters" | "Vehicles" | "Staircases" | "Miscellaneous exterior"
+        "Exterior"
+            | "Doors and windows"
+            | "Characters"
+            | "Vehicles"
+            | "Staircases"
+            | "Miscellaneous exterior"
     ) {
         return None;
     }
     let name = get("name")?;
     let label = label_for(name)?;
     let size = Vec3::new(num("width")?, num("height")?, num("depth")?) / 100.0;
-    let small_ok = matches!(label, "lamp" | "vase" | "plant" | "tv" | "speaker" | "computer" | "fan" | "box");
-    if size.min_element() <= 0.0 || size.max_element() > 3.0 || (size.y < 0.3 && !small_ok) || size.y < 0.15 {
+    let small_ok =
+        matches!(label, "lamp" | "vase" | "plant" | "tv" | "speaker" | "computer" | "fan" | "box");
+    if size.min_element() <= 0.0
+        || size.max_element() > 3.0
+        || (size.y < 0.3 && !small_ok)
+        || size.y < 0.15
+    {
         return None;
     }
     let supports = matches!(
         label,
-        "table" | "coffee table" | "desk" | "nightstand" | "cabinet" | "dresser" | "tv stand" | "bookcase"
+        "table"
+            | "coffee table"
+            | "desk"
+            | "nightstand"
+            | "cabinet"
+            | "dresser"
+            | "tv stand"
+            | "bookcase"
     );
-    let top = supports.then(|| num("dropOnTopElevation").map_or(size.y, |cm| (cm / 100.0).min(size.y)));
+    let top =
+        supports.then(|| num("dropOnTopElevation").map_or(size.y, |cm| (cm / 100.0).min(size.y)));
     let rotation = get("modelRotation").and_then(|r| {
         let v: Vec<f32> = r.split_whitespace().filter_map(|x| x.parse().ok()).collect();
         // Row-major in the catalog; glam takes columns.
-        (v.len() == 9).then(|| Mat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]]))
+        (v.len() == 9)
+            .then(|| Mat3::from_cols_array(&[v[0], v[3], v[6], v[1], v[4], v[7], v[2], v[5], v[8]]))
     });
     let id = get("id")?.to_string();
     Some(CatalogEntry {
@@ -248,8 +276,20 @@ const RULES: &[(&str, &[&str])] = &[
     (
         "plant",
         &[
-            "plant", "ficus", "yucca", "bamboo", "bonsai", "tulips", "orchids", "lily", "flowers", "spathiphyllum",
-            "cactus", "palm", "fern", "christmas tree",
+            "plant",
+            "ficus",
+            "yucca",
+            "bamboo",
+            "bonsai",
+            "tulips",
+            "orchids",
+            "lily",
+            "flowers",
+            "spathiphyllum",
+            "cactus",
+            "palm",
+            "fern",
+            "christmas tree",
         ],
     ),
     ("piano", &["piano"]),
@@ -277,9 +317,39 @@ pub fn rule_labels() -> impl Iterator<Item = &'static str> {
 /// Words that disqualify a model whatever else its name says (accessories, outdoor or wall
 /// items, things that are not furniture).
 const EXCLUDE: &[&str] = &[
-    "brush", "paper", "holder", "dispenser", "remote", "joystick", "hood", "switch", "plug", "railing", "wheelchair",
-    "street", "park", "football", "tennis", "ceiling", "wall", "mattress", "sleeping", "doll", "curtain", "door",
-    "shower", "tools", "cooktop", "pallet", "kitchen", "island", "lamppost", "fence", "child", "children", "baby",
+    "brush",
+    "paper",
+    "holder",
+    "dispenser",
+    "remote",
+    "joystick",
+    "hood",
+    "switch",
+    "plug",
+    "railing",
+    "wheelchair",
+    "street",
+    "park",
+    "football",
+    "tennis",
+    "ceiling",
+    "wall",
+    "mattress",
+    "sleeping",
+    "doll",
+    "curtain",
+    "door",
+    "shower",
+    "tools",
+    "cooktop",
+    "pallet",
+    "kitchen",
+    "island",
+    "lamppost",
+    "fence",
+    "child",
+    "children",
+    "baby",
     "high",
 ];
 
@@ -287,7 +357,8 @@ const EXCLUDE: &[&str] = &[
 /// synthesizer places.
 pub fn label_for(name: &str) -> Option<&'static str> {
     let lower = name.to_lowercase();
-    let words: Vec<&str> = lower.split(|c: char| !c.is_alphanumeric()).filter(|w| !w.is_empty()).collect();
+    let words: Vec<&str> =
+        lower.split(|c: char| !c.is_alphanumeric()).filter(|w| !w.is_empty()).collect();
     if words.iter().any(|w| EXCLUDE.contains(w)) {
         return None;
     }

@@ -36,8 +36,18 @@ pub struct Shot {
 }
 
 impl Shot {
-    pub fn random(rng: &mut impl Rng, base_exposure: f32, exposure_stops: f32, blur: f32, noise: f32) -> Shot {
-        let stops = if exposure_stops > 0.0 { rng.random_range(-exposure_stops..=exposure_stops) } else { 0.0 };
+    pub fn random(
+        rng: &mut impl Rng,
+        base_exposure: f32,
+        exposure_stops: f32,
+        blur: f32,
+        noise: f32,
+    ) -> Shot {
+        let stops = if exposure_stops > 0.0 {
+            rng.random_range(-exposure_stops..=exposure_stops)
+        } else {
+            0.0
+        };
         Shot {
             exposure: base_exposure * 2f32.powf(stops),
             blur_sigma: if blur > 0.0 { rng.random_range(0.0..=blur) } else { 0.0 },
@@ -52,7 +62,8 @@ impl Shot {
         if self.blur_sigma > 0.05 {
             img = blur(&img, width, height, self.blur_sigma);
         }
-        let mut rgb: Vec<u8> = img.iter().flat_map(|c| [c.x, c.y, c.z]).map(linear_to_srgb8).collect();
+        let mut rgb: Vec<u8> =
+            img.iter().flat_map(|c| [c.x, c.y, c.z]).map(linear_to_srgb8).collect();
         if self.noise_sigma > 0.0 {
             use rand::SeedableRng;
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.noise_seed);
@@ -75,7 +86,8 @@ fn gaussian(rng: &mut impl Rng) -> f32 {
 /// Separable Gaussian blur with clamped borders.
 fn blur(img: &[Vec3], w: usize, h: usize, sigma: f32) -> Vec<Vec3> {
     let r = (3.0 * sigma).ceil() as i64;
-    let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let kernel: Vec<f32> =
+        (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
     let norm: f32 = kernel.iter().sum();
     let pass = |src: &[Vec3], horizontal: bool| -> Vec<Vec3> {
         let mut out = vec![Vec3::ZERO; src.len()];
@@ -84,7 +96,11 @@ fn blur(img: &[Vec3], w: usize, h: usize, sigma: f32) -> Vec<Vec3> {
                 let mut acc = Vec3::ZERO;
                 for (k, wgt) in kernel.iter().enumerate() {
                     let o = k as i64 - r;
-                    let (sx, sy) = if horizontal { ((x + o).clamp(0, w as i64 - 1), y) } else { (x, (y + o).clamp(0, h as i64 - 1)) };
+                    let (sx, sy) = if horizontal {
+                        ((x + o).clamp(0, w as i64 - 1), y)
+                    } else {
+                        (x, (y + o).clamp(0, h as i64 - 1))
+                    };
                     acc += src[(sy * w as i64 + sx) as usize] * *wgt;
                 }
                 out[(y * w as i64 + x) as usize] = acc / norm;

@@ -32,17 +32,23 @@ type Cell = Arc<OnceLock<Result<Arc<Mesh>, String>>>;
 pub fn load(entry: &CatalogEntry) -> Result<Arc<Mesh>, SynthError> {
     static CACHE: OnceLock<Mutex<BTreeMap<String, Cell>>> = OnceLock::new();
     let key = format!("{}|{}", entry.archive.display(), entry.credit.id);
-    let cell: Cell = CACHE.get_or_init(Default::default).lock().expect("mesh cache poisoned").entry(key).or_default().clone();
-    cell.get_or_init(|| read_model(entry).map(Arc::new)).clone().map_err(|problem| SynthError::Archive {
-        archive: entry.archive.clone(),
-        entry: entry.model.clone(),
-        problem,
+    let cell: Cell = CACHE
+        .get_or_init(Default::default)
+        .lock()
+        .expect("mesh cache poisoned")
+        .entry(key)
+        .or_default()
+        .clone();
+    cell.get_or_init(|| read_model(entry).map(Arc::new)).clone().map_err(|problem| {
+        SynthError::Archive { archive: entry.archive.clone(), entry: entry.model.clone(), problem }
     })
 }
 
 fn read_model(entry: &CatalogEntry) -> Result<Mesh, String> {
     let file = std::fs::File::open(&entry.archive).map_err(|e| e.to_string())?;
-    let zip = RefCell::new(zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| e.to_string())?);
+    let zip = RefCell::new(
+        zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| e.to_string())?,
+    );
     let read = |name: &str| -> Result<Vec<u8>, String> {
         let mut zip = zip.borrow_mut();
         let mut f = zip.by_name(name).map_err(|e| format!("{name}: {e}"))?;
@@ -50,22 +56,33 @@ fn read_model(entry: &CatalogEntry) -> Result<Mesh, String> {
         f.read_to_end(&mut bytes).map_err(|e| format!("{name}: {e}"))?;
         Ok(bytes)
     };
-    let dir = Path::new(&entry.model).parent().map(|p| p.to_string_lossy().into_owned()).unwrap_or_default();
+    let dir = Path::new(&entry.model)
+        .parent()
+        .map(|p| p.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let join = |rel: &str| -> String {
         let rel = rel.trim().replace('\\', "/");
         if dir.is_empty() { rel } else { format!("{dir}/{rel}") }
     };
     let obj = read(&entry.model)?;
-    let options = tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
     let (models, materials) = tobj::load_obj_buf(&mut Cursor::new(obj), &options, |p| {
-        let bytes = read(&join(&p.to_string_lossy())).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        let bytes =
+            read(&join(&p.to_string_lossy())).map_err(|_| tobj::LoadError::OpenFileFailed)?;
         tobj::load_mtl_buf(&mut Cursor::new(bytes))
     })
     .map_err(|e| format!("OBJ: {e}"))?;
     let materials = materials.unwrap_or_default();
     let source: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     if source > MAX_SOURCE_TRIANGLES {
-        return Err(format!("{source} triangles, above the {MAX_SOURCE_TRIANGLES} this synthesizer loads"));
+        return Err(format!(
+            "{source} triangles, above the {MAX_SOURCE_TRIANGLES} this synthesizer loads"
+        ));
     }
 
     let mut b = MeshBuilder::default();
@@ -78,18 +95,33 @@ fn read_model(entry: &CatalogEntry) -> Result<Mesh, String> {
             if mat.and_then(|x| x.dissolve).is_some_and(|d| d < 0.3) {
                 return None; // glass: see-through, left out
             }
-            let albedo = mat.and_then(|x| x.diffuse).map_or(Vec3::splat(0.6), |d| srgb_to_linear(Vec3::from(d)));
+            let albedo = mat
+                .and_then(|x| x.diffuse)
+                .map_or(Vec3::splat(0.6), |d| srgb_to_linear(Vec3::from(d)));
             let texture = mat.and_then(|x| x.diffuse_texture.as_deref()).and_then(|t| {
                 let name = join(t);
-                textures.entry(name.clone()).or_insert_with(|| read(&name).ok().and_then(|b| decode_texture(&b))).clone()
+                textures
+                    .entry(name.clone())
+                    .or_insert_with(|| read(&name).ok().and_then(|b| decode_texture(&b)))
+                    .clone()
             });
             Some(b.material(Material { albedo, texture, pattern: None }))
         });
         let Some(material) = slot else { continue };
-        let pos = |i: u32| Vec3::new(m.positions[3 * i as usize], m.positions[3 * i as usize + 1], m.positions[3 * i as usize + 2]);
+        let pos = |i: u32| {
+            Vec3::new(
+                m.positions[3 * i as usize],
+                m.positions[3 * i as usize + 1],
+                m.positions[3 * i as usize + 2],
+            )
+        };
         let uv = |i: u32| {
             let i = i as usize;
-            if m.texcoords.len() >= 2 * i + 2 { Vec2::new(m.texcoords[2 * i], m.texcoords[2 * i + 1]) } else { Vec2::ZERO }
+            if m.texcoords.len() >= 2 * i + 2 {
+                Vec2::new(m.texcoords[2 * i], m.texcoords[2 * i + 1])
+            } else {
+                Vec2::ZERO
+            }
         };
         for c in m.indices.chunks_exact(3) {
             b.triangle([pos(c[0]), pos(c[1]), pos(c[2])], [uv(c[0]), uv(c[1]), uv(c[2])], material);
@@ -109,7 +141,10 @@ fn read_model(entry: &CatalogEntry) -> Result<Mesh, String> {
 fn decode_texture(bytes: &[u8]) -> Option<Arc<Texture>> {
     let img = image::load_from_memory(bytes).ok()?;
     let small = img.thumbnail(TEXTURE_SIZE, TEXTURE_SIZE).into_rgb8();
-    let texels = small.pixels().map(|p| srgb_to_linear(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0)).collect();
+    let texels = small
+        .pixels()
+        .map(|p| srgb_to_linear(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0))
+        .collect();
     Some(Arc::new(Texture { width: small.width(), height: small.height(), texels }))
 }
 
@@ -125,6 +160,11 @@ pub struct Model {
 
 impl Model {
     pub fn from_entry(entry: &CatalogEntry) -> Result<Model, SynthError> {
-        Ok(Model { mesh: load(entry)?, label: entry.label, credit: Some(entry.credit.clone()), top: entry.top })
+        Ok(Model {
+            mesh: load(entry)?,
+            label: entry.label,
+            credit: Some(entry.credit.clone()),
+            top: entry.top,
+        })
     }
 }

@@ -34,12 +34,17 @@ impl Source<'_> {
             .map(|c| {
                 c.entries
                     .iter()
-                    .filter(|e| e.label == label && self.reserved.allows(e.reserved) && fits(e.size, label, small))
+                    .filter(|e| {
+                        e.label == label
+                            && self.reserved.allows(e.reserved)
+                            && fits(e.size, label, small)
+                    })
                     .collect()
             })
             .unwrap_or_default();
         let buildable = primitives::LABELS.contains(&label);
-        let use_mesh = !candidates.is_empty() && (!buildable || rng.random::<f32>() < self.mesh_share);
+        let use_mesh =
+            !candidates.is_empty() && (!buildable || rng.random::<f32>() < self.mesh_share);
         if use_mesh {
             let entry = candidates.choose(rng).expect("non-empty");
             // A model that cannot be loaded (too heavy, broken archive entry) is replaced by a
@@ -53,7 +58,9 @@ impl Source<'_> {
 
     fn has(&self, label: &str) -> bool {
         primitives::LABELS.contains(&label)
-            || self.catalog.is_some_and(|c| c.entries.iter().any(|e| e.label == label && self.reserved.allows(e.reserved)))
+            || self.catalog.is_some_and(|c| {
+                c.entries.iter().any(|e| e.label == label && self.reserved.allows(e.reserved))
+            })
     }
 }
 
@@ -64,7 +71,8 @@ fn fits(size: Vec3, label: &str, small: bool) -> bool {
     if small {
         tabletop
     } else {
-        !(matches!(label, "lamp" | "vase" | "plant" | "tv" | "speaker" | "computer" | "fan") && size.y < 0.5)
+        !(matches!(label, "lamp" | "vase" | "plant" | "tv" | "speaker" | "computer" | "fan")
+            && size.y < 0.5)
     }
 }
 
@@ -89,14 +97,42 @@ struct Planner<'a, R: Rng> {
 
 /// Singles and rows that fill the room after the main groups.
 const EXTRAS: &[&str] = &[
-    "bookcase", "cabinet", "plant", "lamp", "trash can", "box", "ball", "vase", "speaker", "piano", "refrigerator",
-    "washing machine", "radiator", "fireplace", "stool", "guitar", "fan", "bench", "wardrobe", "dresser", "chair",
-    "armchair", "picture", "tv stand", "sink", "oven", "toilet", "bathtub", "pool table", "office chair",
+    "bookcase",
+    "cabinet",
+    "plant",
+    "lamp",
+    "trash can",
+    "box",
+    "ball",
+    "vase",
+    "speaker",
+    "piano",
+    "refrigerator",
+    "washing machine",
+    "radiator",
+    "fireplace",
+    "stool",
+    "guitar",
+    "fan",
+    "bench",
+    "wardrobe",
+    "dresser",
+    "chair",
+    "armchair",
+    "picture",
+    "tv stand",
+    "sink",
+    "oven",
+    "toilet",
+    "bathtub",
+    "pool table",
+    "office chair",
 ];
 
 pub fn furnish(room: &Room, src: &Source, cfg: &SynthConfig, rng: &mut impl Rng) -> Layout {
     let target = rng.random_range(cfg.objects.0..=cfg.objects.1.max(cfg.objects.0));
-    let mut p = Planner { room, src, rng, objects: Vec::new(), blocking: Vec::new(), occupied: Vec::new() };
+    let mut p =
+        Planner { room, src, rng, objects: Vec::new(), blocking: Vec::new(), occupied: Vec::new() };
     if p.rng.random_bool(0.4) {
         p.rug();
     }
@@ -131,8 +167,9 @@ pub fn furnish(room: &Room, src: &Source, cfg: &SynthConfig, rng: &mut impl Rng)
         }
         match label {
             "picture" => p.on_wall("picture"),
-            "bookcase" | "wardrobe" | "cabinet" | "dresser" | "piano" | "refrigerator" | "washing machine"
-            | "radiator" | "fireplace" | "tv stand" | "sink" | "oven" | "toilet" | "bathtub" => p.row_along_wall(label),
+            "bookcase" | "wardrobe" | "cabinet" | "dresser" | "piano" | "refrigerator"
+            | "washing machine" | "radiator" | "fireplace" | "tv stand" | "sink" | "oven"
+            | "toilet" | "bathtub" => p.row_along_wall(label),
             "stool" | "speaker" | "box" | "chair" | "office chair" => p.cluster(label, 2, 4),
             _ => p.single(label),
         }
@@ -147,11 +184,20 @@ impl<R: Rng> Planner<'_, R> {
     }
 
     /// Places `model` if it fits; returns its index.
-    fn try_place(&mut self, model: &Model, position: Vec3, yaw: f32, scale: f32, blocks: bool) -> Option<usize> {
+    fn try_place(
+        &mut self,
+        model: &Model,
+        position: Vec3,
+        yaw: f32,
+        scale: f32,
+        blocks: bool,
+    ) -> Option<usize> {
         let placed = Placed { model: model.clone(), yaw, scale, position };
         let fp = placed.footprint();
         let margin = if blocks { WALL_MARGIN } else { 0.0 };
-        if !fp.inside(self.room.size, margin) || (blocks && self.blocking.iter().any(|b| b.overlaps(&fp, GAP))) {
+        if !fp.inside(self.room.size, margin)
+            || (blocks && self.blocking.iter().any(|b| b.overlaps(&fp, GAP)))
+        {
             return None;
         }
         if placed.bounds().1.y > self.room.size.y - 0.05 {
@@ -181,7 +227,11 @@ impl<R: Rng> Planner<'_, R> {
 
     fn free_spot(&mut self) -> (Vec3, f32) {
         let s = self.room.size;
-        let p = Vec3::new(self.rng.random_range(0.3..s.x - 0.3), 0.0, self.rng.random_range(0.3..s.z - 0.3));
+        let p = Vec3::new(
+            self.rng.random_range(0.3..s.x - 0.3),
+            0.0,
+            self.rng.random_range(0.3..s.z - 0.3),
+        );
         let yaw = if self.rng.random_bool(0.5) {
             self.rng.random_range(0..4) as f32 * FRAC_PI_2 + self.rng.random_range(-0.15..0.15)
         } else {
@@ -208,7 +258,11 @@ impl<R: Rng> Planner<'_, R> {
     /// Up to `n` copies of one model side by side along a wall.
     fn row_along_wall(&mut self, label: &str) {
         let Some(m) = self.src.model(label, false, self.rng) else { return };
-        let n = if matches!(label, "bookcase" | "cabinet" | "dresser") { self.rng.random_range(1..=3) } else { 1 };
+        let n = if matches!(label, "bookcase" | "cabinet" | "dresser") {
+            self.rng.random_range(1..=3)
+        } else {
+            1
+        };
         let scale = self.scale(&m);
         for _ in 0..25 {
             let (p, yaw) = self.against_wall(&m, scale);
@@ -250,14 +304,16 @@ impl<R: Rng> Planner<'_, R> {
 
     /// Another instance of a model already in the room, next to it.
     fn repeat_one(&mut self) {
-        let floor: Vec<usize> =
-            (0..self.objects.len()).filter(|&i| self.objects[i].position.y == 0.0 && self.objects[i].model.label != "rug").collect();
+        let floor: Vec<usize> = (0..self.objects.len())
+            .filter(|&i| self.objects[i].position.y == 0.0 && self.objects[i].model.label != "rug")
+            .collect();
         let Some(&i) = floor.choose(self.rng) else { return };
         let o = self.objects[i].clone();
         let step = (o.model.mesh.max - o.model.mesh.min).max_element() * o.scale + 0.1;
         for _ in 0..10 {
             let a = self.rng.random_range(-PI..PI);
-            let p = o.position + Vec3::new(a.cos(), 0.0, a.sin()) * step * self.rng.random_range(1.0..1.5);
+            let p = o.position
+                + Vec3::new(a.cos(), 0.0, a.sin()) * step * self.rng.random_range(1.0..1.5);
             if self.try_place(&o.model, p, o.yaw, o.scale, true).is_some() {
                 return;
             }
@@ -267,7 +323,11 @@ impl<R: Rng> Planner<'_, R> {
     fn rug(&mut self) {
         let Some(m) = primitives::build("rug", false, self.src.contrast, self.rng) else { return };
         let s = self.room.size;
-        let p = Vec3::new(self.rng.random_range(0.3..0.7) * s.x, 0.0, self.rng.random_range(0.3..0.7) * s.z);
+        let p = Vec3::new(
+            self.rng.random_range(0.3..0.7) * s.x,
+            0.0,
+            self.rng.random_range(0.3..0.7) * s.z,
+        );
         let yaw = self.rng.random_range(0..2) as f32 * FRAC_PI_2;
         self.try_place(&m, p, yaw, 1.0, false);
     }
@@ -349,7 +409,11 @@ impl<R: Rng> Planner<'_, R> {
                 }
             }
         }
-        if let Some(stand) = self.src.model(if self.rng.random_bool(0.5) { "tv stand" } else { "cabinet" }, false, self.rng) {
+        if let Some(stand) = self.src.model(
+            if self.rng.random_bool(0.5) { "tv stand" } else { "cabinet" },
+            false,
+            self.rng,
+        ) {
             let p = self.objects[s].position + front * self.rng.random_range(2.2..3.2);
             let scale = self.scale(&stand);
             if let Some(i) = self.try_place(&stand, p, self.objects[s].yaw + PI, scale, true) {
@@ -370,7 +434,8 @@ impl<R: Rng> Planner<'_, R> {
             let ns_half = 0.5 * (ns.mesh.max.x - ns.mesh.min.x) * ns_scale;
             let along = Vec3::new(yaw.cos(), 0.0, -yaw.sin());
             let front = Vec3::new(yaw.sin(), 0.0, yaw.cos());
-            let back = self.objects[b].position + front * (bed.mesh.min.z * scale - ns.mesh.min.z * ns_scale);
+            let back = self.objects[b].position
+                + front * (bed.mesh.min.z * scale - ns.mesh.min.z * ns_scale);
             for side in [-1.0f32, 1.0] {
                 let p = back + along * side * (half_w + ns_half + 0.05);
                 if let Some(i) = self.try_place(&ns, p, yaw, ns_scale, true) {
@@ -383,7 +448,11 @@ impl<R: Rng> Planner<'_, R> {
 
     fn office(&mut self) {
         let Some(desk) = self.src.model("desk", false, self.rng) else { return };
-        let seat = if self.src.has("office chair") && self.rng.random_bool(0.7) { "office chair" } else { "chair" };
+        let seat = if self.src.has("office chair") && self.rng.random_bool(0.7) {
+            "office chair"
+        } else {
+            "chair"
+        };
         let Some(chair) = self.src.model(seat, false, self.rng) else { return };
         let n = self.rng.random_range(1..=3);
         let (scale, chair_scale) = (self.scale(&desk), self.scale(&chair));
@@ -415,14 +484,18 @@ impl<R: Rng> Planner<'_, R> {
         let Some(m) = self.src.model(label, true, self.rng) else { return false };
         let base = self.objects[i].footprint();
         let scale = self.scale(&m);
-        let half = Vec2::new(m.mesh.max.x - m.mesh.min.x, m.mesh.max.z - m.mesh.min.z) * 0.5 * scale;
+        let half =
+            Vec2::new(m.mesh.max.x - m.mesh.min.x, m.mesh.max.z - m.mesh.min.z) * 0.5 * scale;
         if half.x.max(half.y) > base.half.x.min(base.half.y) {
             return false;
         }
         let yaw = base.yaw + self.rng.random_range(-0.4..0.4);
         let slack = (base.half - Vec2::splat(half.max_element())).max(Vec2::ZERO);
         let (sy, cy) = base.yaw.sin_cos();
-        let local = Vec2::new(self.rng.random_range(-1.0..=1.0) * slack.x, self.rng.random_range(-1.0..=1.0) * slack.y);
+        let local = Vec2::new(
+            self.rng.random_range(-1.0..=1.0) * slack.x,
+            self.rng.random_range(-1.0..=1.0) * slack.y,
+        );
         let c = base.centre + Vec2::new(cy, -sy) * local.x + Vec2::new(sy, cy) * local.y;
         if self.try_place(&m, Vec3::new(c.x, top, c.y), yaw, scale, false).is_some() {
             self.occupied[i] = true;
@@ -435,7 +508,9 @@ impl<R: Rng> Planner<'_, R> {
     fn dress_tops(&mut self) {
         for i in 0..self.objects.len() {
             if self.objects[i].position.y == 0.0 && self.rng.random_bool(0.5) {
-                let label = *["vase", "lamp", "plant", "box", "speaker", "computer"].choose(self.rng).expect("labels");
+                let label = *["vase", "lamp", "plant", "box", "speaker", "computer"]
+                    .choose(self.rng)
+                    .expect("labels");
                 if self.src.has(label) {
                     self.put_on(i, label);
                 }

@@ -48,7 +48,10 @@ pub use catalog::{Catalog, Credit};
 /// Every label a synthesized scene can carry: catalog furniture, primitive furniture and the
 /// room shell.
 pub fn all_labels() -> std::collections::BTreeSet<&'static str> {
-    catalog::rule_labels().chain(primitives::LABELS.iter().copied()).chain(stats::SHELL_LABELS).collect()
+    catalog::rule_labels()
+        .chain(primitives::LABELS.iter().copied())
+        .chain(stats::SHELL_LABELS)
+        .collect()
 }
 pub use split::{Split, eval_split};
 pub use stats::DatasetStats;
@@ -112,7 +115,10 @@ pub enum Furniture {
 impl Furniture {
     /// The catalog at `INSSPLAT_FURNITURE_DIR`, or at [`DEFAULT_FURNITURE_DIR`].
     pub fn from_env() -> Furniture {
-        Furniture::Catalog(std::env::var_os("INSSPLAT_FURNITURE_DIR").map_or_else(|| DEFAULT_FURNITURE_DIR.into(), PathBuf::from))
+        Furniture::Catalog(
+            std::env::var_os("INSSPLAT_FURNITURE_DIR")
+                .map_or_else(|| DEFAULT_FURNITURE_DIR.into(), PathBuf::from),
+        )
     }
 }
 
@@ -185,7 +191,10 @@ impl SynthConfig {
     pub fn validate(&self) -> Result<(), SynthError> {
         let bad = |m: String| Err(SynthError::Config(m));
         if self.split != Split::Test && self.reserved != Reserved::Exclude {
-            return bad(format!("reserved evaluation furniture cannot be used in the {} split", self.split));
+            return bad(format!(
+                "reserved evaluation furniture cannot be used in the {} split",
+                self.split
+            ));
         }
         if self.width == 0 || self.height == 0 || self.width > 4096 || self.height > 4096 {
             return bad(format!("image size {}x{} is outside 1..=4096", self.width, self.height));
@@ -196,21 +205,37 @@ impl SynthConfig {
         if self.objects.0 > self.objects.1 || self.objects.1 > 200 {
             return bad(format!("objects {:?} must be min <= max <= 200", self.objects));
         }
-        if !(1.0..=170.0).contains(&self.fov_y_deg.0) || self.fov_y_deg.0 > self.fov_y_deg.1 || self.fov_y_deg.1 > 170.0 {
-            return bad(format!("field of view {:?} must be 1 <= min <= max <= 170 degrees", self.fov_y_deg));
+        if !(1.0..=170.0).contains(&self.fov_y_deg.0)
+            || self.fov_y_deg.0 > self.fov_y_deg.1
+            || self.fov_y_deg.1 > 170.0
+        {
+            return bad(format!(
+                "field of view {:?} must be 1 <= min <= max <= 170 degrees",
+                self.fov_y_deg
+            ));
         }
-        let unit = |name: &str, v: f32| (0.0..=1.0).contains(&v).then_some(()).ok_or(format!("{name} {v} is outside 0..=1"));
+        let unit = |name: &str, v: f32| {
+            (0.0..=1.0).contains(&v).then_some(()).ok_or(format!("{name} {v} is outside 0..=1"))
+        };
         unit("repeat", self.repeat)
             .and(unit("mesh share", self.mesh_share))
             .and(unit("overlap min", self.overlap.0))
             .and(unit("overlap max", self.overlap.1))
             .and(unit("noise", self.noise))
             .map_err(SynthError::Config)?;
-        if self.overlap.0 > self.overlap.1 || !(0.0..=20.0).contains(&self.blur) || !(0.0..=4.0).contains(&self.exposure) {
-            return bad("overlap min > max, blur outside 0..=20 px, or exposure outside 0..=4 stops".into());
+        if self.overlap.0 > self.overlap.1
+            || !(0.0..=20.0).contains(&self.blur)
+            || !(0.0..=4.0).contains(&self.exposure)
+        {
+            return bad(
+                "overlap min > max, blur outside 0..=20 px, or exposure outside 0..=4 stops".into(),
+            );
         }
         if !(1..=MAX_ANTIALIAS).contains(&self.antialias) {
-            return bad(format!("anti-aliasing {} rays per pixel side is outside 1..={MAX_ANTIALIAS}", self.antialias));
+            return bad(format!(
+                "anti-aliasing {} rays per pixel side is outside 1..={MAX_ANTIALIAS}",
+                self.antialias
+            ));
         }
         if !(0.0..=4.0).contains(&self.texture_contrast) {
             return bad(format!("texture contrast {} is outside 0..=4", self.texture_contrast));
@@ -255,7 +280,10 @@ pub fn furniture_labels(index: u64, cfg: &SynthConfig) -> Result<Vec<&'static st
 }
 
 /// The random stream of `seed` after its room and furniture are drawn, with both.
-fn furnished(seed: u64, cfg: &SynthConfig) -> Result<(ChaCha8Rng, room::Room, layout::Layout), SynthError> {
+fn furnished(
+    seed: u64,
+    cfg: &SynthConfig,
+) -> Result<(ChaCha8Rng, room::Room, layout::Layout), SynthError> {
     cfg.validate()?;
     let catalog = match &cfg.furniture {
         Furniture::Primitives => None,
@@ -289,7 +317,8 @@ pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, Synth
     let k = Intrinsics::from_fov_y(cfg.width, cfg.height, fov);
     let overlap = rng.random_range(cfg.overlap.0..=cfg.overlap.1);
     let cameras = camera_path::cameras(&world, n_frames, overlap, k, &mut rng);
-    let buffers: Vec<raycast::FrameBuffers> = cameras.par_iter().map(|c| world.render(c, cfg.antialias)).collect();
+    let buffers: Vec<raycast::FrameBuffers> =
+        cameras.par_iter().map(|c| world.render(c, cfg.antialias)).collect();
 
     let radiance: Vec<&[glam::Vec3]> = buffers.iter().map(|b| b.radiance.as_slice()).collect();
     let base = effects::auto_exposure(&radiance);
@@ -299,12 +328,18 @@ pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, Synth
         .zip(&cameras)
         .map(|(b, cam)| {
             let shot = effects::Shot::random(&mut rng, base, cfg.exposure, cfg.blur, cfg.noise);
-            Frame { camera: *cam, rgb: shot.develop(&b.radiance, w, h), depth: Some(b.depth), instances: Some(b.ids) }
+            Frame {
+                camera: *cam,
+                rgb: shot.develop(&b.radiance, w, h),
+                depth: Some(b.depth),
+                instances: Some(b.ids),
+            }
         })
         .collect();
 
     // List only what some frame shows.
-    let visible: BTreeSet<u16> = frames.iter().flat_map(|f| f.instances.iter().flatten().copied()).collect();
+    let visible: BTreeSet<u16> =
+        frames.iter().flat_map(|f| f.instances.iter().flatten().copied()).collect();
     let mut instances = Vec::new();
     let mut credits = BTreeSet::new();
     for (o, &id) in furnished.objects.iter().zip(&ids) {
@@ -319,6 +354,7 @@ pub fn generate_scene(seed: u64, cfg: &SynthConfig) -> Result<Synthesized, Synth
         }
     }
     let eval = if cfg.eval_views { eval_split(frames.len()) } else { None };
-    let scene = Scene { dir: PathBuf::new(), instances, frames, eval, depth_unit_m: DEFAULT_DEPTH_UNIT_M };
+    let scene =
+        Scene { dir: PathBuf::new(), instances, frames, eval, depth_unit_m: DEFAULT_DEPTH_UNIT_M };
     Ok(Synthesized { scene, credits: credits.into_iter().collect() })
 }

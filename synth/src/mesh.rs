@@ -30,7 +30,10 @@ fn bvh_ray(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Ray {
     let mut ray = Ray::new_inf(Default::default(), Default::default());
     assign!(ray.origin, origin);
     assign!(ray.direction, dir);
-    assign!(ray.inv_direction, Vec3::new(safe_inverse(dir.x), safe_inverse(dir.y), safe_inverse(dir.z)));
+    assign!(
+        ray.inv_direction,
+        Vec3::new(safe_inverse(dir.x), safe_inverse(dir.y), safe_inverse(dir.z))
+    );
     ray.tmin = tmin;
     ray.tmax = tmax;
     ray
@@ -101,7 +104,13 @@ struct Tri {
 impl Tri {
     /// Möller–Trumbore; returns (t, u, v) within the ray's range.
     #[inline(always)]
-    fn intersect(&self, origin: Vec3A, dir: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+    fn intersect(
+        &self,
+        origin: Vec3A,
+        dir: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(f32, f32, f32)> {
         let p = dir.cross(self.e2);
         let det = self.e1.dot(p);
         if det.abs() < 1e-12 {
@@ -156,12 +165,14 @@ impl Mesh {
         let (o, d) = (Vec3A::from(origin), Vec3A::from(dir));
         let mut best: Option<(usize, f32, f32, f32)> = None;
         let mut hit = RayHit::none();
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| match self.tris[id].intersect(o, d, r.tmin, r.tmax) {
-            Some((t, u, v)) => {
-                best = Some((id, t, u, v));
-                t
+        self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            match self.tris[id].intersect(o, d, r.tmin, r.tmax) {
+                Some((t, u, v)) => {
+                    best = Some((id, t, u, v));
+                    t
+                }
+                None => f32::INFINITY,
             }
-            None => f32::INFINITY,
         });
         let (id, t, u, v) = best?;
         let tri = &self.tris[id];
@@ -177,7 +188,9 @@ impl Mesh {
     pub fn occludes(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> bool {
         let ray = bvh_ray(origin, dir, tmin, tmax);
         let (o, d) = (Vec3A::from(origin), Vec3A::from(dir));
-        !self.bvh.ray_traverse_miss(ray, |r, id| self.tris[id].intersect(o, d, r.tmin, r.tmax).map_or(f32::INFINITY, |h| h.0))
+        !self.bvh.ray_traverse_miss(ray, |r, id| {
+            self.tris[id].intersect(o, d, r.tmin, r.tmax).map_or(f32::INFINITY, |h| h.0)
+        })
     }
 }
 
@@ -220,7 +233,11 @@ impl MeshBuilder {
     /// Axis-aligned box.
     pub fn cuboid(&mut self, min: Vec3, max: Vec3, material: u16) {
         let c = |x: bool, y: bool, z: bool| {
-            Vec3::new(if x { max.x } else { min.x }, if y { max.y } else { min.y }, if z { max.z } else { min.z })
+            Vec3::new(
+                if x { max.x } else { min.x },
+                if y { max.y } else { min.y },
+                if z { max.z } else { min.z },
+            )
         };
         let (f, t) = (false, true);
         self.quad([c(f, f, t), c(t, f, t), c(t, t, t), c(f, t, t)], material); // +z
@@ -232,7 +249,15 @@ impl MeshBuilder {
     }
 
     /// Vertical frustum (cylinder when the radii agree) standing on `base`, capped.
-    pub fn frustum(&mut self, base: Vec3, r_bottom: f32, r_top: f32, height: f32, segments: u32, material: u16) {
+    pub fn frustum(
+        &mut self,
+        base: Vec3,
+        r_bottom: f32,
+        r_top: f32,
+        height: f32,
+        segments: u32,
+        material: u16,
+    ) {
         let ring = |r: f32, y: f32, i: u32| {
             let a = std::f32::consts::TAU * i as f32 / segments as f32;
             base + Vec3::new(r * a.cos(), y, r * a.sin())
@@ -242,7 +267,12 @@ impl MeshBuilder {
             let (t0, t1) = (ring(r_top, height, i), ring(r_top, height, i + 1));
             let u0 = i as f32 / segments as f32 * std::f32::consts::TAU * r_bottom.max(r_top);
             let u1 = (i + 1) as f32 / segments as f32 * std::f32::consts::TAU * r_bottom.max(r_top);
-            let uv = [Vec2::new(u0, 0.0), Vec2::new(u1, 0.0), Vec2::new(u1, height), Vec2::new(u0, height)];
+            let uv = [
+                Vec2::new(u0, 0.0),
+                Vec2::new(u1, 0.0),
+                Vec2::new(u1, height),
+                Vec2::new(u0, height),
+            ];
             self.triangle([b0, t1, b1], [uv[0], uv[2], uv[1]], material);
             self.triangle([b0, t0, t1], [uv[0], uv[3], uv[2]], material);
             let top = base + Vec3::Y * height;
@@ -257,13 +287,22 @@ impl MeshBuilder {
     }
 
     /// Ellipsoid with semi-axes `radii` around `center`.
-    pub fn ellipsoid(&mut self, center: Vec3, radii: Vec3, rings: u32, segments: u32, material: u16) {
+    pub fn ellipsoid(
+        &mut self,
+        center: Vec3,
+        radii: Vec3,
+        rings: u32,
+        segments: u32,
+        material: u16,
+    ) {
         let p = |i: u32, j: u32| {
             let th = std::f32::consts::PI * j as f32 / rings as f32;
             let ph = std::f32::consts::TAU * i as f32 / segments as f32;
             center + radii * Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin())
         };
-        let uv = |i: u32, j: u32| Vec2::new(i as f32 / segments as f32 * 3.0, j as f32 / rings as f32 * 1.5);
+        let uv = |i: u32, j: u32| {
+            Vec2::new(i as f32 / segments as f32 * 3.0, j as f32 / rings as f32 * 1.5)
+        };
         for i in 0..segments {
             for j in 0..rings {
                 let (a, b, c, d) = (p(i, j), p(i + 1, j), p(i, j + 1), p(i + 1, j + 1));
@@ -296,7 +335,8 @@ impl MeshBuilder {
             };
             // Representative of a cell: the first vertex that falls in it (deterministic).
             let mut rep = std::collections::BTreeMap::new();
-            let snapped: Vec<Vec3> = self.positions.iter().map(|&p| *rep.entry(key(p)).or_insert(p)).collect();
+            let snapped: Vec<Vec3> =
+                self.positions.iter().map(|&p| *rep.entry(key(p)).or_insert(p)).collect();
             let kept: Vec<([u32; 3], u16)> = self
                 .tris
                 .iter()
@@ -345,7 +385,16 @@ impl MeshBuilder {
                 let [a, b, d] = c.map(|i| Vec3A::from(self.positions[i as usize]));
                 let [ua, ub, ud] = c.map(|i| self.uvs[i as usize]);
                 let (e1, e2) = (b - a, d - a);
-                Tri { v0: a, e1, e2, normal: e1.cross(e2).normalize_or_zero(), uv0: ua, duv1: ub - ua, duv2: ud - ua, material }
+                Tri {
+                    v0: a,
+                    e1,
+                    e2,
+                    normal: e1.cross(e2).normalize_or_zero(),
+                    uv0: ua,
+                    duv1: ub - ua,
+                    duv2: ud - ua,
+                    material,
+                }
             })
             .filter(|t| t.normal != Vec3A::ZERO)
             .collect();
@@ -359,7 +408,11 @@ impl MeshBuilder {
                 p
             })
             .collect();
-        let (min, max) = if self.positions.is_empty() { (Vec3::ZERO, Vec3::ZERO) } else { bounds(&self.positions) };
+        let (min, max) = if self.positions.is_empty() {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            bounds(&self.positions)
+        };
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
             BvhBuildParams::medium_build(),
@@ -372,7 +425,9 @@ impl MeshBuilder {
 }
 
 fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
-    points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), &p| (lo.min(p), hi.max(p)))
+    points
+        .iter()
+        .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), &p| (lo.min(p), hi.max(p)))
 }
 
 #[cfg(test)]
@@ -385,7 +440,9 @@ mod tests {
         let m = b.material(Material::flat(Vec3::ONE));
         b.cuboid(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0), m);
         let mesh = b.build();
-        let hit = mesh.closest(Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.0, -2.0), 0.0, f32::INFINITY).unwrap();
+        let hit = mesh
+            .closest(Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.0, -2.0), 0.0, f32::INFINITY)
+            .unwrap();
         assert!((hit.t - 2.0).abs() < 1e-5, "{hit:?}");
         assert!((hit.normal - Vec3::Z).length() < 1e-5, "{hit:?}");
         assert!(mesh.occludes(Vec3::new(0.0, 1.0, 5.0), Vec3::NEG_Z, 0.0, 10.0));
@@ -400,7 +457,11 @@ mod tests {
         b.ellipsoid(Vec3::ZERO, Vec3::ONE, 40, 80, m);
         let before = b.triangle_count();
         b.decimate(1000);
-        assert!(b.triangle_count() <= 1000 && b.triangle_count() > 100, "{before} -> {}", b.triangle_count());
+        assert!(
+            b.triangle_count() <= 1000 && b.triangle_count() > 100,
+            "{before} -> {}",
+            b.triangle_count()
+        );
         b.fit_to(Vec3::new(0.5, 1.0, 2.0));
         let mesh = b.build();
         assert!((mesh.max - mesh.min - Vec3::new(0.5, 1.0, 2.0)).abs().max_element() < 1e-4);

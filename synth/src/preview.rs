@@ -18,7 +18,11 @@ pub fn contact_sheet(scene: &Scene) -> RgbImage {
     let zoom = 128u32.div_ceil(h).max(1);
     let (tw, th) = (w * zoom, h * zoom);
     let gap = 2;
-    let mut sheet = RgbImage::from_pixel(n as u32 * (tw + gap) + gap, 3 * (th + gap) + gap, Rgb([255, 255, 255]));
+    let mut sheet = RgbImage::from_pixel(
+        n as u32 * (tw + gap) + gap,
+        3 * (th + gap) + gap,
+        Rgb([255, 255, 255]),
+    );
     let max_depth = scene
         .frames
         .iter()

@@ -44,20 +44,34 @@ pub fn build(label: &str, small: bool, contrast: f32, rng: &mut impl Rng) -> Opt
     let mut s = Shop { b: MeshBuilder::default(), contrast };
     let top = match label {
         "table" => {
-            let (h, size) = (rng.random_range(0.72..0.78), Vec2::new(rng.random_range(0.8..1.8), rng.random_range(0.7..1.0)));
+            let (h, size) = (
+                rng.random_range(0.72..0.78),
+                Vec2::new(rng.random_range(0.8..1.8), rng.random_range(0.7..1.0)),
+            );
             s.table(rng, h, size)
         }
         "coffee table" => {
-            let (h, size) = (rng.random_range(0.35..0.5), Vec2::new(rng.random_range(0.6..1.2), rng.random_range(0.45..0.7)));
+            let (h, size) = (
+                rng.random_range(0.35..0.5),
+                Vec2::new(rng.random_range(0.6..1.2), rng.random_range(0.45..0.7)),
+            );
             s.table(rng, h, size)
         }
         "desk" => s.desk(rng),
         "nightstand" => {
-            let size = Vec3::new(rng.random_range(0.38..0.55), rng.random_range(0.45..0.62), rng.random_range(0.35..0.45));
+            let size = Vec3::new(
+                rng.random_range(0.38..0.55),
+                rng.random_range(0.45..0.62),
+                rng.random_range(0.35..0.45),
+            );
             s.chest(rng, size, 2)
         }
         "cabinet" => {
-            let size = Vec3::new(rng.random_range(0.6..1.3), rng.random_range(0.75..1.25), rng.random_range(0.38..0.55));
+            let size = Vec3::new(
+                rng.random_range(0.6..1.3),
+                rng.random_range(0.75..1.25),
+                rng.random_range(0.38..0.55),
+            );
             s.chest(rng, size, 0)
         }
         "bookcase" => s.bookcase(rng),
@@ -95,7 +109,13 @@ struct Shop {
 
 impl Shop {
     fn wood(&mut self, rng: &mut impl Rng) -> u16 {
-        let tones = [srgb(196, 154, 108), srgb(140, 94, 60), srgb(92, 60, 40), srgb(222, 196, 160), srgb(60, 42, 30)];
+        let tones = [
+            srgb(196, 154, 108),
+            srgb(140, 94, 60),
+            srgb(92, 60, 40),
+            srgb(222, 196, 160),
+            srgb(60, 42, 30),
+        ];
         let tone = *tones.choose(rng).expect("tones");
         let base = jitter_colour(rng, tone, 0.1);
         let p = Pattern::random(rng, PatternKind::WoodGrain, base, self.contrast);
@@ -118,8 +138,14 @@ impl Shop {
     }
 
     fn fabric(&mut self, rng: &mut impl Rng) -> u16 {
-        let base = Vec3::new(rng.random_range(0.03..0.6), rng.random_range(0.03..0.6), rng.random_range(0.03..0.6));
-        let kind = *[PatternKind::Carpet, PatternKind::Noise, PatternKind::Stripes].choose(rng).expect("kinds");
+        let base = Vec3::new(
+            rng.random_range(0.03..0.6),
+            rng.random_range(0.03..0.6),
+            rng.random_range(0.03..0.6),
+        );
+        let kind = *[PatternKind::Carpet, PatternKind::Noise, PatternKind::Stripes]
+            .choose(rng)
+            .expect("kinds");
         let p = Pattern::random(rng, kind, base, self.contrast * 0.6);
         self.b.material(Material::patterned(p))
     }
@@ -135,7 +161,11 @@ impl Shop {
             if round {
                 self.b.frustum(c, 0.5 * thick, 0.5 * thick, height, 8, m);
             } else {
-                self.b.cuboid(c - Vec3::new(thick, 0.0, thick) * 0.5, c + Vec3::new(thick * 0.5, height, thick * 0.5), m);
+                self.b.cuboid(
+                    c - Vec3::new(thick, 0.0, thick) * 0.5,
+                    c + Vec3::new(thick * 0.5, height, thick * 0.5),
+                    m,
+                );
             }
         }
     }
@@ -151,7 +181,11 @@ impl Shop {
             self.b.frustum(Vec3::ZERO, 0.04, 0.04, h - t, 8, legs);
             self.b.frustum(Vec3::ZERO, 0.25 * r, 0.2 * r, 0.03, 12, legs);
         } else {
-            self.b.cuboid(Vec3::new(-0.5 * size.x, h - t, -0.5 * size.y), Vec3::new(0.5 * size.x, h, 0.5 * size.y), top);
+            self.b.cuboid(
+                Vec3::new(-0.5 * size.x, h - t, -0.5 * size.y),
+                Vec3::new(0.5 * size.x, h, 0.5 * size.y),
+                top,
+            );
             self.legs(size, h - t, rng.random_range(0.035..0.07), 0.06, rng.random_bool(0.4), legs);
         }
         Some(h)
@@ -164,7 +198,11 @@ impl Shop {
         let m = self.paint(rng);
         let w = rng.random_range(0.35..0.45);
         let x0 = 0.5 * size.x - w - 0.02;
-        self.b.cuboid(Vec3::new(x0, 0.0, -0.5 * size.y + 0.03), Vec3::new(x0 + w, h - 0.05, 0.5 * size.y - 0.03), m);
+        self.b.cuboid(
+            Vec3::new(x0, 0.0, -0.5 * size.y + 0.03),
+            Vec3::new(x0 + w, h - 0.05, 0.5 * size.y - 0.03),
+            m,
+        );
         Some(h)
     }
 
@@ -175,32 +213,60 @@ impl Shop {
         let knob = self.flat(srgb(190, 190, 195) * rng.random_range(0.5..1.0));
         let (w, h, d) = (size.x, size.y, size.z);
         self.b.cuboid(Vec3::new(-0.5 * w, 0.05, -0.5 * d), Vec3::new(0.5 * w, h, 0.5 * d), body);
-        self.b.cuboid(Vec3::new(-0.5 * w + 0.03, 0.0, -0.5 * d + 0.03), Vec3::new(0.5 * w - 0.03, 0.05, 0.5 * d - 0.03), knob);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w + 0.03, 0.0, -0.5 * d + 0.03),
+            Vec3::new(0.5 * w - 0.03, 0.05, 0.5 * d - 0.03),
+            knob,
+        );
         let gap = 0.012;
         if drawers > 0 {
             let dh = (h - 0.08) / drawers as f32;
             for i in 0..drawers {
                 let y0 = 0.07 + i as f32 * dh;
-                self.b.cuboid(Vec3::new(-0.5 * w + 0.02, y0 + gap, 0.5 * d), Vec3::new(0.5 * w - 0.02, y0 + dh - gap, 0.5 * d + 0.015), front);
-                self.b.ellipsoid(Vec3::new(0.0, y0 + 0.5 * dh, 0.5 * d + 0.025), Vec3::splat(0.015), 4, 6, knob);
+                self.b.cuboid(
+                    Vec3::new(-0.5 * w + 0.02, y0 + gap, 0.5 * d),
+                    Vec3::new(0.5 * w - 0.02, y0 + dh - gap, 0.5 * d + 0.015),
+                    front,
+                );
+                self.b.ellipsoid(
+                    Vec3::new(0.0, y0 + 0.5 * dh, 0.5 * d + 0.025),
+                    Vec3::splat(0.015),
+                    4,
+                    6,
+                    knob,
+                );
             }
         } else {
             for sx in [-1.0f32, 1.0] {
-                let (x0, x1) = if sx < 0.0 { (-0.5 * w + 0.02, -gap) } else { (gap, 0.5 * w - 0.02) };
-                self.b.cuboid(Vec3::new(x0, 0.08, 0.5 * d), Vec3::new(x1, h - 0.03, 0.5 * d + 0.015), front);
-                self.b.cuboid(Vec3::new(sx * 0.05 - 0.01, 0.5 * h, 0.5 * d + 0.015), Vec3::new(sx * 0.05 + 0.01, 0.5 * h + 0.12, 0.5 * d + 0.035), knob);
+                let (x0, x1) =
+                    if sx < 0.0 { (-0.5 * w + 0.02, -gap) } else { (gap, 0.5 * w - 0.02) };
+                self.b.cuboid(
+                    Vec3::new(x0, 0.08, 0.5 * d),
+                    Vec3::new(x1, h - 0.03, 0.5 * d + 0.015),
+                    front,
+                );
+                self.b.cuboid(
+                    Vec3::new(sx * 0.05 - 0.01, 0.5 * h, 0.5 * d + 0.015),
+                    Vec3::new(sx * 0.05 + 0.01, 0.5 * h + 0.12, 0.5 * d + 0.035),
+                    knob,
+                );
             }
         }
         Some(h)
     }
 
     fn bookcase(&mut self, rng: &mut impl Rng) -> Option<f32> {
-        let (w, h, d) = (rng.random_range(0.6..1.2), rng.random_range(0.9..2.1), rng.random_range(0.28..0.4));
+        let (w, h, d) =
+            (rng.random_range(0.6..1.2), rng.random_range(0.9..2.1), rng.random_range(0.28..0.4));
         let m = if rng.random_bool(0.6) { self.wood(rng) } else { self.paint(rng) };
         let t = 0.025;
         self.b.cuboid(Vec3::new(-0.5 * w, 0.0, -0.5 * d), Vec3::new(-0.5 * w + t, h, 0.5 * d), m);
         self.b.cuboid(Vec3::new(0.5 * w - t, 0.0, -0.5 * d), Vec3::new(0.5 * w, h, 0.5 * d), m);
-        self.b.cuboid(Vec3::new(-0.5 * w, 0.0, -0.5 * d), Vec3::new(0.5 * w, h, -0.5 * d + 0.01), m);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, 0.0, -0.5 * d),
+            Vec3::new(0.5 * w, h, -0.5 * d + 0.01),
+            m,
+        );
         let shelves = ((h / 0.35) as u32).max(2);
         let book_colours: Vec<u16> = (0..4).map(|_| self.paint(rng)).collect();
         for i in 0..=shelves {
@@ -216,7 +282,11 @@ impl Shop {
                 let bw = rng.random_range(0.02..0.05);
                 let bh = rng.random_range(0.17f32..0.28).min((h - t) / shelves as f32 - 0.03);
                 let c = *book_colours.choose(rng).expect("colours");
-                self.b.cuboid(Vec3::new(x, y + t, -0.5 * d + 0.02), Vec3::new(x + bw, y + t + bh, 0.5 * d - 0.03), c);
+                self.b.cuboid(
+                    Vec3::new(x, y + t, -0.5 * d + 0.02),
+                    Vec3::new(x + bw, y + t + bh, 0.5 * d - 0.03),
+                    c,
+                );
                 x += bw + 0.003;
             }
         }
@@ -230,9 +300,17 @@ impl Shop {
         let frame = if rng.random_bool(0.6) { self.wood(rng) } else { self.paint(rng) };
         let seat = if rng.random_bool(0.5) { frame } else { self.fabric(rng) };
         let t = 0.04;
-        self.b.cuboid(Vec3::new(-0.5 * w, seat_h - t, -0.5 * d), Vec3::new(0.5 * w, seat_h, 0.5 * d), seat);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, seat_h - t, -0.5 * d),
+            Vec3::new(0.5 * w, seat_h, 0.5 * d),
+            seat,
+        );
         self.legs(Vec2::new(w, d), seat_h - t, 0.035, 0.03, rng.random_bool(0.4), frame);
-        self.b.cuboid(Vec3::new(-0.5 * w, seat_h, -0.5 * d), Vec3::new(0.5 * w, seat_h + back_h, -0.5 * d + 0.03), frame);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, seat_h, -0.5 * d),
+            Vec3::new(0.5 * w, seat_h + back_h, -0.5 * d + 0.03),
+            frame,
+        );
         None
     }
 
@@ -257,20 +335,40 @@ impl Shop {
         let arm = rng.random_range(0.1..0.2);
         let w = seats as f32 * seat_w + 2.0 * arm;
         let d = rng.random_range(0.8..0.95);
-        let (base_h, seat_h, back_h) = (rng.random_range(0.15..0.25), rng.random_range(0.4..0.46), rng.random_range(0.75..0.9));
+        let (base_h, seat_h, back_h) = (
+            rng.random_range(0.15..0.25),
+            rng.random_range(0.4..0.46),
+            rng.random_range(0.75..0.9),
+        );
         let cloth = self.fabric(rng);
         let cushion = if rng.random_bool(0.6) { cloth } else { self.fabric(rng) };
         let feet = self.paint(rng);
         self.legs(Vec2::new(w, d), 0.06, 0.04, 0.05, true, feet);
-        self.b.cuboid(Vec3::new(-0.5 * w, 0.06, -0.5 * d), Vec3::new(0.5 * w, 0.06 + base_h, 0.5 * d), cloth);
-        self.b.cuboid(Vec3::new(-0.5 * w, 0.06, -0.5 * d), Vec3::new(0.5 * w, back_h, -0.5 * d + 0.2), cloth);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, 0.06, -0.5 * d),
+            Vec3::new(0.5 * w, 0.06 + base_h, 0.5 * d),
+            cloth,
+        );
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, 0.06, -0.5 * d),
+            Vec3::new(0.5 * w, back_h, -0.5 * d + 0.2),
+            cloth,
+        );
         for sx in [-1.0f32, 1.0] {
             let x = sx * 0.5 * w;
-            self.b.cuboid(Vec3::new(x.min(x - sx * arm), 0.06, -0.5 * d), Vec3::new(x.max(x - sx * arm), seat_h + 0.18, 0.5 * d), cloth);
+            self.b.cuboid(
+                Vec3::new(x.min(x - sx * arm), 0.06, -0.5 * d),
+                Vec3::new(x.max(x - sx * arm), seat_h + 0.18, 0.5 * d),
+                cloth,
+            );
         }
         for i in 0..seats {
             let x0 = -0.5 * w + arm + i as f32 * seat_w;
-            self.b.cuboid(Vec3::new(x0 + 0.01, 0.06 + base_h, -0.5 * d + 0.2), Vec3::new(x0 + seat_w - 0.01, seat_h, 0.5 * d), cushion);
+            self.b.cuboid(
+                Vec3::new(x0 + 0.01, 0.06 + base_h, -0.5 * d + 0.2),
+                Vec3::new(x0 + seat_w - 0.01, seat_h, 0.5 * d),
+                cushion,
+            );
         }
         None
     }
@@ -283,13 +381,31 @@ impl Shop {
         let blanket = self.fabric(rng);
         let fh = rng.random_range(0.25..0.35);
         self.b.cuboid(Vec3::new(-0.5 * w, 0.0, -0.5 * l), Vec3::new(0.5 * w, fh, 0.5 * l), frame);
-        self.b.cuboid(Vec3::new(-0.5 * w + 0.03, fh, -0.5 * l + 0.05), Vec3::new(0.5 * w - 0.03, fh + 0.2, 0.5 * l - 0.03), sheet);
-        self.b.cuboid(Vec3::new(-0.5 * w, fh + 0.1, -0.15 * l), Vec3::new(0.5 * w, fh + 0.23, 0.5 * l), blanket);
-        self.b.cuboid(Vec3::new(-0.5 * w, 0.0, -0.5 * l), Vec3::new(0.5 * w, rng.random_range(0.8..1.1), -0.5 * l + 0.06), frame);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w + 0.03, fh, -0.5 * l + 0.05),
+            Vec3::new(0.5 * w - 0.03, fh + 0.2, 0.5 * l - 0.03),
+            sheet,
+        );
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, fh + 0.1, -0.15 * l),
+            Vec3::new(0.5 * w, fh + 0.23, 0.5 * l),
+            blanket,
+        );
+        self.b.cuboid(
+            Vec3::new(-0.5 * w, 0.0, -0.5 * l),
+            Vec3::new(0.5 * w, rng.random_range(0.8..1.1), -0.5 * l + 0.06),
+            frame,
+        );
         let pillows = if w > 1.2 { 2 } else { 1 };
         for i in 0..pillows {
             let x = if pillows == 1 { 0.0 } else { (i as f32 - 0.5) * 0.5 * w };
-            self.b.ellipsoid(Vec3::new(x, fh + 0.26, -0.5 * l + 0.3), Vec3::new(0.3, 0.07, 0.18), 6, 12, sheet);
+            self.b.ellipsoid(
+                Vec3::new(x, fh + 0.26, -0.5 * l + 0.3),
+                Vec3::new(0.3, 0.07, 0.18),
+                6,
+                12,
+                sheet,
+            );
         }
         None
     }
@@ -302,20 +418,40 @@ impl Shop {
         self.b.frustum(Vec3::ZERO, base_r, base_r * 0.8, 0.03, 16, metal);
         self.b.frustum(Vec3::ZERO, 0.012, 0.012, h * 0.8, 8, metal);
         let sr = if small { rng.random_range(0.1..0.16) } else { rng.random_range(0.18..0.26) };
-        self.b.frustum(Vec3::new(0.0, h * 0.72, 0.0), sr, sr * rng.random_range(0.55..0.9), h * 0.28, 16, shade);
+        self.b.frustum(
+            Vec3::new(0.0, h * 0.72, 0.0),
+            sr,
+            sr * rng.random_range(0.55..0.9),
+            h * 0.28,
+            16,
+            shade,
+        );
         None
     }
 
     fn plant(&mut self, rng: &mut impl Rng, small: bool) -> Option<f32> {
-        let pot = if rng.random_bool(0.5) { self.paint(rng) } else { self.flat(jitter_colour(rng, srgb(170, 90, 60), 0.15)) };
+        let pot = if rng.random_bool(0.5) {
+            self.paint(rng)
+        } else {
+            self.flat(jitter_colour(rng, srgb(170, 90, 60), 0.15))
+        };
         let leaf = self.flat(jitter_colour(rng, srgb(60, 110, 50), 0.3));
         let s = if small { 0.4 } else { 1.0 };
         let (pr, ph) = (rng.random_range(0.12..0.22) * s, rng.random_range(0.2..0.4) * s);
         self.b.frustum(Vec3::ZERO, pr * 0.75, pr, ph, 14, pot);
         let crown = rng.random_range(0.4..1.3) * s;
         for _ in 0..rng.random_range(3..7) {
-            let c = Vec3::new(rng.random_range(-0.5..0.5) * pr * 1.5, ph + rng.random_range(0.3..1.0) * crown, rng.random_range(-0.5..0.5) * pr * 1.5);
-            let r = Vec3::new(rng.random_range(0.6..1.0), rng.random_range(0.6..1.2), rng.random_range(0.6..1.0)) * crown * 0.3;
+            let c = Vec3::new(
+                rng.random_range(-0.5..0.5) * pr * 1.5,
+                ph + rng.random_range(0.3..1.0) * crown,
+                rng.random_range(-0.5..0.5) * pr * 1.5,
+            );
+            let r = Vec3::new(
+                rng.random_range(0.6..1.0),
+                rng.random_range(0.6..1.2),
+                rng.random_range(0.6..1.0),
+            ) * crown
+                * 0.3;
             self.b.ellipsoid(c, r, 6, 10, leaf);
         }
         None
@@ -330,10 +466,22 @@ impl Shop {
     }
 
     fn crate_box(&mut self, rng: &mut impl Rng, small: bool) -> Option<f32> {
-        let m = if rng.random_bool(0.5) { self.wood(rng) } else { self.flat(jitter_colour(rng, srgb(190, 150, 105), 0.1)) };
+        let m = if rng.random_bool(0.5) {
+            self.wood(rng)
+        } else {
+            self.flat(jitter_colour(rng, srgb(190, 150, 105), 0.1))
+        };
         let shrink = if small { 0.4 } else { 1.0 };
-        let s = Vec3::new(rng.random_range(0.25..0.7), rng.random_range(0.2..0.5), rng.random_range(0.25..0.6)) * shrink;
-        self.b.cuboid(Vec3::new(-0.5 * s.x, 0.0, -0.5 * s.z), Vec3::new(0.5 * s.x, s.y, 0.5 * s.z), m);
+        let s = Vec3::new(
+            rng.random_range(0.25..0.7),
+            rng.random_range(0.2..0.5),
+            rng.random_range(0.25..0.6),
+        ) * shrink;
+        self.b.cuboid(
+            Vec3::new(-0.5 * s.x, 0.0, -0.5 * s.z),
+            Vec3::new(0.5 * s.x, s.y, 0.5 * s.z),
+            m,
+        );
         Some(s.y)
     }
 
@@ -352,7 +500,11 @@ impl Shop {
         self.b.cuboid(Vec3::new(-0.15, 0.0, -0.1), Vec3::new(0.15, 0.02, 0.1), body);
         self.b.cuboid(Vec3::new(-0.03, 0.0, -0.03), Vec3::new(0.03, 0.1, 0.0), body);
         self.b.cuboid(Vec3::new(-0.5 * w, 0.08, -0.03), Vec3::new(0.5 * w, 0.08 + h, 0.02), body);
-        self.b.cuboid(Vec3::new(-0.5 * w + 0.015, 0.095, 0.02), Vec3::new(0.5 * w - 0.015, 0.065 + h, 0.025), screen);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w + 0.015, 0.095, 0.02),
+            Vec3::new(0.5 * w - 0.015, 0.065 + h, 0.025),
+            screen,
+        );
         None
     }
 
@@ -372,12 +524,20 @@ impl Shop {
 
     fn picture(&mut self, rng: &mut impl Rng) -> Option<f32> {
         let frame = if rng.random_bool(0.5) { self.wood(rng) } else { self.paint(rng) };
-        let base = Vec3::new(rng.random_range(0.1..0.9), rng.random_range(0.1..0.9), rng.random_range(0.1..0.9));
+        let base = Vec3::new(
+            rng.random_range(0.1..0.9),
+            rng.random_range(0.1..0.9),
+            rng.random_range(0.1..0.9),
+        );
         let art = Pattern::random(rng, PatternKind::Noise, base, 2.0);
         let art = self.b.material(Material::patterned(art));
         let (w, h) = (rng.random_range(0.3..0.9), rng.random_range(0.3..0.7));
         self.b.cuboid(Vec3::new(-0.5 * w, 0.0, 0.0), Vec3::new(0.5 * w, h, 0.03), frame);
-        self.b.cuboid(Vec3::new(-0.5 * w + 0.04, 0.04, 0.03), Vec3::new(0.5 * w - 0.04, h - 0.04, 0.035), art);
+        self.b.cuboid(
+            Vec3::new(-0.5 * w + 0.04, 0.04, 0.03),
+            Vec3::new(0.5 * w - 0.04, h - 0.04, 0.035),
+            art,
+        );
         None
     }
 }

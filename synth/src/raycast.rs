@@ -134,7 +134,13 @@ impl<'a> World<'a> {
                     n = -n;
                 }
                 let material = &ob.placed.model.mesh.materials[h.material as usize];
-                best = Hit { t: h.t, point: o + d * h.t, normal: n, albedo: material.shade(h.uv), id: ob.id };
+                best = Hit {
+                    t: h.t,
+                    point: o + d * h.t,
+                    normal: n,
+                    albedo: material.shade(h.uv),
+                    id: ob.id,
+                };
             }
         }
         best
@@ -193,7 +199,9 @@ impl<'a> World<'a> {
                             let mut sum = Vec3::ZERO;
                             for &dy in &offsets {
                                 for &dx in &offsets {
-                                    sum += self.shade(&self.trace(origin, ray(x as f32 + dx, y as f32 + dy)));
+                                    sum += self.shade(
+                                        &self.trace(origin, ray(x as f32 + dx, y as f32 + dy)),
+                                    );
                                 }
                             }
                             sum / (n * n) as f32
@@ -203,7 +211,11 @@ impl<'a> World<'a> {
                     .collect()
             })
             .collect();
-        let mut out = FrameBuffers { radiance: Vec::with_capacity(w * h), depth: Vec::with_capacity(w * h), ids: Vec::with_capacity(w * h) };
+        let mut out = FrameBuffers {
+            radiance: Vec::with_capacity(w * h),
+            depth: Vec::with_capacity(w * h),
+            ids: Vec::with_capacity(w * h),
+        };
         for (c, t, id) in rows.into_iter().flatten() {
             out.radiance.push(c);
             out.depth.push(t);
@@ -249,7 +261,8 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let room = Room::random(&mut rng, 1.0);
         let cfg = SynthConfig::new(Split::Train, Furniture::Primitives);
-        let src = Source { catalog: None, reserved: Reserved::Exclude, mesh_share: 0.0, contrast: 1.0 };
+        let src =
+            Source { catalog: None, reserved: Reserved::Exclude, mesh_share: 0.0, contrast: 1.0 };
         let objects = furnish(&room, &src, &cfg, &mut rng).objects;
         let eye = Vec3::new(0.3 * room.size.x, 1.5, 0.2 * room.size.z);
         let target = Vec3::new(0.7 * room.size.x, 0.5, 0.8 * room.size.z);
@@ -269,13 +282,28 @@ mod tests {
         for y in 0..24 {
             for x in 0..24 {
                 let i = y * 24 + x;
-                let block = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| fine.radiance[(2 * y + dy) * 48 + 2 * x + dx]);
+                let block = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                    .map(|(dx, dy)| fine.radiance[(2 * y + dy) * 48 + 2 * x + dx]);
                 let mean = block.iter().copied().sum::<Vec3>() / 4.0;
-                assert!((smooth.radiance[i] - mean).abs().max_element() < 1e-5, "pixel ({x}, {y}): {} against {mean}", smooth.radiance[i]);
-                assert_eq!((smooth.depth[i], smooth.ids[i]), (plain.depth[i], plain.ids[i]), "pixel ({x}, {y})");
-                edges += usize::from((smooth.radiance[i] - plain.radiance[i]).abs().max_element() > 1e-3);
+                assert!(
+                    (smooth.radiance[i] - mean).abs().max_element() < 1e-5,
+                    "pixel ({x}, {y}): {} against {mean}",
+                    smooth.radiance[i]
+                );
+                assert_eq!(
+                    (smooth.depth[i], smooth.ids[i]),
+                    (plain.depth[i], plain.ids[i]),
+                    "pixel ({x}, {y})"
+                );
+                edges += usize::from(
+                    (smooth.radiance[i] - plain.radiance[i]).abs().max_element() > 1e-3,
+                );
             }
         }
-        assert!(objects.len() >= 3 && edges > 20, "{} objects, {edges} pixels changed by anti-aliasing", objects.len());
+        assert!(
+            objects.len() >= 3 && edges > 20,
+            "{} objects, {edges} pixels changed by anti-aliasing",
+            objects.len()
+        );
     }
 }

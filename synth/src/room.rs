@@ -24,8 +24,14 @@ pub enum Surface {
 }
 
 impl Surface {
-    pub const ALL: [Surface; 6] =
-        [Surface::Floor, Surface::Ceiling, Surface::WallX0, Surface::WallX1, Surface::WallZ0, Surface::WallZ1];
+    pub const ALL: [Surface; 6] = [
+        Surface::Floor,
+        Surface::Ceiling,
+        Surface::WallX0,
+        Surface::WallX1,
+        Surface::WallZ0,
+        Surface::WallZ1,
+    ];
 
     pub fn label(self) -> &'static str {
         match self {
@@ -56,27 +62,61 @@ pub struct Room {
 
 impl Room {
     pub fn random(rng: &mut impl Rng, contrast: f32) -> Room {
-        let size = Vec3::new(rng.random_range(3.0..6.5), rng.random_range(2.4..3.1), rng.random_range(3.0..6.5));
-        let s = |r: u8, g: u8, b: u8| srgb_to_linear(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
-        let floor_kind = *[PatternKind::WoodPlanks, PatternKind::WoodPlanks, PatternKind::Tiles, PatternKind::Carpet, PatternKind::Noise]
-            .choose(rng)
-            .expect("kinds");
+        let size = Vec3::new(
+            rng.random_range(3.0..6.5),
+            rng.random_range(2.4..3.1),
+            rng.random_range(3.0..6.5),
+        );
+        let s =
+            |r: u8, g: u8, b: u8| srgb_to_linear(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
+        let floor_kind = *[
+            PatternKind::WoodPlanks,
+            PatternKind::WoodPlanks,
+            PatternKind::Tiles,
+            PatternKind::Carpet,
+            PatternKind::Noise,
+        ]
+        .choose(rng)
+        .expect("kinds");
         let floor_base = match floor_kind {
-            PatternKind::WoodPlanks => *[s(200, 160, 115), s(150, 105, 70), s(110, 75, 50), s(225, 205, 175)].choose(rng).expect("c"),
-            PatternKind::Tiles => *[s(220, 220, 215), s(180, 170, 160), s(90, 90, 95), s(200, 185, 160)].choose(rng).expect("c"),
-            _ => Vec3::new(rng.random_range(0.05..0.5), rng.random_range(0.05..0.45), rng.random_range(0.05..0.45)),
+            PatternKind::WoodPlanks => {
+                *[s(200, 160, 115), s(150, 105, 70), s(110, 75, 50), s(225, 205, 175)]
+                    .choose(rng)
+                    .expect("c")
+            }
+            PatternKind::Tiles => {
+                *[s(220, 220, 215), s(180, 170, 160), s(90, 90, 95), s(200, 185, 160)]
+                    .choose(rng)
+                    .expect("c")
+            }
+            _ => Vec3::new(
+                rng.random_range(0.05..0.5),
+                rng.random_range(0.05..0.45),
+                rng.random_range(0.05..0.45),
+            ),
         };
         let floor_base = jitter_colour(rng, floor_base, 0.1);
         let floor = Pattern::random(rng, floor_kind, floor_base, contrast);
         let wall_base = if rng.random_bool(0.6) {
             jitter_colour(rng, s(235, 230, 220), 0.06)
         } else {
-            Vec3::new(rng.random_range(0.15..0.8), rng.random_range(0.15..0.8), rng.random_range(0.15..0.8))
+            Vec3::new(
+                rng.random_range(0.15..0.8),
+                rng.random_range(0.15..0.8),
+                rng.random_range(0.15..0.8),
+            )
         };
-        let wall_kind = *[PatternKind::Plaster, PatternKind::Plaster, PatternKind::Stripes, PatternKind::Noise].choose(rng).expect("k");
+        let wall_kind =
+            *[PatternKind::Plaster, PatternKind::Plaster, PatternKind::Stripes, PatternKind::Noise]
+                .choose(rng)
+                .expect("k");
         let wall = Pattern::random(rng, wall_kind, wall_base, contrast);
         let accent = if rng.random_bool(0.3) {
-            let c = Vec3::new(rng.random_range(0.1..0.7), rng.random_range(0.1..0.7), rng.random_range(0.1..0.7));
+            let c = Vec3::new(
+                rng.random_range(0.1..0.7),
+                rng.random_range(0.1..0.7),
+                rng.random_range(0.1..0.7),
+            );
             Pattern::random(rng, PatternKind::Plaster, c, contrast)
         } else {
             wall
@@ -84,7 +124,8 @@ impl Room {
         let ceiling_base = jitter_colour(rng, s(245, 245, 240), 0.03);
         let ceiling = Pattern::random(rng, PatternKind::Plaster, ceiling_base, contrast * 0.5);
         let accent_wall = rng.random_range(0..4);
-        let walls: [Pattern; 4] = std::array::from_fn(|i| if i == accent_wall { accent } else { wall });
+        let walls: [Pattern; 4] =
+            std::array::from_fn(|i| if i == accent_wall { accent } else { wall });
         let n_lights = rng.random_range(1..=3);
         let warmth = rng.random_range(0.0..1.0f32);
         let tint = Vec3::new(1.0, 0.92 + 0.06 * (1.0 - warmth), 0.78 + 0.2 * (1.0 - warmth));
@@ -206,7 +247,9 @@ impl Footprint {
 
     /// Whether the rectangle lies inside [m, W−m] × [m, D−m].
     pub fn inside(&self, room: Vec3, margin: f32) -> bool {
-        self.corners().iter().all(|c| c.x >= margin && c.y >= margin && c.x <= room.x - margin && c.y <= room.z - margin)
+        self.corners().iter().all(|c| {
+            c.x >= margin && c.y >= margin && c.x <= room.x - margin && c.y <= room.z - margin
+        })
     }
 
     /// Whether the point lies inside the rectangle grown by `grow`.

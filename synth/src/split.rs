@@ -18,7 +18,9 @@ pub const SPLIT_STRIDE: u64 = 1 << 40;
 /// View counts the evaluation split defines context sets for.
 pub const CONTEXT_VIEWS: [usize; 4] = [2, 4, 8, 16];
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Split {
     Train,
@@ -32,7 +34,9 @@ impl Split {
     /// Seed of scene `index` of this split.
     pub fn seed(self, index: u64) -> Result<u64, SynthError> {
         if index >= SPLIT_STRIDE {
-            return Err(SynthError::Config(format!("scene index {index} is beyond the {SPLIT_STRIDE} seeds of a split")));
+            return Err(SynthError::Config(format!(
+                "scene index {index} is beyond the {SPLIT_STRIDE} seeds of a split"
+            )));
         }
         Ok(self as u64 * SPLIT_STRIDE + index)
     }
@@ -61,7 +65,10 @@ impl FromStr for Split {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Split::ALL.into_iter().find(|x| x.name() == s).ok_or_else(|| format!("`{s}` is not a split (train, val, test)"))
+        Split::ALL
+            .into_iter()
+            .find(|x| x.name() == s)
+            .ok_or_else(|| format!("`{s}` is not a split (train, val, test)"))
     }
 }
 
@@ -69,8 +76,9 @@ impl FromStr for Split {
 /// largest context set is the largest of [`CONTEXT_VIEWS`] that leaves at least one target.
 pub fn eval_split(frames: usize) -> Option<EvalSplit> {
     let largest = CONTEXT_VIEWS.iter().copied().filter(|&v| v < frames).max()?;
-    let spread: Vec<usize> =
-        (0..largest).map(|i| ((i as f64 * (frames - 1) as f64 / (largest - 1) as f64).round()) as usize).collect();
+    let spread: Vec<usize> = (0..largest)
+        .map(|i| ((i as f64 * (frames - 1) as f64 / (largest - 1) as f64).round()) as usize)
+        .collect();
     let mut context = BTreeMap::new();
     let mut set = spread.clone();
     for &v in CONTEXT_VIEWS.iter().rev().filter(|&&v| v <= largest) {
@@ -111,7 +119,8 @@ mod tests {
                 d.dedup();
                 assert_eq!(d.len(), v.len(), "distinct frames");
             }
-            let sets: Vec<&Vec<usize>> = CONTEXT_VIEWS.iter().filter_map(|v| e.context.get(&v.to_string())).collect();
+            let sets: Vec<&Vec<usize>> =
+                CONTEXT_VIEWS.iter().filter_map(|v| e.context.get(&v.to_string())).collect();
             for w in sets.windows(2) {
                 assert!(w[0].iter().all(|i| w[1].contains(i)), "nested: {e:?}");
             }

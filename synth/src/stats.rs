@@ -91,7 +91,8 @@ impl DatasetStats {
     /// (class, share of all pixels), largest first.
     pub fn pixel_shares(&self) -> Vec<(String, f64)> {
         let total = self.pixels.values().sum::<u64>().max(1) as f64;
-        let mut v: Vec<(String, f64)> = self.pixels.iter().map(|(k, &n)| (k.clone(), n as f64 / total)).collect();
+        let mut v: Vec<(String, f64)> =
+            self.pixels.iter().map(|(k, &n)| (k.clone(), n as f64 / total)).collect();
         v.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
         v
     }
@@ -104,7 +105,11 @@ impl fmt::Display for DatasetStats {
             self.instances_per_scene.iter().max().copied().unwrap_or(0),
         );
         writeln!(f, "scenes: {}, frames: {}", self.scenes, self.frames)?;
-        writeln!(f, "instances per scene: mean {:.1}, min {min}, max {max}", self.mean_instances())?;
+        writeln!(
+            f,
+            "instances per scene: mean {:.1}, min {min}, max {max}",
+            self.mean_instances()
+        )?;
         writeln!(
             f,
             "scenes with >= 2 instances of one category: {:.1}% ({} of {})",
@@ -137,7 +142,12 @@ mod tests {
         let k = Intrinsics::from_fov_y(2, 2, 1.0);
         let cam = Camera::look_at(k, glam::Vec3::ZERO, glam::Vec3::Z, glam::Vec3::Y);
         let label = |id, l: &str| InstanceLabel { id, label: l.into() };
-        let frame = |ids: Vec<u16>| Frame { camera: cam, rgb: vec![0; 12], depth: None, instances: Some(ids) };
+        let frame = |ids: Vec<u16>| Frame {
+            camera: cam,
+            rgb: vec![0; 12],
+            depth: None,
+            instances: Some(ids),
+        };
         let scene = |instances, ids| Scene {
             dir: Default::default(),
             instances,
@@ -146,7 +156,10 @@ mod tests {
             depth_unit_m: 0.001,
         };
         let mut s = DatasetStats::default();
-        s.add(&scene(vec![label(1, "chair"), label(2, "chair"), label(3, "lamp")], vec![0, 1, 2, 3]));
+        s.add(&scene(
+            vec![label(1, "chair"), label(2, "chair"), label(3, "lamp")],
+            vec![0, 1, 2, 3],
+        ));
         s.add(&scene(vec![label(1, "wall"), label(2, "wall"), label(3, "lamp")], vec![1, 1, 2, 3]));
         assert_eq!(s.scenes_with_repeat, 1, "two walls are not a repeated category");
         assert_eq!(s.repeat_share(), 0.5);

@@ -47,7 +47,8 @@ impl Pattern {
             PatternKind::Carpet => {
                 let fine = value_noise(p * 180.0, s) - 0.5;
                 let blotch = fbm(q, s ^ 0x55, 3) - 0.5;
-                self.base.lerp(self.accent, (0.5 + c * blotch).clamp(0.0, 1.0) * 0.5) * (1.0 + 0.3 * c * fine)
+                self.base.lerp(self.accent, (0.5 + c * blotch).clamp(0.0, 1.0) * 0.5)
+                    * (1.0 + 0.3 * c * fine)
             }
             PatternKind::Noise => {
                 let n = fbm(q, s, 5);
@@ -78,7 +79,9 @@ impl Pattern {
                 let fx = along - plank;
                 let seam = fy < 0.04 || fx < 0.01;
                 let grain = grain(Vec2::new(p.x * 3.0, p.y * 40.0), s ^ row as u32);
-                let tone = self.base.lerp(self.accent, (0.5 + c * (0.6 * h + 0.4 * (grain - 0.5))).clamp(0.0, 1.0));
+                let tone = self
+                    .base
+                    .lerp(self.accent, (0.5 + c * (0.6 * h + 0.4 * (grain - 0.5))).clamp(0.0, 1.0));
                 if seam { tone * (1.0 - 0.35 * c.min(1.5)).max(0.3) } else { tone }
             }
             PatternKind::WoodGrain => {
@@ -93,7 +96,9 @@ impl Pattern {
     pub fn random(rng: &mut impl Rng, kind: PatternKind, base: Vec3, contrast: f32) -> Self {
         let (scale, accent) = match kind {
             PatternKind::Plaster => (rng.random_range(0.3..1.5), base),
-            PatternKind::WoodPlanks => (rng.random_range(0.1..0.22), base * rng.random_range(0.45..0.75)),
+            PatternKind::WoodPlanks => {
+                (rng.random_range(0.1..0.22), base * rng.random_range(0.45..0.75))
+            }
             PatternKind::Tiles => (rng.random_range(0.2..0.6), jitter_colour(rng, base, 0.35)),
             PatternKind::Carpet => (rng.random_range(0.3..1.2), jitter_colour(rng, base, 0.3)),
             PatternKind::Stripes => (rng.random_range(0.05..0.3), jitter_colour(rng, base, 0.4)),
@@ -141,7 +146,9 @@ fn grain(p: Vec2, seed: u32) -> f32 {
 
 /// Hash of an integer lattice point to [0, 1).
 pub fn hash2(x: i32, y: i32, seed: u32) -> f32 {
-    let mut h = (x as u32).wrapping_mul(0x27d4_eb2d) ^ (y as u32).wrapping_mul(0x1656_67b1) ^ seed.wrapping_mul(0x9e37_79b9);
+    let mut h = (x as u32).wrapping_mul(0x27d4_eb2d)
+        ^ (y as u32).wrapping_mul(0x1656_67b1)
+        ^ seed.wrapping_mul(0x9e37_79b9);
     h ^= h >> 15;
     h = h.wrapping_mul(0x85eb_ca6b);
     h ^= h >> 13;
@@ -195,9 +202,13 @@ mod tests {
             PatternKind::WoodGrain,
         ] {
             let p = Pattern::random(&mut rng, kind, Vec3::new(0.5, 0.4, 0.3), 1.0);
-            let samples: Vec<Vec3> =
-                (0..200).map(|i| p.albedo(Vec2::new(i as f32 * 0.037, (i * 7 % 13) as f32 * 0.05))).collect();
-            assert!(samples.iter().all(|c| c.min_element() >= 0.0 && c.max_element() <= 1.0), "{kind:?}");
+            let samples: Vec<Vec3> = (0..200)
+                .map(|i| p.albedo(Vec2::new(i as f32 * 0.037, (i * 7 % 13) as f32 * 0.05)))
+                .collect();
+            assert!(
+                samples.iter().all(|c| c.min_element() >= 0.0 && c.max_element() <= 1.0),
+                "{kind:?}"
+            );
             let spread = samples.iter().map(|c| c.x).fold(0.0f32, f32::max)
                 - samples.iter().map(|c| c.x).fold(1.0f32, f32::min);
             assert!(spread > 0.01, "{kind:?} is flat");

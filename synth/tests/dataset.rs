@@ -1,13 +1,16 @@
 //! Synthesized scenes as the trainer and `inssplat eval` will read them: every written
 //! scene passes `Scene::load`, the same seed gives a byte-identical folder, test scenes (and
-//! val scenes when asked) carry a valid evaluation split, reserved furniture stays out of train/val, and a missing
+//! val scenes when asked) carry a valid evaluation split, reserved furniture stays out of
+//! train/val, and a missing
 //! furniture folder is a clear error while primitives-only generation needs no files.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use inssplat_proto::dataset::Scene;
-use inssplat_synth::{self as synth, Furniture, Reserved, Split, Structure, SynthConfig, SynthError};
+use inssplat_synth::{
+    self as synth, Furniture, Reserved, Split, Structure, SynthConfig, SynthError,
+};
 
 fn small(split: Split, furniture: Furniture) -> SynthConfig {
     let mut cfg = SynthConfig::new(split, furniture);
@@ -26,7 +29,10 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
             if p.is_dir() {
                 stack.push(p);
             } else {
-                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap());
+                out.insert(
+                    p.strip_prefix(dir).unwrap().display().to_string(),
+                    std::fs::read(&p).unwrap(),
+                );
             }
         }
     }
@@ -43,7 +49,11 @@ fn synth_written_scenes_load_and_the_same_seed_is_byte_identical() {
         s.write(&a).unwrap();
         synth::generate_split(index, &cfg).unwrap().write(&b).unwrap();
         let (fa, fb) = (files(&a), files(&b));
-        assert!(fa.contains_key("transforms.json") && fa.contains_key("depth/003.png") && fa.contains_key("credits.json"));
+        assert!(
+            fa.contains_key("transforms.json")
+                && fa.contains_key("depth/003.png")
+                && fa.contains_key("credits.json")
+        );
         assert!(fa == fb, "scene {index}: two runs differ");
         let loaded = Scene::load(&a).unwrap_or_else(|e| panic!("scene {index}: {e}"));
         assert_eq!(loaded.instances, s.scene.instances);
@@ -68,7 +78,10 @@ fn synth_test_split_marks_context_and_target_views_and_may_show_the_shell() {
     assert_eq!(eval.context_for(16).unwrap().len(), 16);
     assert_eq!(eval.context_for(2).unwrap().len(), 2);
     assert_eq!(eval.target.len(), 8);
-    assert!(s.instances.iter().any(|i| i.label == "floor") && s.instances.iter().any(|i| i.label == "wall"));
+    assert!(
+        s.instances.iter().any(|i| i.label == "floor")
+            && s.instances.iter().any(|i| i.label == "wall")
+    );
     let tmp = tempfile::tempdir().unwrap();
     s.write(tmp.path()).unwrap();
     assert_eq!(Scene::load(tmp.path()).unwrap().eval, Some(eval));
@@ -78,7 +91,8 @@ fn synth_test_split_marks_context_and_target_views_and_may_show_the_shell() {
     val.frames = (24, 24);
     assert!(synth::generate_split(0, &val).unwrap().scene.eval.is_none());
     val.eval_views = true;
-    let marked = synth::generate_split(0, &val).unwrap().scene.eval.expect("--eval-views marks val scenes");
+    let marked =
+        synth::generate_split(0, &val).unwrap().scene.eval.expect("--eval-views marks val scenes");
     assert_eq!(marked.context_for(8).unwrap().len(), 8);
 }
 
@@ -94,7 +108,8 @@ fn synth_reserved_furniture_never_reaches_train_or_val() {
         Furniture::Primitives => unreachable!(),
     };
     let catalog = synth::Catalog::open(&dir).unwrap();
-    let reserved: Vec<&str> = catalog.entries.iter().filter(|e| e.reserved).map(|e| e.credit.id.as_str()).collect();
+    let reserved: Vec<&str> =
+        catalog.entries.iter().filter(|e| e.reserved).map(|e| e.credit.id.as_str()).collect();
     assert!(reserved.len() > 40, "the reserved list matches catalog ids: {reserved:?}");
     let mut cfg = small(Split::Train, Furniture::from_env());
     cfg.mesh_share = 1.0;

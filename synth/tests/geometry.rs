@@ -30,7 +30,11 @@ fn synth_depth_reprojects_consistently_between_views() {
                 for x in 0..w {
                     let z = da[y * w + x];
                     assert!(z > 0.0, "every ray hits the room");
-                    let world = fa.camera.camera_to_world(fa.camera.unproject(x as f32 + 0.5, y as f32 + 0.5, z));
+                    let world = fa.camera.camera_to_world(fa.camera.unproject(
+                        x as f32 + 0.5,
+                        y as f32 + 0.5,
+                        z,
+                    ));
                     let pb: Vec3 = fb.camera.world_to_camera(world);
                     if pb.z <= 0.05 {
                         continue;

@@ -22,7 +22,8 @@ fn workspace_bin(name: &str, var: &str, cell: &'static OnceLock<PathBuf>) -> Pat
             .status()
             .expect("run cargo build");
         assert!(status.success(), "building {name} failed");
-        let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or(root.join("target"));
+        let target =
+            std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or(root.join("target"));
         target.join("debug").join(name)
     })
     .clone()

@@ -14,16 +14,16 @@
 //! `raster/tests/post_pipeline.rs` runs the same chain on an analytic room of large boxes.
 //! Both tests build their inputs with `inssplat_geometry::ideal`.
 
-use inssplat_proto::dataset::{Frame, Scene};
 use inssplat_geometry::backproject::{ViewOutputs, backproject};
-use inssplat_understand::cluster::{ClusterParams, cluster_instances};
 use inssplat_geometry::ideal::{ViewPlanes, depth_normals, ideal_view, label_projection};
-use inssplat_raster::masks::render_instance_ids;
-use inssplat_understand::label::{SemanticProjection, assign_labels, semantic_prototypes};
-use inssplat_metrics::{InstanceMatch, instance_scores};
 use inssplat_geometry::voxel::{VoxelParams, voxelize};
-use inssplat_text::TextEmbedder;
+use inssplat_metrics::{InstanceMatch, instance_scores};
+use inssplat_proto::dataset::{Frame, Scene};
+use inssplat_raster::masks::render_instance_ids;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
+use inssplat_text::TextEmbedder;
+use inssplat_understand::cluster::{ClusterParams, cluster_instances};
+use inssplat_understand::label::{SemanticProjection, assign_labels, semantic_prototypes};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -48,7 +48,12 @@ fn ideal_outputs(scene: &Scene, vocabulary: &[&str], seed: u64) -> Vec<ViewPlane
     // Vocabulary index of each instance id's label (the background, id 0, has none).
     let label_of = |id: u16| {
         let label = scene.label_of(id)?;
-        Some(vocabulary.iter().position(|v| *v == label).expect("every synthesized label is in the vocabulary"))
+        Some(
+            vocabulary
+                .iter()
+                .position(|v| *v == label)
+                .expect("every synthesized label is in the vocabulary"),
+        )
     };
     scene
         .frames
@@ -68,23 +73,33 @@ fn sizeable_miou(predicted: &[u32], truth: &[u32]) -> (f64, Vec<InstanceMatch>) 
     let visible: Vec<InstanceMatch> = scores
         .matches
         .into_iter()
-        .filter(|m| truth.iter().filter(|&&t| t == m.gt).count() as f64 >= MIN_SHARE * truth.len() as f64)
+        .filter(|m| {
+            truth.iter().filter(|&&t| t == m.gt).count() as f64 >= MIN_SHARE * truth.len() as f64
+        })
         .collect();
     let miou = visible.iter().map(|m| m.iou).sum::<f64>() / visible.len() as f64;
     (miou, visible)
 }
 
 fn ids_of(frames: &[Frame]) -> Vec<u32> {
-    frames.iter().flat_map(|f| f.instances.as_ref().unwrap().iter().map(|&id| u32::from(id))).collect()
+    frames
+        .iter()
+        .flat_map(|f| f.instances.as_ref().unwrap().iter().map(|&id| u32::from(id)))
+        .collect()
 }
 
 fn ious(matches: &[InstanceMatch]) -> String {
-    matches.iter().map(|m| format!("{}→{} {:.3}", m.gt, m.pred, m.iou)).collect::<Vec<_>>().join(", ")
+    matches
+        .iter()
+        .map(|m| format!("{}→{} {:.3}", m.gt, m.pred, m.iou))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 #[test]
 fn ground_truth_of_synthesized_scenes_recovers_instances_and_labels() {
-    let embedder = TextEmbedder::from_env().expect("the text model (INSSPLAT_TEXT_MODEL, see scripts/setup)");
+    let embedder =
+        TextEmbedder::from_env().expect("the text model (INSSPLAT_TEXT_MODEL, see scripts/setup)");
     let vocabulary: Vec<&str> = synth::all_labels().into_iter().collect();
     let texts = embedder.embed(&vocabulary).unwrap();
     let (weight, bias) = label_projection(&texts);
@@ -95,16 +110,23 @@ fn ground_truth_of_synthesized_scenes_recovers_instances_and_labels() {
     for index in [0, 1, 5] {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
         let planes = ideal_outputs(&scene, &vocabulary, index);
-        let views: Vec<ViewOutputs<'_>> = planes.iter().zip(&scene.frames).map(|(p, f)| p.outputs(&f.camera)).collect();
+        let views: Vec<ViewOutputs<'_>> =
+            planes.iter().zip(&scene.frames).map(|(p, f)| p.outputs(&f.camera)).collect();
         let dense = backproject(&views, vocabulary.len()).unwrap();
         let mut voxelized = voxelize(&dense.scene, &VoxelParams::default()).unwrap();
-        let clustering = cluster_instances(&mut voxelized.scene, &ClusterParams::default()).unwrap();
+        let clustering =
+            cluster_instances(&mut voxelized.scene, &ClusterParams::default()).unwrap();
         let k = clustering.prototypes.len();
         let compact = &voxelized.scene;
 
         let truth = ids_of(&scene.frames);
-        let (context_miou, visible) = sizeable_miou(&dense.to_pixels(&voxelized.input_instance_ids()), &truth);
-        let rendered: Vec<u32> = scene.frames.iter().flat_map(|f| render_instance_ids(compact, &f.camera, k).unwrap()).collect();
+        let (context_miou, visible) =
+            sizeable_miou(&dense.to_pixels(&voxelized.input_instance_ids()), &truth);
+        let rendered: Vec<u32> = scene
+            .frames
+            .iter()
+            .flat_map(|f| render_instance_ids(compact, &f.camera, k).unwrap())
+            .collect();
         let (rendered_miou, rendered_visible) = sizeable_miou(&rendered, &truth);
         eprintln!(
             "scene {index}: {} → {} Gaussians, {k} clusters; views' own masks mIoU {context_miou:.4} ({}); \
@@ -114,13 +136,17 @@ fn ground_truth_of_synthesized_scenes_recovers_instances_and_labels() {
             ious(&visible),
             ious(&rendered_visible),
         );
-        assert!(visible.len() >= 3, "scene {index}: too few sizeable instances to test ({visible:?})");
+        assert!(
+            visible.len() >= 3,
+            "scene {index}: too few sizeable instances to test ({visible:?})"
+        );
         assert!(
             context_miou >= CONTEXT_MIN_MIOU && visible.iter().all(|m| m.iou >= CONTEXT_MIN_IOU),
             "scene {index}, the views' own masks: {visible:?}"
         );
         assert!(
-            rendered_miou >= RENDERED_MIN_MIOU && rendered_visible.iter().all(|m| m.iou >= RENDERED_MIN_IOU),
+            rendered_miou >= RENDERED_MIN_MIOU
+                && rendered_visible.iter().all(|m| m.iou >= RENDERED_MIN_IOU),
             "scene {index}, rendered masks: {rendered_visible:?}"
         );
 
@@ -130,7 +156,11 @@ fn ground_truth_of_synthesized_scenes_recovers_instances_and_labels() {
             let want = scene.label_of(m.gt as u16).unwrap();
             let at = prototypes.iter().position(|p| p.id == m.pred).unwrap();
             let got = labels[at].expect("a labelled prototype");
-            assert_eq!(vocabulary[got.label], want, "scene {index}: instance {} → id {} ({got:?})", m.gt, m.pred);
+            assert_eq!(
+                vocabulary[got.label], want,
+                "scene {index}: instance {} → id {} ({got:?})",
+                m.gt, m.pred
+            );
         }
     }
 }

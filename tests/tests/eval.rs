@@ -10,11 +10,11 @@
 //! `inssplat-eval bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
 
+use crate::support::{self, s};
 use inssplat_e2e::inssplat_eval;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use serde_json::Value;
-use crate::support::{self, s};
 
 /// A network that reads its cameras as rays runs twice by default (stage "rays", on the
 /// registered cameras), once with `--no-ray-pass`, and with `--known-poses` once on the true
@@ -27,10 +27,30 @@ fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
     support::test_scene(&data, 0);
     let stages = |extra: &[&str]| {
         let out_dir = dir.path().join(format!("eval{}", extra.concat()));
-        let out = inssplat_eval(&[&["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--out", s(&out_dir), "--json"], extra].concat());
+        let out = inssplat_eval(
+            &[
+                &[
+                    "score",
+                    "--data",
+                    s(&data),
+                    "--views",
+                    "2",
+                    "--model",
+                    s(&model),
+                    "--out",
+                    s(&out_dir),
+                    "--json",
+                ],
+                extra,
+            ]
+            .concat(),
+        );
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
-        (report["scenes"][0]["stage_ms"].as_object().unwrap().clone(), report["protocol"].as_str().unwrap().to_string())
+        (
+            report["scenes"][0]["stage_ms"].as_object().unwrap().clone(),
+            report["protocol"].as_str().unwrap().to_string(),
+        )
     };
     let (twice, protocol) = stages(&[]);
     assert!(twice["rays"].as_f64().unwrap() > 0.0);
@@ -49,15 +69,34 @@ fn eval_reports_every_metric_per_view_count() {
     let data = dir.path().join("test");
     support::test_scene(&data, 0);
     let out_dir = dir.path().join("eval");
-    let out = inssplat_eval(&["score", "--data", s(&data), "--views", "2,4", "--model", s(&model), "--out", s(&out_dir), "--json"]);
+    let out = inssplat_eval(&[
+        "score",
+        "--data",
+        s(&data),
+        "--views",
+        "2,4",
+        "--model",
+        s(&model),
+        "--out",
+        s(&out_dir),
+        "--json",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // Stderr is a pipe here, so progress comes as one line per finished run, the JSON alone
     // on stdout.
     let stderr = String::from_utf8_lossy(&out.stderr);
     let progress: Vec<&str> = stderr.lines().filter(|l| l.starts_with("eval ")).collect();
     assert_eq!(progress.len(), 2, "{stderr}");
-    assert!(progress[0].starts_with("eval 1/2 after ") && progress[0].ends_with(&format!("2 views, {}", data.join("scene_000000").display())), "{stderr}");
-    assert!(progress[1].starts_with("eval 2/2 after ") && progress[1].contains(", about 0s left: 4 views, "), "{stderr}");
+    assert!(
+        progress[0].starts_with("eval 1/2 after ")
+            && progress[0].ends_with(&format!("2 views, {}", data.join("scene_000000").display())),
+        "{stderr}"
+    );
+    assert!(
+        progress[1].starts_with("eval 2/2 after ")
+            && progress[1].contains(", about 0s left: 4 views, "),
+        "{stderr}"
+    );
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     let summaries = report["summaries"].as_array().unwrap();
     assert_eq!(summaries.iter().map(|s| s["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
@@ -82,7 +121,14 @@ fn eval_reports_every_metric_per_view_count() {
         // random) may score slightly below 0.
         let ssim = m["ssim"][0].as_f64().unwrap_or_else(|| panic!("ssim missing: {m}"));
         assert!((-1.0..=1.0).contains(&ssim), "ssim = {ssim}");
-        for positive in ["psnr", "depth_abs_rel", "depth_abs_rel_objects", "depth_abs_rel_shell", "rotation_deg", "translation"] {
+        for positive in [
+            "psnr",
+            "depth_abs_rel",
+            "depth_abs_rel_objects",
+            "depth_abs_rel_shell",
+            "rotation_deg",
+            "translation",
+        ] {
             let v = m[positive][0].as_f64().unwrap_or_else(|| panic!("{positive} missing: {m}"));
             assert!(v.is_finite() && v >= 0.0, "{positive} = {v}");
         }
@@ -91,26 +137,59 @@ fn eval_reports_every_metric_per_view_count() {
         let labels = summary["labels"].as_array().unwrap();
         assert!(!labels.is_empty(), "{summary}");
         for row in labels {
-            let (right, most) = (row["named_right"].as_f64().unwrap(), row["named_most_share"].as_f64().unwrap());
-            assert!(row["pixels"].as_u64().unwrap() > 0 && (0.0..=1.0).contains(&most) && right <= most + 1e-12, "{row}");
+            let (right, most) =
+                (row["named_right"].as_f64().unwrap(), row["named_most_share"].as_f64().unwrap());
+            assert!(
+                row["pixels"].as_u64().unwrap() > 0
+                    && (0.0..=1.0).contains(&most)
+                    && right <= most + 1e-12,
+                "{row}"
+            );
         }
     }
     let scene = &report["scenes"][0];
     assert!(scene["gaussians_kept"].as_u64().unwrap() > 0);
     // Objects and shell split the pixels at one scale: the whole is a mean of the two parts.
-    let depth = |scene: &Value, k: &str| scene[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {scene}"));
-    let (all, objects, shell) =
-        (depth(scene, "depth_abs_rel"), depth(scene, "depth_abs_rel_objects"), depth(scene, "depth_abs_rel_shell"));
+    let depth = |scene: &Value, k: &str| {
+        scene[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {scene}"))
+    };
+    let (all, objects, shell) = (
+        depth(scene, "depth_abs_rel"),
+        depth(scene, "depth_abs_rel_objects"),
+        depth(scene, "depth_abs_rel_shell"),
+    );
     assert!(objects.min(shell) - 1e-9 <= all && all <= objects.max(shell) + 1e-9, "{scene}");
     assert!(scene["stage_ms"]["model"].as_f64().unwrap() > 0.0);
-    assert!(scene.get("target_pose_turn_deg").is_none(), "no target pose refinement unless asked: {scene}");
-    assert!(scene.get("refine_context_psnr").is_none() && scene["stage_ms"].get("refine").is_none(), "no refinement unless asked: {scene}");
-    assert!(report["protocol"].as_str().unwrap().contains("no test-time optimization of the Gaussians"));
-    assert!(report["protocol"].as_str().unwrap().contains("best of 36 headings"), "{}", report["protocol"]);
-    assert!(report["protocol"].as_str().unwrap().contains("covers there filled from around it"), "{}", report["protocol"]);
-    assert!(scene["stage_ms"]["heading"].as_f64().unwrap() >= 0.0, "the stage is timed whether or not it turns a view");
+    assert!(
+        scene.get("target_pose_turn_deg").is_none(),
+        "no target pose refinement unless asked: {scene}"
+    );
+    assert!(
+        scene.get("refine_context_psnr").is_none() && scene["stage_ms"].get("refine").is_none(),
+        "no refinement unless asked: {scene}"
+    );
+    assert!(
+        report["protocol"].as_str().unwrap().contains("no test-time optimization of the Gaussians")
+    );
+    assert!(
+        report["protocol"].as_str().unwrap().contains("best of 36 headings"),
+        "{}",
+        report["protocol"]
+    );
+    assert!(
+        report["protocol"].as_str().unwrap().contains("covers there filled from around it"),
+        "{}",
+        report["protocol"]
+    );
+    assert!(
+        scene["stage_ms"]["heading"].as_f64().unwrap() >= 0.0,
+        "the stage is timed whether or not it turns a view"
+    );
     let table = std::fs::read_to_string(out_dir.join("eval.md")).unwrap();
-    assert!(table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"), "{table}");
+    assert!(
+        table.contains("| 2 |") && table.contains("| 4 |") && table.contains("inst mIoU"),
+        "{table}"
+    );
     assert!(table.contains("nearest true prototype (ceiling)"), "{table}");
     assert!(table.contains("Labels on the target views at 4 views"), "{table}");
     assert!(table.contains("| views | all pixels | objects | room shell |"), "{table}");
@@ -121,28 +200,67 @@ fn eval_reports_every_metric_per_view_count() {
     // depth, and the report says so, as it says that the target cameras were refined and the
     // Gaussians fitted to the context photos (the given cameras kept) ...
     let out = inssplat_eval(&[
-        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--known-poses", "--known-depth", "--no-aggregation",
-        "--target-pose-steps", "6", "--refine-steps", "12", "--no-fill", "--json",
+        "score",
+        "--data",
+        s(&data),
+        "--views",
+        "4",
+        "--model",
+        s(&model),
+        "--known-poses",
+        "--known-depth",
+        "--no-aggregation",
+        "--target-pose-steps",
+        "6",
+        "--refine-steps",
+        "12",
+        "--no-fill",
+        "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
     assert_eq!(report["known_depth"], true);
     assert_eq!(report["no_fill"], true);
-    assert!(report["protocol"].as_str().unwrap().contains("the RAW renders scored"), "{}", report["protocol"]);
+    assert!(
+        report["protocol"].as_str().unwrap().contains("the RAW renders scored"),
+        "{}",
+        report["protocol"]
+    );
     assert!(report["protocol"].as_str().unwrap().contains("TRUE context cameras and depth"));
     assert_eq!(report["target_pose_steps"], 6);
-    assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of each target camera's pose"));
+    assert!(
+        report["protocol"]
+            .as_str()
+            .unwrap()
+            .contains("TEST-TIME OPTIMIZATION of each target camera's pose")
+    );
     assert_eq!(report["refine_steps"], 12);
-    assert!(report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of the Gaussians"));
+    assert!(
+        report["protocol"].as_str().unwrap().contains("TEST-TIME OPTIMIZATION of the Gaussians")
+    );
     let scene = &report["scenes"][0];
-    let fit = scene["refine_context_psnr"].as_array().unwrap_or_else(|| panic!("no refinement reported: {scene}"));
-    assert!(fit[1].as_f64().unwrap() > fit[0].as_f64().unwrap(), "the context views fit worse after refining: {scene}");
+    let fit = scene["refine_context_psnr"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no refinement reported: {scene}"));
+    assert!(
+        fit[1].as_f64().unwrap() > fit[0].as_f64().unwrap(),
+        "the context views fit worse after refining: {scene}"
+    );
     assert!(scene["stage_ms"]["refine"].as_f64().unwrap() > 0.0, "{scene}");
-    let turn = scene["target_pose_turn_deg"].as_f64().unwrap_or_else(|| panic!("no turn reported: {scene}"));
+    let turn = scene["target_pose_turn_deg"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no turn reported: {scene}"));
     assert!((0.0..10.0).contains(&turn), "{scene}");
-    assert!(scene["rotation_deg"].as_f64().unwrap() < 1e-2 && scene["translation"].as_f64().unwrap() < 1e-3, "{scene}");
-    assert!(depth(scene, "depth_abs_rel") < 1e-6 && depth(scene, "depth_abs_rel_objects") < 1e-6, "{scene}");
+    assert!(
+        scene["rotation_deg"].as_f64().unwrap() < 1e-2
+            && scene["translation"].as_f64().unwrap() < 1e-3,
+        "{scene}"
+    );
+    assert!(
+        depth(scene, "depth_abs_rel") < 1e-6 && depth(scene, "depth_abs_rel_objects") < 1e-6,
+        "{scene}"
+    );
     // ... and the labels come from every pixel's own semantic feature (still a valid score).
     assert_eq!(report["no_aggregation"], true);
     let sem = scene["semantic_macc"].as_f64().unwrap();
@@ -150,7 +268,18 @@ fn eval_reports_every_metric_per_view_count() {
 
     // The paper's mode: per-view 2D clustering, same metrics, with the clustering asked for.
     let out = inssplat_eval(&[
-        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--cluster", "2d", "--min-samples", "3", "--json",
+        "score",
+        "--data",
+        s(&data),
+        "--views",
+        "4",
+        "--model",
+        s(&model),
+        "--cluster",
+        "2d",
+        "--min-samples",
+        "3",
+        "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -173,13 +302,25 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
     cfg.objects = (3, 5);
     synth::generate_split(0, &cfg).unwrap().write(&data.join("scene_000000")).unwrap();
-    let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
+    let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../models/inssplat-default.onnx");
     let examples = |weight: &str| -> Vec<LabelledDescriptor> {
         let file = dir.path().join(format!("examples_{weight}.json"));
         let out_dir = dir.path().join(format!("eval_{weight}"));
         let out = inssplat_eval(&[
-            "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--shape-weight", weight, "--shape-examples",
-            s(&file), "--out", s(&out_dir),
+            "score",
+            "--data",
+            s(&data),
+            "--views",
+            "4",
+            "--model",
+            s(&model),
+            "--shape-weight",
+            weight,
+            "--shape-examples",
+            s(&file),
+            "--out",
+            s(&out_dir),
         ]);
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()
@@ -200,7 +341,13 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     // semantic mIoU averages over classes, and a mixed instance named for its larger part can
     // cost the smaller part's class more than it gains.)
     let semantic = |extra: &[&str]| -> (f64, Value) {
-        let out = inssplat_eval(&[&["score", "--data", s(&data), "--views", "4", "--model", s(&model), "--json"], extra].concat());
+        let out = inssplat_eval(
+            &[
+                &["score", "--data", s(&data), "--views", "4", "--model", s(&model), "--json"],
+                extra,
+            ]
+            .concat(),
+        );
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
         (report["scenes"][0]["semantic_miou"].as_f64().unwrap(), report)
@@ -208,7 +355,11 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     let ((named, _), (known, report)) = (semantic(&[]), semantic(&["--known-names"]));
     assert_ne!(known, named, "the true names changed nothing");
     assert_eq!(report["known_names"], true);
-    assert!(report["protocol"].as_str().unwrap().contains("NAMED WITH THE TRUE LABEL"), "{}", report["protocol"]);
+    assert!(
+        report["protocol"].as_str().unwrap().contains("NAMED WITH THE TRUE LABEL"),
+        "{}",
+        report["protocol"]
+    );
 }
 
 #[test]
@@ -225,7 +376,8 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
     synth::generate_split(0, &cfg).unwrap().write(&photos.join("scene_000000")).unwrap();
     synth::generate_split(1, &cfg).unwrap().write(&other.join("scene_000000")).unwrap();
     let eval = |extra: &[&str]| {
-        let mut args = vec!["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
+        let mut args =
+            vec!["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
         args.extend_from_slice(extra);
         inssplat_eval(&args)
     };
@@ -241,11 +393,19 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
     assert_eq!(own["scenes"][0]["instances_true"], large["scenes"][0]["instances_true"]);
     let out = eval(&["--photos", s(&other)]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("transforms.json") && err.contains("not the same scene"), "{err}");
+    assert!(
+        !out.status.success()
+            && err.contains("transforms.json")
+            && err.contains("not the same scene"),
+        "{err}"
+    );
     let missing = dir.path().join("missing");
     let out = eval(&["--photos", s(&missing)]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--photos") && err.contains(s(&missing)), "{err}");
+    assert!(
+        !out.status.success() && err.contains("--photos") && err.contains(s(&missing)),
+        "{err}"
+    );
 }
 
 #[test]
@@ -253,22 +413,36 @@ fn eval_names_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     let out = inssplat_eval(&["score", "--data", s(dir.path()), "--model", "/nonexistent.onnx"]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--data") && err.contains("no scene folders"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("--data") && err.contains("no scene folders"),
+        "{err}"
+    );
     let out = inssplat_eval(&["score", "--data", s(dir.path()), "--views", "1"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--views: 1"), "{err}");
     let out = inssplat_eval(&["score", "--data", s(dir.path()), "--min-cluster-share", "0"]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("min_cluster_share") && err.contains("(0, 1)"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("min_cluster_share") && err.contains("(0, 1)"),
+        "{err}"
+    );
     let out = inssplat_eval(&["score", "--data", s(dir.path()), "--superpixel-scale=-5"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--superpixel-scale: -5"), "{err}");
-    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--cluster", "2d"]);
+    let out =
+        inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--cluster", "2d"]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--known-names") && err.contains("--cluster 2d"), "{err}");
-    let out = inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--no-aggregation"]);
+    assert!(
+        !out.status.success() && err.contains("--known-names") && err.contains("--cluster 2d"),
+        "{err}"
+    );
+    let out =
+        inssplat_eval(&["score", "--data", s(dir.path()), "--known-names", "--no-aggregation"]);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--known-names") && err.contains("--no-aggregation"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("--known-names") && err.contains("--no-aggregation"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -276,14 +450,37 @@ fn bench_times_every_stage_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = support::tiny_model(dir.path());
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "2", "--model", s(&model), "--json"]);
+    let out = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "2,4",
+        "--runs",
+        "2",
+        "--model",
+        s(&model),
+        "--json",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
     assert_eq!(rows.iter().map(|r| r["views"].as_u64().unwrap()).collect::<Vec<_>>(), [2, 4]);
     for r in rows {
         let stages = r["stage_ms"].as_object().unwrap();
-        for stage in ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label", "masks"] {
+        for stage in [
+            "decode",
+            "model",
+            "superpixels",
+            "register",
+            "heading",
+            "backproject",
+            "voxelize",
+            "cluster",
+            "vote",
+            "label",
+            "masks",
+        ] {
             assert!(stages[stage].as_f64().unwrap() >= 0.0, "{stage}");
         }
         assert!(r["render_cpu_ms"].as_f64().unwrap() > 0.0, "{r}");
@@ -292,12 +489,39 @@ fn bench_times_every_stage_per_view_count() {
         assert_eq!(r["gaussians_in"].as_u64().unwrap(), r["views"].as_u64().unwrap() * 32 * 32);
         assert!(r["gaussians_kept"].as_u64().unwrap() <= r["gaussians_in"].as_u64().unwrap());
     }
-    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "8,16", "--runs", "1", "--model", s(&model)]);
+    let table = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "8,16",
+        "--runs",
+        "1",
+        "--model",
+        s(&model),
+    ]);
     let text = String::from_utf8_lossy(&table.stdout);
-    assert!(table.status.success() && text.contains("| 16 |") && text.contains("Growth from 8 to 16 views"), "{text}");
+    assert!(
+        table.status.success()
+            && text.contains("| 16 |")
+            && text.contains("Growth from 8 to 16 views"),
+        "{text}"
+    );
     assert!(!text.contains("refine"), "no refine stage unless asked: {text}");
     // With test-time refinement the stage is timed and gets its column.
-    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--refine-steps", "4"]);
+    let table = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "2",
+        "--runs",
+        "1",
+        "--model",
+        s(&model),
+        "--refine-steps",
+        "4",
+    ]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| label | refine | masks |"), "{text}");
 }
@@ -312,7 +536,20 @@ fn bench_against_times_two_models_in_turns() {
     let int8 = dir.path().join("tiny-int8.onnx");
     inssplat_trainer::export::quantize_file(&model, &int8, None).unwrap();
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2,4", "--runs", "3", "--model", s(&model), "--against", s(&int8), "--json"]);
+    let out = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "2,4",
+        "--runs",
+        "3",
+        "--model",
+        s(&model),
+        "--against",
+        s(&int8),
+        "--json",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
@@ -327,12 +564,42 @@ fn bench_against_times_two_models_in_turns() {
             let x = r[key].as_f64().unwrap();
             assert!(x.is_finite() && x > 0.0, "{r}");
         }
-        assert!(r["model_ms"][0].as_f64() < r["total_ms"][0].as_f64(), "the network is one stage of the request: {r}");
+        assert!(
+            r["model_ms"][0].as_f64() < r["total_ms"][0].as_f64(),
+            "the network is one stage of the request: {r}"
+        );
     }
-    let table = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--runs", "1", "--model", s(&model), "--against", s(&int8)]);
+    let table = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "2",
+        "--runs",
+        "1",
+        "--model",
+        s(&model),
+        "--against",
+        s(&int8),
+    ]);
     let text = String::from_utf8_lossy(&table.stdout);
-    assert!(table.status.success() && text.contains("A: e2e-random (") && text.contains("B: e2e-random+int8 ("), "{text}");
-    let missing = inssplat_eval(&["bench", "--data", s(&scene), "--views", "2", "--model", s(&model), "--against", "/nonexistent/b.onnx"]);
+    assert!(
+        table.status.success()
+            && text.contains("A: e2e-random (")
+            && text.contains("B: e2e-random+int8 ("),
+        "{text}"
+    );
+    let missing = inssplat_eval(&[
+        "bench",
+        "--data",
+        s(&scene),
+        "--views",
+        "2",
+        "--model",
+        s(&model),
+        "--against",
+        "/nonexistent/b.onnx",
+    ]);
     let err = String::from_utf8_lossy(&missing.stderr);
     assert!(!missing.status.success() && err.contains("/nonexistent/b.onnx"), "{err}");
 }
@@ -345,16 +612,33 @@ fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     support::test_scene(&data, 2);
     let out_dir = dir.path().join("eval");
     let out = inssplat_eval(&[
-        "score", "--data", s(&data), "--views", "4", "--model", s(&model), "--perturb", "noise,overlap,repeats", "--out",
-        s(&out_dir), "--json",
+        "score",
+        "--data",
+        s(&data),
+        "--views",
+        "4",
+        "--model",
+        s(&model),
+        "--perturb",
+        "noise,overlap,repeats",
+        "--out",
+        s(&out_dir),
+        "--json",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = report["robustness"].as_array().unwrap();
-    let kinds: Vec<(&str, f64)> = rows.iter().map(|r| (r["kind"].as_str().unwrap(), r["strength"].as_f64().unwrap())).collect();
+    let kinds: Vec<(&str, f64)> = rows
+        .iter()
+        .map(|r| (r["kind"].as_str().unwrap(), r["strength"].as_f64().unwrap()))
+        .collect();
     assert_eq!(kinds.iter().filter(|k| k.0 == "noise").count(), 4, "{kinds:?}");
     assert_eq!(kinds.iter().filter(|k| k.0 == "overlap").count(), 3, "{kinds:?}");
-    assert_eq!(kinds.iter().filter(|k| k.0 == "repeats").count(), 1, "one scene: one repeats bucket");
+    assert_eq!(
+        kinds.iter().filter(|k| k.0 == "repeats").count(),
+        1,
+        "one scene: one repeats bucket"
+    );
     // Noise of strength 0 is no perturbation: the same scores as the plain 4-view run.
     let plain = &report["summaries"][0]["metrics"]["instance_miou"][0];
     assert_eq!(&rows[0]["summary"]["metrics"]["instance_miou"][0], plain);
@@ -372,12 +656,28 @@ fn sweep_draws_the_speed_accuracy_chart() {
     let data = dir.path().join("test");
     support::test_scene(&data, 3);
     let out_dir = dir.path().join("sweep");
-    let out = inssplat_eval(&["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--sweep", "--out", s(&out_dir)]);
+    let out = inssplat_eval(&[
+        "score",
+        "--data",
+        s(&data),
+        "--views",
+        "2",
+        "--model",
+        s(&model),
+        "--sweep",
+        "--out",
+        s(&out_dir),
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let points: Value = serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap()).unwrap();
+    let points: Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap())
+            .unwrap();
     let points = points.as_array().unwrap();
     assert_eq!(points.len(), 6, "3 voxel sizes × 2 subsample sizes");
-    assert!(points.iter().any(|p| p["pareto_instance"] == true) && points.iter().any(|p| p["pareto_psnr"] == true));
+    assert!(
+        points.iter().any(|p| p["pareto_instance"] == true)
+            && points.iter().any(|p| p["pareto_psnr"] == true)
+    );
     let png = image::open(out_dir.join("sweep.png")).unwrap();
     assert_eq!((png.width(), png.height()), (1200, 520));
     assert!(std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap().contains("<svg"));

@@ -15,15 +15,26 @@ const LOAD: Duration = Duration::from_secs(6);
 #[test]
 fn overload_is_answered_429_without_errors_or_memory_growth() {
     let dir = tempfile::tempdir().unwrap();
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
-    let server = Arc::new(Server::start(&model, &dir.path().join("data"), &["--queue", &QUEUE.to_string(), "--workers", "1"]));
+    let model =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
+    let server = Arc::new(Server::start(
+        &model,
+        &dir.path().join("data"),
+        &["--queue", &QUEUE.to_string(), "--workers", "1"],
+    ));
     let photos: Vec<Vec<u8>> = (0..4).map(|i| png(160, 120, i)).collect();
-    let parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().map(|p| ("images", Some("p.png"), p.as_slice())).collect();
+    let parts: Vec<(&str, Option<&str>, &[u8])> =
+        photos.iter().map(|p| ("images", Some("p.png"), p.as_slice())).collect();
     let (ct, body) = multipart(&parts);
     let request = Arc::new((ct, body));
     // Warm up (first-use allocations), then measure.
     for _ in 0..3 {
-        assert_eq!(server.send("POST", "/v1/reconstruct", &[("Content-Type", &request.0)], &request.1).status, 200);
+        assert_eq!(
+            server
+                .send("POST", "/v1/reconstruct", &[("Content-Type", &request.0)], &request.1)
+                .status,
+            200
+        );
     }
     let rss_before = server.rss_kib();
 
@@ -35,8 +46,18 @@ fn overload_is_answered_429_without_errors_or_memory_growth() {
                 let mut seen = Vec::new();
                 while start.elapsed() < LOAD {
                     let t = Instant::now();
-                    let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &request.0)], &request.1);
-                    seen.push((r.status, t.elapsed(), r.header("retry-after").map(str::to_string), r.body.clone()));
+                    let r = server.send(
+                        "POST",
+                        "/v1/reconstruct",
+                        &[("Content-Type", &request.0)],
+                        &request.1,
+                    );
+                    seen.push((
+                        r.status,
+                        t.elapsed(),
+                        r.header("retry-after").map(str::to_string),
+                        r.body.clone(),
+                    ));
                     if r.status == 429 {
                         std::thread::sleep(Duration::from_millis(100));
                     }
@@ -50,9 +71,18 @@ fn overload_is_answered_429_without_errors_or_memory_growth() {
 
     let accepted: Vec<Duration> = results.iter().filter(|r| r.0 == 200).map(|r| r.1).collect();
     let rejected: Vec<_> = results.iter().filter(|r| r.0 == 429).collect();
-    let other: Vec<_> = results.iter().filter(|r| r.0 != 200 && r.0 != 429).map(|r| (r.0, String::from_utf8_lossy(&r.3).into_owned())).collect();
+    let other: Vec<_> = results
+        .iter()
+        .filter(|r| r.0 != 200 && r.0 != 429)
+        .map(|r| (r.0, String::from_utf8_lossy(&r.3).into_owned()))
+        .collect();
     assert!(other.is_empty(), "only 200 and 429 expected: {other:?}");
-    assert!(!accepted.is_empty() && !rejected.is_empty(), "{} accepted, {} rejected", accepted.len(), rejected.len());
+    assert!(
+        !accepted.is_empty() && !rejected.is_empty(),
+        "{} accepted, {} rejected",
+        accepted.len(),
+        rejected.len()
+    );
     for r in &rejected {
         let secs: u64 = r.2.as_deref().expect("429 carries Retry-After").parse().unwrap();
         assert!(secs >= 1);
@@ -68,7 +98,10 @@ fn overload_is_answered_429_without_errors_or_memory_growth() {
         rss_before / 1024,
         rss_after / 1024,
     );
-    assert!(rss_after < rss_before + 200 * 1024, "RSS grew from {rss_before} KiB to {rss_after} KiB");
+    assert!(
+        rss_after < rss_before + 200 * 1024,
+        "RSS grew from {rss_before} KiB to {rss_after} KiB"
+    );
     // A waiting request never waits longer than the queue ahead of it takes.
     assert!(p99 < Duration::from_secs(30), "p99 {p99:?}");
 
@@ -92,15 +125,25 @@ fn overload_is_answered_429_without_errors_or_memory_growth() {
     let metrics = server.get("/metrics").text();
     let dropped: u64 = metric(&metrics, "inssplat_tasks_dropped_total ");
     let ran = stage_count(&server) - runs_before;
-    assert!(dropped >= 1 && ran < (QUEUE + 1) as u64, "dropped {dropped}, ran {ran} of {}\n{metrics}", QUEUE + 1);
+    assert!(
+        dropped >= 1 && ran < (QUEUE + 1) as u64,
+        "dropped {dropped}, ran {ran} of {}\n{metrics}",
+        QUEUE + 1
+    );
     assert_eq!(server.get("/ready").status, 200);
 }
 
 fn metric(text: &str, prefix: &str) -> u64 {
-    text.lines().find_map(|l| l.strip_prefix(prefix)).and_then(|v| v.trim().parse::<f64>().ok()).unwrap_or(0.0) as u64
+    text.lines()
+        .find_map(|l| l.strip_prefix(prefix))
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .unwrap_or(0.0) as u64
 }
 
 /// Pipeline runs so far (the model stage's count).
 fn stage_count(server: &Server) -> u64 {
-    metric(&server.get("/metrics").text(), "inssplat_stage_duration_seconds_count{stage=\"model\"} ")
+    metric(
+        &server.get("/metrics").text(),
+        "inssplat_stage_duration_seconds_count{stage=\"model\"} ",
+    )
 }

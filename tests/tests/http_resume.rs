@@ -22,7 +22,12 @@ fn wait_done(server: &Server, job: &str, n: usize, limit: Duration) -> JobStatus
         if s.done >= n {
             return s;
         }
-        assert!(start.elapsed() < limit, "{} of {n} scenes after {limit:?}: {s:?}\n{}", s.done, server.log_text());
+        assert!(
+            start.elapsed() < limit,
+            "{} of {n} scenes after {limit:?}: {s:?}\n{}",
+            s.done,
+            server.log_text()
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
 }
@@ -30,14 +35,17 @@ fn wait_done(server: &Server, job: &str, n: usize, limit: Duration) -> JobStatus
 #[test]
 fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
     let dir = tempfile::tempdir().unwrap();
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
+    let model =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
     let data = dir.path().join("data");
     let mut server = Server::start(&model, &data, &[]);
 
     let photos: Vec<Vec<u8>> = (0..8).map(|i| png(160, 120, i)).collect();
     let names: Vec<String> = (0..SCENES).map(|i| format!("scene{i:02}")).collect();
-    let parts: Vec<(&str, Option<&str>, &[u8])> =
-        names.iter().flat_map(|n| photos.iter().map(move |p| (n.as_str(), Some("p.png"), p.as_slice()))).collect();
+    let parts: Vec<(&str, Option<&str>, &[u8])> = names
+        .iter()
+        .flat_map(|n| photos.iter().map(move |p| (n.as_str(), Some("p.png"), p.as_slice())))
+        .collect();
     let (ct, body) = multipart(&parts);
     let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
     assert_eq!(r.status, 202, "{}", r.text());
@@ -47,15 +55,27 @@ fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
     // kill -9 while a scene runs.
     let before = wait_done(&server, &job.job_id, 2, Duration::from_secs(60));
     assert!(before.done < SCENES, "the job finished before it could be killed: {before:?}");
-    let running: Vec<(usize, String)> =
-        before.scenes.iter().filter(|s| s.state == JobState::Running).map(|s| (s.index, s.scene_id.clone().unwrap())).collect();
+    let running: Vec<(usize, String)> = before
+        .scenes
+        .iter()
+        .filter(|s| s.state == JobState::Running)
+        .map(|s| (s.index, s.scene_id.clone().unwrap()))
+        .collect();
     server.kill9();
 
     let server = Server::start(&model, &data, &[]);
-    assert!(server.log_text().contains("queued again") || running.is_empty(), "{}", server.log_text());
+    assert!(
+        server.log_text().contains("queued again") || running.is_empty(),
+        "{}",
+        server.log_text()
+    );
     let mid = wait_done(&server, &job.job_id, before.done + 2, Duration::from_secs(60));
     for (index, id) in &running {
-        assert_eq!(mid.scenes[*index].scene_id.as_ref(), Some(id), "an interrupted scene keeps its scene id");
+        assert_eq!(
+            mid.scenes[*index].scene_id.as_ref(),
+            Some(id),
+            "an interrupted scene keeps its scene id"
+        );
     }
     // SIGTERM: the running scene finishes, the rest waits in the store.
     let mut server = server;
@@ -75,8 +95,10 @@ fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
     ids.sort();
     ids.dedup();
     assert_eq!(ids.len(), SCENES, "one scene id per scene");
-    let mut folders: Vec<String> =
-        std::fs::read_dir(data.join("scenes")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut folders: Vec<String> = std::fs::read_dir(data.join("scenes"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     folders.sort();
     assert_eq!(folders, ids, "exactly the 10 results are stored, no leftovers");
 }

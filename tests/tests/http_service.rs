@@ -16,8 +16,13 @@ fn shipped_model() -> std::path::PathBuf {
 }
 
 /// `POST /v1/reconstruct` of `photos` with one more text field; the answer must be 200.
-fn reconstruct(server: &Server, photos: &[Vec<u8>], (field, value): (&str, &[u8])) -> ReconstructResponse {
-    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().map(|p| ("images", Some("v.png"), p.as_slice())).collect();
+fn reconstruct(
+    server: &Server,
+    photos: &[Vec<u8>],
+    (field, value): (&str, &[u8]),
+) -> ReconstructResponse {
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> =
+        photos.iter().map(|p| ("images", Some("v.png"), p.as_slice())).collect();
     parts.push((field, None, value));
     let (ct, body) = multipart(&parts);
     let r = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
@@ -37,9 +42,24 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!(rec.scene_id.len(), 32);
     assert_eq!(rec.cameras.len(), 4);
     assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
-    assert!(rec.refinement.is_none() && rec.timings.iter().all(|t| t.stage != "refine"), "refined unasked: {:?}", rec.timings);
-    assert!(rec.timings.iter().any(|t| t.stage == "rays"), "the shipped network reads the registered cameras: {:?}", rec.timings);
-    assert!(rec.instances.iter().all(|i| ["chair", "table", "lamp", "wall", "floor", "unknown"].contains(&i.label.as_str())), "{:?}", rec.instances);
+    assert!(
+        rec.refinement.is_none() && rec.timings.iter().all(|t| t.stage != "refine"),
+        "refined unasked: {:?}",
+        rec.timings
+    );
+    assert!(
+        rec.timings.iter().any(|t| t.stage == "rays"),
+        "the shipped network reads the registered cameras: {:?}",
+        rec.timings
+    );
+    assert!(
+        rec.instances
+            .iter()
+            .all(|i| ["chair", "table", "lamp", "wall", "floor", "unknown"]
+                .contains(&i.label.as_str())),
+        "{:?}",
+        rec.instances
+    );
 
     let base = format!("/v1/scenes/{}", rec.scene_id);
     let ply = server.get(&format!("{base}/scene.ply"));
@@ -61,7 +81,12 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     // The label of the instance that fits its label best answers with a mask per view.
     let best = rec.instances.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("instances");
     let body = format!(r#"{{"text": "{}"}}"#, best.label);
-    let q = server.send("POST", &format!("{base}/query"), &[("Content-Type", "application/json")], body.as_bytes());
+    let q = server.send(
+        "POST",
+        &format!("{base}/query"),
+        &[("Content-Type", "application/json")],
+        body.as_bytes(),
+    );
     assert_eq!(q.status, 200, "{}", q.text());
     let answer: QueryResponse = q.json();
     assert!(answer.matches.iter().any(|m| m.instance_id == best.id), "{best:?}: {answer:?}");
@@ -89,11 +114,16 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     }
     let doc: serde_json::Value = server.get("/openapi.json").json();
     assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
-    for path in ["/v1/reconstruct", "/v1/scenes/{id}/query", "/v1/jobs", "/v1/jobs/{id}/events", "/ready"] {
+    for path in
+        ["/v1/reconstruct", "/v1/scenes/{id}/query", "/v1/jobs", "/v1/jobs/{id}/events", "/ready"]
+    {
         assert!(doc["paths"][path].is_object(), "{path} missing from the OpenAPI document");
     }
     for form in ["ReconstructForm", "JobForm"] {
-        assert_eq!(doc["components"]["schemas"][form]["properties"]["refine_steps"]["maximum"], 1000, "{form}");
+        assert_eq!(
+            doc["components"]["schemas"][form]["properties"]["refine_steps"]["maximum"], 1000,
+            "{form}"
+        );
     }
     assert!(server.get("/docs").text().contains("/openapi.json"));
 
@@ -104,7 +134,11 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert!(fit.input_psnr_after > fit.input_psnr_before, "{fit:?}");
     assert_eq!(fit.photo_gains.len(), 2, "{fit:?}");
     assert!(fit.photo_gains.iter().all(|g| (0.5..2.0).contains(g)), "{fit:?}");
-    assert!(refined.timings.iter().any(|t| t.stage == "refine" && t.ms > 0.0), "{:?}", refined.timings);
+    assert!(
+        refined.timings.iter().any(|t| t.stage == "refine" && t.ms > 0.0),
+        "{:?}",
+        refined.timings
+    );
 }
 
 /// Follows a job's events until it ends; returns the states seen and the final status.
@@ -131,9 +165,17 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
 
     // A tar of two dataset scenes (with eval splits): reconstructed and scored.
     let tar = dir.path().join("scenes.tar");
-    let ok = std::process::Command::new("tar").args(["-cf", tar.to_str().unwrap(), "-C", data.to_str().unwrap(), "."]).status().unwrap();
+    let ok = std::process::Command::new("tar")
+        .args(["-cf", tar.to_str().unwrap(), "-C", data.to_str().unwrap(), "."])
+        .status()
+        .unwrap();
     assert!(ok.success());
-    let r = server.send("POST", "/v1/jobs", &[("Content-Type", "application/x-tar")], &std::fs::read(&tar).unwrap());
+    let r = server.send(
+        "POST",
+        "/v1/jobs",
+        &[("Content-Type", "application/x-tar")],
+        &std::fs::read(&tar).unwrap(),
+    );
     assert_eq!(r.status, 202, "{}", r.text());
     let job: JobAccepted = r.json();
     assert_eq!(job.scenes, ["scene_000000", "scene_000001"]);
@@ -152,11 +194,15 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
         assert_eq!(ply.status, 200);
     }
     assert_eq!(server.get(&format!("/v1/jobs/{}", job.job_id)).json::<JobStatus>(), status);
-    assert!(status.scenes[0].metrics.as_ref().unwrap()["refine_context_psnr"].is_null(), "refined unasked");
+    assert!(
+        status.scenes[0].metrics.as_ref().unwrap()["refine_context_psnr"].is_null(),
+        "refined unasked"
+    );
 
     // The same archive as a multipart part, with refinement: the scores say how the fit moved.
     let tar_bytes = std::fs::read(&tar).unwrap();
-    let (ct, body) = multipart(&[("archive", Some("scenes.tar"), &tar_bytes), ("refine_steps", None, b"6")]);
+    let (ct, body) =
+        multipart(&[("archive", Some("scenes.tar"), &tar_bytes), ("refine_steps", None, b"6")]);
     let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
     assert_eq!(r.status, 202, "{}", r.text());
     let (_, refined) = follow(&server, &r.json::<JobAccepted>().job_id);
@@ -168,8 +214,12 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     // Photo sets as multipart, one of them unusable: that scene fails, the job still ends done.
     let photos = scene_photos(&gt[0]);
     let junk = png(8, 8, 1);
-    let mut parts: Vec<(&str, Option<&str>, &[u8])> = photos.iter().take(3).map(|p| ("room-a", Some("a.png"), p.as_slice())).collect();
-    parts.extend([("room-b", Some("b.png"), junk.as_slice()), ("room-b", Some("c.png"), &junk[..junk.len() - 20])]);
+    let mut parts: Vec<(&str, Option<&str>, &[u8])> =
+        photos.iter().take(3).map(|p| ("room-a", Some("a.png"), p.as_slice())).collect();
+    parts.extend([
+        ("room-b", Some("b.png"), junk.as_slice()),
+        ("room-b", Some("c.png"), &junk[..junk.len() - 20]),
+    ]);
     let (ct, body) = multipart(&parts);
     let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
     assert_eq!(r.status, 202, "{}", r.text());
@@ -179,7 +229,11 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     assert_eq!(status.scenes[0].state, JobState::Done);
     assert!(status.scenes[0].metrics.is_none(), "photos carry no ground truth");
     assert_eq!(status.scenes[1].state, JobState::Failed);
-    assert!(status.scenes[1].error.as_deref().unwrap().contains("c.png"), "{:?}", status.scenes[1].error);
+    assert!(
+        status.scenes[1].error.as_deref().unwrap().contains("c.png"),
+        "{:?}",
+        status.scenes[1].error
+    );
 
     // Cancelling: queued scenes never run.
     let mut parts: Vec<(&str, Option<&str>, &[u8])> = Vec::new();
@@ -189,15 +243,24 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     }
     let (ct, body) = multipart(&parts);
     let job: JobAccepted = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body).json();
-    let cancelled: JobStatus = server.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
+    let cancelled: JobStatus =
+        server.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
     assert_eq!(cancelled.state, JobState::Cancelled);
     std::thread::sleep(Duration::from_millis(300));
     let later: JobStatus = server.get(&format!("/v1/jobs/{}", job.job_id)).json();
-    let ran = later.scenes.iter().filter(|s| matches!(s.state, JobState::Done | JobState::Failed)).count();
+    let ran = later
+        .scenes
+        .iter()
+        .filter(|s| matches!(s.state, JobState::Done | JobState::Failed))
+        .count();
     assert!(ran <= 1, "at most the scene running at cancel time finishes: {later:?}");
     assert!(later.scenes.iter().filter(|s| s.state == JobState::Cancelled).count() >= 11);
     let metrics = server.get("/metrics").text();
-    assert!(metrics.contains("inssplat_jobs{state=\"done\"} 3") && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"), "{metrics}");
+    assert!(
+        metrics.contains("inssplat_jobs{state=\"done\"} 3")
+            && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"),
+        "{metrics}"
+    );
 
     let code = server.terminate(Duration::from_secs(30));
     assert!(code.success(), "SIGTERM ends the service cleanly: {code:?}\n{}", server.log_text());
@@ -210,5 +273,10 @@ fn a_server_told_so_runs_the_network_once() {
     let scene = support::test_scene(dir.path(), 3);
     let server = Server::start(&shipped_model(), &dir.path().join("data"), &["--no-ray-pass"]);
     let rec = reconstruct(&server, &scene_photos(&scene)[..2], ("vocab", b"chair"));
-    assert!(rec.timings.iter().any(|t| t.stage == "model") && rec.timings.iter().all(|t| t.stage != "rays"), "{:?}", rec.timings);
+    assert!(
+        rec.timings.iter().any(|t| t.stage == "model")
+            && rec.timings.iter().all(|t| t.stage != "rays"),
+        "{:?}",
+        rec.timings
+    );
 }

@@ -30,22 +30,46 @@ fn fixtures() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
 
 fn run(args: &[&str]) -> (bool, String, String) {
     let out = inssplat(args);
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
 }
 
 #[test]
 fn reconstructs_a_scene_and_writes_every_artefact() {
     let (dir, model, scene) = fixtures();
     let out = dir.path().join("out");
-    let (ok, stdout, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
+    let (ok, stdout, stderr) =
+        run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
     assert!(ok, "{stderr}");
     let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
     assert_eq!(r.cameras.len(), 4);
-    assert!(r.gaussians_kept > 0 && r.gaussians_kept <= r.gaussians_in && r.gaussians_in <= 4 * 32 * 32);
+    assert!(
+        r.gaussians_kept > 0 && r.gaussians_kept <= r.gaussians_in && r.gaussians_in <= 4 * 32 * 32
+    );
     let stages: Vec<&str> = r.timings.iter().map(|t| t.stage.as_str()).collect();
-    assert_eq!(stages, ["decode", "model", "superpixels", "register", "heading", "backproject", "voxelize", "cluster", "vote", "label", "masks"]);
+    assert_eq!(
+        stages,
+        [
+            "decode",
+            "model",
+            "superpixels",
+            "register",
+            "heading",
+            "backproject",
+            "voxelize",
+            "cluster",
+            "vote",
+            "label",
+            "masks"
+        ]
+    );
 
-    let ply = inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap()).unwrap();
+    let ply =
+        inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap())
+            .unwrap();
     assert_eq!(ply.len(), r.gaussians_kept);
     assert_eq!(ply.sem_dim, 16);
     assert_eq!(ply.meta.model_version.as_deref(), Some("e2e-random"));
@@ -55,7 +79,9 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
             assert_eq!((img.width(), img.height()), (32, 32), "{kind} {v}");
         }
     }
-    let t: TransformsJson = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let t: TransformsJson =
+        serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap())
+            .unwrap();
     assert_eq!(t.frames.len(), 4);
     assert!(t.frames[0].file_path.ends_with("images/000.png"));
     assert!(out.join("preview.png").is_file() && out.join("instances.json").is_file());
@@ -70,14 +96,24 @@ fn a_network_that_reads_rays_runs_twice_unless_told_not_to() {
     let model = support::tiny_rays_model(dir.path());
     let stages = |extra: &[&str], env: &[(&str, &str)]| -> Vec<String> {
         let out = dir.path().join(format!("rays-out{}{}", extra.concat(), env.len()));
-        let args = [&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--json"], extra].concat();
-        let output = std::process::Command::new(inssplat_bin()).args(&args).envs(env.iter().copied()).output().unwrap();
+        let args =
+            [&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--json"], extra]
+                .concat();
+        let output = std::process::Command::new(inssplat_bin())
+            .args(&args)
+            .envs(env.iter().copied())
+            .output()
+            .unwrap();
         assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
         let r: ReconstructResponse = serde_json::from_slice(&output.stdout).unwrap();
         r.timings.into_iter().map(|t| t.stage).collect()
     };
     let twice = stages(&[], &[]);
-    assert_eq!(twice.iter().position(|t| t == "rays"), twice.iter().position(|t| t == "heading").map(|h| h + 1), "{twice:?}");
+    assert_eq!(
+        twice.iter().position(|t| t == "rays"),
+        twice.iter().position(|t| t == "heading").map(|h| h + 1),
+        "{twice:?}"
+    );
     let once = stages(&["--no-ray-pass"], &[]);
     assert_eq!(once, twice.iter().filter(|t| *t != "rays").cloned().collect::<Vec<_>>());
     assert_eq!(stages(&[], &[("INSSPLAT_NO_RAY_PASS", "true")]), once);
@@ -86,8 +122,14 @@ fn a_network_that_reads_rays_runs_twice_unless_told_not_to() {
 #[test]
 fn refuses_a_single_view() {
     let (dir, model, scene) = fixtures();
-    let (ok, _, stderr) =
-        run(&["reconstruct", s(&scene.join("images/000.png")), "-o", s(&dir.path().join("o1")), "--model", s(model)]);
+    let (ok, _, stderr) = run(&[
+        "reconstruct",
+        s(&scene.join("images/000.png")),
+        "-o",
+        s(&dir.path().join("o1")),
+        "--model",
+        s(model),
+    ]);
     assert!(!ok);
     assert!(stderr.contains("1 images given"), "{stderr}");
 }
@@ -101,7 +143,15 @@ fn names_a_corrupt_and_an_empty_image() {
     std::fs::write(&empty, b"").unwrap();
     let good = scene.join("images/001.png");
     for file in [&bad, &empty] {
-        let (ok, _, stderr) = run(&["reconstruct", s(file), s(&good), "-o", s(&dir.path().join("o2")), "--model", s(model)]);
+        let (ok, _, stderr) = run(&[
+            "reconstruct",
+            s(file),
+            s(&good),
+            "-o",
+            s(&dir.path().join("o2")),
+            "--model",
+            s(model),
+        ]);
         assert!(!ok);
         assert!(stderr.contains(s(file)), "error names {}: {stderr}", file.display());
     }
@@ -111,11 +161,19 @@ fn names_a_corrupt_and_an_empty_image() {
 fn names_a_missing_and_an_incompatible_model() {
     let (dir, _, scene) = fixtures();
     let missing = dir.path().join("nope.onnx");
-    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o3")), "--model", s(&missing)]);
+    let (ok, _, stderr) =
+        run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o3")), "--model", s(&missing)]);
     assert!(!ok && stderr.contains("nope.onnx") && stderr.contains("not found"), "{stderr}");
     let not_a_model = dir.path().join("garbage.onnx");
     std::fs::write(&not_a_model, b"definitely not protobuf").unwrap();
-    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&dir.path().join("o4")), "--model", s(&not_a_model)]);
+    let (ok, _, stderr) = run(&[
+        "reconstruct",
+        s(scene),
+        "-o",
+        s(&dir.path().join("o4")),
+        "--model",
+        s(&not_a_model),
+    ]);
     assert!(!ok && stderr.contains("garbage.onnx"), "{stderr}");
 }
 
@@ -123,7 +181,8 @@ fn names_a_missing_and_an_incompatible_model() {
 fn queries_a_saved_reconstruction() {
     let (dir, model, scene) = fixtures();
     let out = dir.path().join("oq");
-    let (ok, stdout, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
+    let (ok, stdout, stderr) =
+        run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
     assert!(ok, "{stderr}");
     let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
     let label = r.instances.first().map_or("chair", |i| i.label.as_str());
@@ -133,7 +192,10 @@ fn queries_a_saved_reconstruction() {
     assert_eq!(answer.text, label);
     // Random weights may or may not clear the score threshold; either answer must be complete.
     match answer.message {
-        Some(msg) => assert!(answer.matches.is_empty() && msg.contains("nothing in this scene matches"), "{msg}"),
+        Some(msg) => assert!(
+            answer.matches.is_empty() && msg.contains("nothing in this scene matches"),
+            "{msg}"
+        ),
         None => {
             assert!(!answer.matches.is_empty());
             for m in &answer.matches {
@@ -166,12 +228,15 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     }
     // The input cameras themselves, from the reconstruction's own transforms.json.
     let again = dir.path().join("or_again");
-    let (ok, stdout, stderr) = run(&["render", s(&out), "--camera", s(&out.join("transforms.json")), "-o", s(&again)]);
+    let (ok, stdout, stderr) =
+        run(&["render", s(&out), "--camera", s(&out.join("transforms.json")), "-o", s(&again)]);
     assert!(ok && stdout.contains("12 images from 4 camera"), "{stdout}{stderr}");
     // The first camera turned 60° about its own up axis sees past what the photos saw: raw,
     // those pixels carry no instance; filled, every pixel takes the nearest one's, and the
     // covered pixels keep theirs.
-    let mut transforms: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let mut transforms: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap())
+            .unwrap();
     let frame = transforms["frames"][0].clone();
     let m: Vec<Vec<f64>> = serde_json::from_value(frame["transform_matrix"].clone()).unwrap();
     let (c, sn) = (60f64.to_radians().cos(), 60f64.to_radians().sin());
@@ -199,12 +264,16 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     let black = |img: &image::RgbImage| img.pixels().filter(|p| p.0 == [0, 0, 0]).count();
     assert!(black(&raw) > 0, "the turned camera should see past the reconstruction");
     assert_eq!(black(&filled), 0, "every pixel filled");
-    assert!(raw.pixels().zip(filled.pixels()).all(|(r, f)| r.0 == [0, 0, 0] || r == f), "a covered pixel changed");
+    assert!(
+        raw.pixels().zip(filled.pixels()).all(|(r, f)| r.0 == [0, 0, 0] || r == f),
+        "a covered pixel changed"
+    );
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,9,0.5"]);
     assert!(!ok && stderr.contains("view 9 does not exist"), "{stderr}");
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,2"]);
     assert!(!ok && stderr.contains("outside 0-1"), "{stderr}");
-    // A camera file, and the reconstruction's own transforms.json, are named by the field that breaks them.
+    // A camera file, and the reconstruction's own transforms.json, are named by the field that
+    // breaks them.
     transforms["frames"][0]["transform_matrix"] = serde_json::json!("identity");
     std::fs::write(&turned_path, transforms.to_string()).unwrap();
     let (ok, _, stderr) = run(&["render", s(&out), "--camera", s(&turned_path)]);
@@ -219,17 +288,30 @@ fn renders_novel_view_masks_on_the_gpu_when_asked_and_says_so() {
     // `scripts/setup` installs Mesa's lavapipe, so a Vulkan adapter exists here and in CI.
     let (dir, model, scene) = fixtures();
     let out = dir.path().join("o_render");
-    let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
+    let (ok, _, stderr) =
+        run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(model), "--json"]);
     assert!(ok, "{stderr}");
     let backend = |choice: &str| -> (String, image::RgbImage) {
         let to = dir.path().join(format!("render_{choice}"));
-        let (ok, stdout, stderr) = run(&["render", s(&out), "--camera", "interp:0,1,0.5", "-o", s(&to), "--render", choice]);
+        let (ok, stdout, stderr) = run(&[
+            "render",
+            s(&out),
+            "--camera",
+            "interp:0,1,0.5",
+            "-o",
+            s(&to),
+            "--render",
+            choice,
+        ]);
         assert!(ok, "{stderr}");
         (stdout, image::open(to.join("instances_000.png")).unwrap().to_rgb8())
     };
     let (cpu, cpu_mask) = backend("cpu");
     let (gpu, gpu_mask) = backend("gpu");
-    assert!(cpu.contains("masks rendered on cpu") && gpu.contains("masks rendered on wgpu"), "{cpu}\n{gpu}");
+    assert!(
+        cpu.contains("masks rendered on cpu") && gpu.contains("masks rendered on wgpu"),
+        "{cpu}\n{gpu}"
+    );
     // The same instance in (nearly) every pixel: the two rasterizers agree within tolerance,
     // so only pixels where two instances nearly tie may differ.
     let same = cpu_mask.pixels().zip(gpu_mask.pixels()).filter(|(a, b)| a == b).count();
@@ -273,8 +355,17 @@ fn the_shape_classifier_in_a_model_file_names_the_instances_by_its_weight() {
     let model = with_classifier("lamp.onnx", None);
     let labels_at = |weight: &str| -> Vec<String> {
         let out = dir.path().join(format!("shape-{weight}"));
-        let (ok, stdout, stderr) =
-            run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model), "--shape-weight", weight, "--json"]);
+        let (ok, stdout, stderr) = run(&[
+            "reconstruct",
+            s(scene),
+            "-o",
+            s(&out),
+            "--model",
+            s(&model),
+            "--shape-weight",
+            weight,
+            "--json",
+        ]);
         assert!(ok, "{stderr}");
         let r: ReconstructResponse = serde_json::from_str(&stdout).unwrap();
         assert!(!r.instances.is_empty());
@@ -283,15 +374,26 @@ fn the_shape_classifier_in_a_model_file_names_the_instances_by_its_weight() {
     let strong = labels_at("1000");
     assert!(strong.iter().all(|l| l == "lamp"), "{strong:?}");
     let none = labels_at("0");
-    assert!(none.iter().any(|l| l != "lamp"), "without the classifier the random network names: {none:?}");
+    assert!(
+        none.iter().any(|l| l != "lamp"),
+        "without the classifier the random network names: {none:?}"
+    );
 }
 
 #[test]
 fn a_model_file_with_a_broken_shape_classifier_is_refused_by_key() {
     let (dir, _, scene) = fixtures();
-    let model = with_classifier("broken.onnx", Some(r#"{"labels": ["lamp"], "mean": [0], "std": [1], "layers": []}"#));
+    let model = with_classifier(
+        "broken.onnx",
+        Some(r#"{"labels": ["lamp"], "mean": [0], "std": [1], "layers": []}"#),
+    );
     let out = dir.path().join("broken-out");
     let (ok, _, stderr) = run(&["reconstruct", s(scene), "-o", s(&out), "--model", s(&model)]);
     assert!(!ok);
-    assert!(stderr.contains("broken.onnx") && stderr.contains("inssplat.shape_classifier") && stderr.contains("mean/std"), "{stderr}");
+    assert!(
+        stderr.contains("broken.onnx")
+            && stderr.contains("inssplat.shape_classifier")
+            && stderr.contains("mean/std"),
+        "{stderr}"
+    );
 }

@@ -10,13 +10,15 @@
 //! depth's effect is measured by `inssplat eval` (see the model card).
 
 use glam::Quat;
+use inssplat_geometry::register::{
+    Descriptors, KeypointImage, RegisterParams, RegisterView, register,
+};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
-use inssplat_geometry::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use inssplat_trainer::train::sample::in_reference_frame;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 const VIEWS: usize = 8;
 const SIZE: u32 = 128;
@@ -46,7 +48,11 @@ const MAX_FOCAL_ERROR_PHOTOS: f64 = 0.04;
 /// The registration of `frames` from cameras at the identity whose focal lengths are
 /// `focal_given` × the true ones, with each view's `descriptors` (`[D][H][W]`, D = the length
 /// over the pixels) if given, and the focal multiplier it estimated (`None`: not measured).
-fn registered(frames: &[&Frame], focal_given: f32, descriptors: Option<&[Vec<f32>]>) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
+fn registered(
+    frames: &[&Frame],
+    focal_given: f32,
+    descriptors: Option<&[Vec<f32>]>,
+) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
     registered_with(frames, focal_given, descriptors, None, &RegisterParams::default())
 }
 
@@ -78,7 +84,8 @@ fn registered_with(
             depth: f.depth.as_deref().expect("synthesized frames carry depth"),
             photo: [0, 0, SIZE, SIZE],
             camera,
-            descriptors: descriptors.map(|d| Descriptors { data: &d[v], dim: d[v].len() / (SIZE * SIZE) as usize }),
+            descriptors: descriptors
+                .map(|d| Descriptors { data: &d[v], dim: d[v].len() / (SIZE * SIZE) as usize }),
             detail: details.map(|d| &d[v]),
         })
         .collect();
@@ -124,7 +131,11 @@ fn two_photos_from_one_spot_keep_the_camera_heads_focal_length() {
 /// The registration of each scene's 8-view context set, its keypoints found in photos
 /// `photo_scale` times the views' size (1: in the views themselves), its focal multiplier
 /// within `max_focal_error` of the truth.
-fn chained_views_land_on_their_true_poses(focal_given: f32, photo_scale: u32, max_focal_error: f64) {
+fn chained_views_land_on_their_true_poses(
+    focal_given: f32,
+    photo_scale: u32,
+    max_focal_error: f64,
+) {
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     assert_eq!((cfg.width, cfg.height), (SIZE, SIZE));
     let mut large = cfg.clone();
@@ -134,7 +145,8 @@ fn chained_views_land_on_their_true_poses(focal_given: f32, photo_scale: u32, ma
     let (mut unlinked, mut unlinked_sum, mut identity_sum) = (0, 0.0, 0.0);
     for index in 0..6 {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let context = scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
+        let context =
+            scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
         let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
         let details: Option<Vec<KeypointImage>> = (photo_scale > 1).then(|| {
             let photos = synth::generate_split(index, &large).unwrap().scene;
@@ -142,18 +154,32 @@ fn chained_views_land_on_their_true_poses(focal_given: f32, photo_scale: u32, ma
                 .iter()
                 .map(|&i| {
                     let f = &photos.frames[i];
-                    assert_eq!(f.camera.rotation, scene.frames[i].camera.rotation, "the same camera");
-                    let rgb = image::RgbImage::from_raw(f.width(), f.height(), f.rgb.clone()).unwrap();
+                    assert_eq!(
+                        f.camera.rotation, scene.frames[i].camera.rotation,
+                        "the same camera"
+                    );
+                    let rgb =
+                        image::RgbImage::from_raw(f.width(), f.height(), f.rgb.clone()).unwrap();
                     KeypointImage::of_photo(&rgb, photo_scale as f32, glam::Vec2::ZERO)
                 })
                 .collect()
         });
-        let (cameras, component, focal) =
-            registered_with(&frames, focal_given, None, details.as_deref(), &RegisterParams::default());
-        let focal = focal.unwrap_or_else(|| panic!("scene {index}: the focal length was not measured"));
+        let (cameras, component, focal) = registered_with(
+            &frames,
+            focal_given,
+            None,
+            details.as_deref(),
+            &RegisterParams::default(),
+        );
+        let focal =
+            focal.unwrap_or_else(|| panic!("scene {index}: the focal length was not measured"));
         let focal_error = (focal * focal_given as f64 - 1.0).abs();
         eprintln!("scene {index}: focal multiplier {focal:.4} (true {:.4})", 1.0 / focal_given);
-        assert!(focal_error < max_focal_error, "scene {index}: focal multiplier {focal}, true {}", 1.0 / focal_given);
+        assert!(
+            focal_error < max_focal_error,
+            "scene {index}: focal multiplier {focal}, true {}",
+            1.0 / focal_given
+        );
         let truths = in_reference_frame(&frames.iter().map(|f| f.camera).collect::<Vec<_>>());
         let mut errors = Vec::new();
         let angle = |q: Quat| q.normalize().angle_between(Quat::IDENTITY).to_degrees();
@@ -169,10 +195,16 @@ fn chained_views_land_on_their_true_poses(focal_given: f32, photo_scale: u32, ma
             chained += 1;
             let centre = (cam.center() - truth.center()).length();
             errors.push(format!("{rot:.2}°/{centre:.3} m"));
-            assert!(rot < MAX_ROTATION_DEG && centre < MAX_CENTRE_M, "scene {index}: a chained view is off by {rot}° and {centre} m");
+            assert!(
+                rot < MAX_ROTATION_DEG && centre < MAX_CENTRE_M,
+                "scene {index}: a chained view is off by {rot}° and {centre} m"
+            );
             rotation_sum += rot;
         }
-        eprintln!("scene {index}: components {component:?}, chained views' errors {}", errors.join(", "));
+        eprintln!(
+            "scene {index}: components {component:?}, chained views' errors {}",
+            errors.join(", ")
+        );
         assert_eq!(component[0], 0);
     }
     let share = chained as f64 / total as f64;
@@ -181,8 +213,13 @@ fn chained_views_land_on_their_true_poses(focal_given: f32, photo_scale: u32, ma
     assert!(mean < MAX_MEAN_ROTATION_DEG, "mean rotation error {mean}°");
     assert!(share >= MIN_CHAINED, "only {chained} of {total} views chained to view 0");
     let (placed, identity) = (unlinked_sum / unlinked as f32, identity_sum / unlinked as f32);
-    eprintln!("{unlinked} views linked by no pair: mean rotation error {placed:.1}° as placed, {identity:.1}° at the identity");
-    assert!(placed < UNLINKED_GAIN * identity, "unlinked views placed {placed}° off, {identity}° at the identity");
+    eprintln!(
+        "{unlinked} views linked by no pair: mean rotation error {placed:.1}° as placed, {identity:.1}° at the identity"
+    );
+    assert!(
+        placed < UNLINKED_GAIN * identity,
+        "unlinked views placed {placed}° off, {identity}° at the identity"
+    );
 }
 
 #[test]
@@ -194,17 +231,24 @@ fn descriptors_only_link_what_keypoints_leave_unlinked() {
     let mut rng = ChaCha8Rng::seed_from_u64(17);
     for index in 0..3 {
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let context = scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
+        let context =
+            scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
         let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
-        let noise: Vec<Vec<f32>> =
-            (0..VIEWS).map(|_| (0..16 * (SIZE * SIZE) as usize).map(|_| rng.random_range(-1.0..1.0)).collect()).collect();
+        let noise: Vec<Vec<f32>> = (0..VIEWS)
+            .map(|_| {
+                (0..16 * (SIZE * SIZE) as usize).map(|_| rng.random_range(-1.0..1.0)).collect()
+            })
+            .collect();
         let alone = registered(&frames, 1.0, None);
         let with_noise = registered(&frames, 1.0, Some(&noise));
         assert_eq!(with_noise.1, alone.1, "scene {index}: the components");
         assert_eq!(with_noise.2, alone.2, "scene {index}: the focal multiplier");
         for (v, (a, b)) in alone.0.iter().zip(&with_noise.0).enumerate() {
-            assert_eq!((a.rotation, a.translation), (b.rotation, b.translation), "scene {index}, view {v}");
+            assert_eq!(
+                (a.rotation, a.translation),
+                (b.rotation, b.translation),
+                "scene {index}, view {v}"
+            );
         }
     }
 }
-

@@ -11,13 +11,13 @@
 
 use std::path::PathBuf;
 
-use inssplat_e2e::inssplat;
+use crate::support::s;
 use glam::DMat3;
+use inssplat_e2e::inssplat;
+use inssplat_geometry::rotation::angle_deg;
 use inssplat_proto::api::{FocalSource, Placement, QueryResponse, ReconstructResponse};
 use inssplat_proto::dataset::Scene;
-use inssplat_geometry::rotation::angle_deg;
 use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
-use crate::support::s;
 
 fn shipped_model() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx")
@@ -35,11 +35,14 @@ fn shipped_model_reconstructs_and_answers_queries() {
 
     let out = dir.path().join("out");
     let model = shipped_model();
-    let run = inssplat(&["reconstruct", s(&scene_dir), "-o", s(&out), "--model", s(&model), "--json"]);
+    let run =
+        inssplat(&["reconstruct", s(&scene_dir), "-o", s(&out), "--model", s(&model), "--json"]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let r: ReconstructResponse = serde_json::from_slice(&run.stdout).unwrap();
     assert_eq!(r.cameras.len(), 16);
-    let ply = inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap()).unwrap();
+    let ply =
+        inssplat_proto::ply::read_ply(&mut std::fs::File::open(out.join("scene.ply")).unwrap())
+            .unwrap();
     assert_eq!(ply.len(), r.gaussians_kept);
 
     for v in 0..16 {
@@ -58,17 +61,24 @@ fn shipped_model_reconstructs_and_answers_queries() {
         .collect();
     // An instance is labelled right when most of its pixels carry that label in the truth.
     // Pixels of instances/NNN.png map back to ids through instances.json's colour table.
-    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("instances.json")).unwrap()).unwrap();
-    let colours: Vec<(u32, [u8; 3])> = serde_json::from_value(doc["instance_colours"].clone()).unwrap();
+    let doc: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("instances.json")).unwrap()).unwrap();
+    let colours: Vec<(u32, [u8; 3])> =
+        serde_json::from_value(doc["instance_colours"].clone()).unwrap();
     let colour_of = |id: u32| colours.iter().find(|(i, _)| *i == id).map(|(_, c)| *c);
     let id_maps: Vec<u32> = (0..16)
         .flat_map(|v| {
             let img = image::open(out.join(format!("instances/{v:03}.png"))).unwrap().to_rgb8();
-            img.pixels().map(|p| r.instances.iter().find(|i| colour_of(i.id) == Some(p.0)).map_or(0, |i| i.id)).collect::<Vec<_>>()
+            img.pixels()
+                .map(|p| {
+                    r.instances.iter().find(|i| colour_of(i.id) == Some(p.0)).map_or(0, |i| i.id)
+                })
+                .collect::<Vec<_>>()
         })
         .collect();
     let right = r.instances.iter().find(|i| {
-        let pixels: Vec<&str> = id_maps.iter().zip(&truth).filter(|(id, _)| **id == i.id).map(|(_, t)| *t).collect();
+        let pixels: Vec<&str> =
+            id_maps.iter().zip(&truth).filter(|(id, _)| **id == i.id).map(|(_, t)| *t).collect();
         !pixels.is_empty() && pixels.iter().filter(|t| **t == i.label).count() * 2 > pixels.len()
     });
     let right = right.unwrap_or_else(|| panic!("no instance is labelled right: {:?}", r.instances));
@@ -93,12 +103,20 @@ fn shipped_model_reconstructs_and_answers_queries() {
     assert!(iou >= 0.3, "query {:?} IoU {iou}", right.label);
     let q = inssplat(&["query", s(&out), "banana", "--json"]);
     let answer: QueryResponse = serde_json::from_slice(&q.stdout).unwrap();
-    assert!(answer.matches.is_empty() && answer.message.unwrap().contains("nothing in this scene matches"));
+    assert!(
+        answer.matches.is_empty()
+            && answer.message.unwrap().contains("nothing in this scene matches")
+    );
 }
 
 /// Rotation of a nerfstudio camera-to-world matrix (row-major).
 fn rotation(m: &[[f64; 4]; 4]) -> DMat3 {
-    DMat3::from_cols_array_2d(&[[m[0][0], m[0][1], m[0][2]], [m[1][0], m[1][1], m[1][2]], [m[2][0], m[2][1], m[2][2]]]).transpose()
+    DMat3::from_cols_array_2d(&[
+        [m[0][0], m[0][1], m[0][2]],
+        [m[1][0], m[1][1], m[1][2]],
+        [m[2][0], m[2][1], m[2][2]],
+    ])
+    .transpose()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -120,7 +138,10 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
         synth::generate_split(index, &cfg).unwrap().write(&scene_dir).unwrap();
         let scene = Scene::load(&scene_dir).unwrap();
         let context = scene.eval.as_ref().and_then(|e| e.context_for(8)).unwrap().to_vec();
-        let photos: Vec<String> = context.iter().map(|&f| s(&scene_dir.join(format!("images/{f:03}.png"))).to_string()).collect();
+        let photos: Vec<String> = context
+            .iter()
+            .map(|&f| s(&scene_dir.join(format!("images/{f:03}.png"))).to_string())
+            .collect();
         let out = dir.path().join(format!("out{index}"));
         let mut args = vec!["reconstruct"];
         args.extend(photos.iter().map(String::as_str));
@@ -131,11 +152,16 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
         assert_eq!(r.cameras[0].placement, Some(Placement::Reference), "scene {index}");
         // Where the focal length came from, the same for every view of a scene.
         let focal = r.cameras[0].focal;
-        assert!(matches!(focal, Some(FocalSource::Measured | FocalSource::CameraHead)), "scene {index}: {focal:?}");
+        assert!(
+            matches!(focal, Some(FocalSource::Measured | FocalSource::CameraHead)),
+            "scene {index}: {focal:?}"
+        );
         assert!(r.cameras.iter().all(|c| c.focal == focal), "scene {index}");
         measured += usize::from(focal == Some(FocalSource::Measured));
-        let truth: Vec<DMat3> = context.iter().map(|&f| rotation(&scene.frames[f].camera.to_nerfstudio())).collect();
-        let predicted: Vec<DMat3> = r.cameras.iter().map(|c| rotation(&c.transform_matrix)).collect();
+        let truth: Vec<DMat3> =
+            context.iter().map(|&f| rotation(&scene.frames[f].camera.to_nerfstudio())).collect();
+        let predicted: Vec<DMat3> =
+            r.cameras.iter().map(|c| rotation(&c.transform_matrix)).collect();
         for (v, camera) in r.cameras.iter().enumerate().skip(1) {
             let relative = |m: &[DMat3]| m[0].transpose() * m[v];
             let degrees = angle_deg(relative(&truth).transpose() * relative(&predicted));
@@ -148,9 +174,17 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
         // The summary for people names the unlinked views (scene 2 has some, scene 0 none).
         if [0, 2].contains(&index) {
             let text = inssplat(&args[..args.len() - 1]);
-            let said = format!("{}{}", String::from_utf8_lossy(&text.stdout), String::from_utf8_lossy(&text.stderr));
+            let said = format!(
+                "{}{}",
+                String::from_utf8_lossy(&text.stdout),
+                String::from_utf8_lossy(&text.stderr)
+            );
             let unlinked = r.cameras.iter().any(|c| c.placement == Some(Placement::Continued));
-            assert_eq!(said.contains("placed by continuing the camera's motion"), unlinked, "scene {index}: {said}");
+            assert_eq!(
+                said.contains("placed by continuing the camera's motion"),
+                unlinked,
+                "scene {index}: {said}"
+            );
         }
     }
     let (linked, others) = (registered.len(), continued.len());
@@ -158,7 +192,9 @@ fn every_camera_says_how_it_was_placed_and_registered_ones_are_the_accurate_ones
     assert!(linked >= 40, "only {linked} of 56 views registered");
     assert!(others > 0, "every view was registered: the test no longer sees the other placements");
     let (reg, cont) = (median(registered), median(continued));
-    eprintln!("{linked} registered views: median rotation error {reg:.1}°; {others} others: {cont:.1}°");
+    eprintln!(
+        "{linked} registered views: median rotation error {reg:.1}°; {others} others: {cont:.1}°"
+    );
     assert!(reg < 4.0, "registered views err {reg}° (median)");
     assert!(cont > 3.0 * reg, "views placed otherwise err {cont}°, registered ones {reg}°");
 }
@@ -179,6 +215,10 @@ fn two_copies_of_one_photo_keep_and_say_the_camera_heads_field_of_view() {
     let r: ReconstructResponse = serde_json::from_slice(&run.stdout).unwrap();
     assert!(r.cameras.iter().all(|c| c.focal == Some(FocalSource::CameraHead)), "{:?}", r.cameras);
     let text = inssplat(&args);
-    let said = format!("{}{}", String::from_utf8_lossy(&text.stdout), String::from_utf8_lossy(&text.stderr));
+    let said = format!(
+        "{}{}",
+        String::from_utf8_lossy(&text.stdout),
+        String::from_utf8_lossy(&text.stderr)
+    );
     assert!(said.contains("the camera head's guess"), "{said}");
 }

@@ -5,8 +5,8 @@
 //! to them must give more pixels back to their own instance than the blurred map gives; so
 //! must voting an id map whose outlines are shifted by two pixels over them.
 
-use inssplat_understand::superpixel::{SuperpixelParams, segment, snap, vote};
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
+use inssplat_understand::superpixel::{SuperpixelParams, segment, snap, vote};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -25,7 +25,11 @@ const MIN_VOTE_GAIN: f64 = 0.015;
 
 /// Each instance's random unit embedding, painted on its pixels, box-blurred over `radius`
 /// pixels and perturbed by noise: `[8][pixels]`.
-fn blurred_embeddings(ids: &[u16], radius: isize, rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<[f32; 8]>) {
+fn blurred_embeddings(
+    ids: &[u16],
+    radius: isize,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<f32>, Vec<[f32; 8]>) {
     let top = *ids.iter().max().unwrap() as usize;
     let protos: Vec<[f32; 8]> = (0..=top)
         .map(|_| {
@@ -40,13 +44,18 @@ fn blurred_embeddings(ids: &[u16], radius: isize, rng: &mut ChaCha8Rng) -> (Vec<
             let mut sum = [0.0f32; 8];
             for dy in -radius..=radius {
                 for dx in -radius..=radius {
-                    let (sx, sy) = ((x + dx).clamp(0, SIZE as isize - 1), (y + dy).clamp(0, SIZE as isize - 1));
+                    let (sx, sy) = (
+                        (x + dx).clamp(0, SIZE as isize - 1),
+                        (y + dy).clamp(0, SIZE as isize - 1),
+                    );
                     let p = &protos[ids[sy as usize * SIZE + sx as usize] as usize];
                     sum.iter_mut().zip(p).for_each(|(s, v)| *s += v);
                 }
             }
             for (c, s) in sum.iter().enumerate() {
-                map[c * SIZE * SIZE + y as usize * SIZE + x as usize] = s / ((2 * radius + 1) * (2 * radius + 1)) as f32 + rng.random_range(-0.2..0.2f32);
+                map[c * SIZE * SIZE + y as usize * SIZE + x as usize] = s
+                    / ((2 * radius + 1) * (2 * radius + 1)) as f32
+                    + rng.random_range(-0.2..0.2f32);
             }
         }
     }
@@ -98,7 +107,8 @@ fn superpixels_follow_the_outlines_and_snapping_and_voting_restore_them() {
             snap(&mut map, &segments);
             snapped_acc += accuracy(&map, ids, &protos);
 
-            let mut shifted: Vec<u32> = (0..ids.len()).map(|p| u32::from(ids[p - (p % SIZE).min(2)])).collect();
+            let mut shifted: Vec<u32> =
+                (0..ids.len()).map(|p| u32::from(ids[p - (p % SIZE).min(2)])).collect();
             shifted_right += shifted.iter().zip(ids).filter(|(s, i)| **s == u32::from(**i)).count();
             vote(&mut shifted, &segments);
             voted_right += shifted.iter().zip(ids).filter(|(s, i)| **s == u32::from(**i)).count();
@@ -108,12 +118,19 @@ fn superpixels_follow_the_outlines_and_snapping_and_voting_restore_them() {
     let purity = pure as f64 / pixels as f64;
     let mean_size = pixels as f64 / segments_total as f64;
     let (blurred_acc, snapped_acc) = (blurred_acc / views as f64, snapped_acc / views as f64);
-    let (shifted_acc, voted_acc) = (shifted_right as f64 / pixels as f64, voted_right as f64 / pixels as f64);
+    let (shifted_acc, voted_acc) =
+        (shifted_right as f64 / pixels as f64, voted_right as f64 / pixels as f64);
     eprintln!(
         "{views} views: purity {purity:.3}, mean segment {mean_size:.0} px, accuracy blurred {blurred_acc:.3} snapped {snapped_acc:.3}, ids shifted {shifted_acc:.3} voted {voted_acc:.3}"
     );
     assert!(purity >= MIN_PURITY, "segments straddle the outlines: purity {purity:.3}");
     assert!(mean_size >= MIN_MEAN_SIZE, "segments too small to average over: {mean_size:.1} px");
-    assert!(snapped_acc >= blurred_acc + MIN_GAIN, "snapping gave {snapped_acc:.3} against {blurred_acc:.3} blurred");
-    assert!(voted_acc >= shifted_acc + MIN_VOTE_GAIN, "voting gave {voted_acc:.3} against {shifted_acc:.3} shifted");
+    assert!(
+        snapped_acc >= blurred_acc + MIN_GAIN,
+        "snapping gave {snapped_acc:.3} against {blurred_acc:.3} blurred"
+    );
+    assert!(
+        voted_acc >= shifted_acc + MIN_VOTE_GAIN,
+        "voting gave {voted_acc:.3} against {shifted_acc:.3} shifted"
+    );
 }

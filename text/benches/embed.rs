@@ -65,11 +65,7 @@ fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> (Duration, Duration) {
 }
 
 fn report(what: &str, (median, min): (Duration, Duration)) {
-    println!(
-        "{what:<40} median {:>9.3} ms   min {:>9.3} ms",
-        ms(median),
-        ms(min)
-    );
+    println!("{what:<40} median {:>9.3} ms   min {:>9.3} ms", ms(median), ms(min));
 }
 
 fn ms(d: Duration) -> f64 {
@@ -77,26 +73,15 @@ fn ms(d: Duration) -> f64 {
 }
 
 fn main() {
-    report(
-        "load model",
-        time(3, || {
-            TextEmbedder::from_env().expect("model (source .deps/env)")
-        }),
-    );
+    report("load model", time(3, || TextEmbedder::from_env().expect("model (source .deps/env)")));
     let embedder = TextEmbedder::from_env().expect("model");
     // Warm up allocator and thread pool once.
     embedder.embed(&LABELS).unwrap();
-    report(
-        "40 labels, one batch (cold cache)",
-        time(10, || embedder.embed(&LABELS).unwrap()),
-    );
+    report("40 labels, one batch (cold cache)", time(10, || embedder.embed(&LABELS).unwrap()));
     report("1 query", time(20, || embedder.embed_one(QUERY).unwrap()));
     let cache = LabelCache::new(embedder);
     cache.embed(&LABELS).unwrap();
-    report(
-        "40 labels, warm LabelCache",
-        time(20, || cache.embed(&LABELS).unwrap()),
-    );
+    report("40 labels, warm LabelCache", time(20, || cache.embed(&LABELS).unwrap()));
     report(
         "40 labels + 1 query (cold, as a scene)",
         time(10, || {

@@ -24,19 +24,13 @@ pub struct LabelCache {
 impl LabelCache {
     /// An empty cache around `embedder`.
     pub fn new(embedder: TextEmbedder) -> Self {
-        Self {
-            embedder: Some(embedder),
-            memo: RwLock::new(HashMap::new()),
-        }
+        Self { embedder: Some(embedder), memo: RwLock::new(HashMap::new()) }
     }
 
     /// A cache that knows exactly the labels of `table` (label → embedding, as
     /// [`LabelCache::entries`] gave them) and has no model to embed others.
     pub fn from_table(table: impl IntoIterator<Item = (String, Embedding)>) -> Self {
-        Self {
-            embedder: None,
-            memo: RwLock::new(table.into_iter().collect()),
-        }
+        Self { embedder: None, memo: RwLock::new(table.into_iter().collect()) }
     }
 
     /// Every memoized label with its embedding, sorted by label: what [`LabelCache::from_table`]
@@ -60,11 +54,7 @@ impl LabelCache {
         let labels = normalize_all(labels)?;
         let mut missing: Vec<&str> = {
             let memo = self.memo.read().unwrap_or_else(|e| e.into_inner());
-            labels
-                .iter()
-                .copied()
-                .filter(|l| !memo.contains_key(*l))
-                .collect()
+            labels.iter().copied().filter(|l| !memo.contains_key(*l)).collect()
         };
         if !missing.is_empty() {
             missing.sort_unstable();

@@ -39,9 +39,7 @@ pub struct TextEmbedder {
 
 impl fmt::Debug for TextEmbedder {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("TextEmbedder")
-            .field("dir", &self.dir)
-            .finish_non_exhaustive()
+        f.debug_struct("TextEmbedder").field("dir", &self.dir).finish_non_exhaustive()
     }
 }
 
@@ -74,22 +72,14 @@ impl TextEmbedder {
             return Err(TextError::ModelNotFound { searched: why });
         }
         let config_path = dir.join(CONFIG_FILE);
-        let config_text =
-            std::fs::read_to_string(&config_path).map_err(|source| TextError::Io {
-                path: config_path.clone(),
-                source,
-            })?;
-        let config: Config = serde_json::from_str(&config_text).map_err(|e| TextError::Config {
-            path: config_path.clone(),
-            reason: e.to_string(),
-        })?;
+        let config_text = std::fs::read_to_string(&config_path)
+            .map_err(|source| TextError::Io { path: config_path.clone(), source })?;
+        let config: Config = serde_json::from_str(&config_text)
+            .map_err(|e| TextError::Config { path: config_path.clone(), reason: e.to_string() })?;
         if config.hidden_size != EMBEDDING_DIM {
             return Err(TextError::Config {
                 path: config_path,
-                reason: format!(
-                    "hidden_size is {}, expected {EMBEDDING_DIM}",
-                    config.hidden_size
-                ),
+                reason: format!("hidden_size is {}, expected {EMBEDDING_DIM}", config.hidden_size),
             });
         }
 
@@ -106,17 +96,11 @@ impl TextEmbedder {
             .map_err(|e| TextError::Tokenizer(e.to_string()))?;
 
         let weights_path = dir.join(WEIGHTS_FILE);
-        let weights = std::fs::read(&weights_path).map_err(|source| TextError::Io {
-            path: weights_path,
-            source,
-        })?;
+        let weights = std::fs::read(&weights_path)
+            .map_err(|source| TextError::Io { path: weights_path, source })?;
         let vb = VarBuilder::from_buffered_safetensors(weights, DType::F32, &Device::Cpu)?;
         let model = BertModel::load(vb, &config)?;
-        Ok(Self {
-            tokenizer,
-            model,
-            dir: dir.to_path_buf(),
-        })
+        Ok(Self { tokenizer, model, dir: dir.to_path_buf() })
     }
 
     /// The folder the model was loaded from.
@@ -180,11 +164,7 @@ impl TextEmbedder {
 /// scaled to unit length.
 fn pool(states: &[f32], mask: &[u32]) -> Embedding {
     let mut sum = [0.0f32; EMBEDDING_DIM];
-    for (token, _) in states
-        .chunks_exact(EMBEDDING_DIM)
-        .zip(mask)
-        .filter(|(_, m)| **m != 0)
-    {
+    for (token, _) in states.chunks_exact(EMBEDDING_DIM).zip(mask).filter(|(_, m)| **m != 0) {
         for (s, x) in sum.iter_mut().zip(token) {
             *s += x;
         }

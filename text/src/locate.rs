@@ -28,13 +28,10 @@ pub(crate) const CONFIG_FILE: &str = "config.json";
 /// The model folder, from `INSSPLAT_TEXT_MODEL` (when set and not empty) or else from the
 /// default location above the executable or the current directory.
 pub fn locate_model() -> Result<PathBuf> {
-    let from_env = std::env::var_os(MODEL_ENV)
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from);
+    let from_env = std::env::var_os(MODEL_ENV).filter(|v| !v.is_empty()).map(PathBuf::from);
     let mut roots = Vec::new();
-    if let Some(exe_dir) = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(Path::to_path_buf))
+    if let Some(exe_dir) =
+        std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf))
     {
         roots.push(exe_dir);
     }

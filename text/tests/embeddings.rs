@@ -2,7 +2,6 @@
 //! location): agreement with an independent numpy implementation, sane similarity ordering,
 //! batching that does not change vectors, the label cache, and input normalization.
 
-
 use inssplat_text::{EMBEDDING_DIM, Embedding, LabelCache, TextEmbedder, TextError, cosine};
 
 fn embedder() -> TextEmbedder {
@@ -10,10 +9,7 @@ fn embedder() -> TextEmbedder {
 }
 
 fn max_abs_diff(a: &Embedding, b: &Embedding) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
 }
 
 #[test]
@@ -25,10 +21,7 @@ fn matches_the_numpy_reference_to_1e_4() {
         let alone = e.embed_one(text).unwrap();
         for (name, v) in [("batched", got), ("alone", &alone)] {
             let diff = max_abs_diff(v, want);
-            assert!(
-                diff < 1e-4,
-                "{text:?} ({name}): max |diff| {diff} vs reference"
-            );
+            assert!(diff < 1e-4, "{text:?} ({name}): max |diff| {diff} vs reference");
         }
     }
 }
@@ -68,13 +61,7 @@ fn batching_gives_the_vectors_of_one_at_a_time() {
                 fern on top, standing in the corner of a sunny living room";
     // 40 texts of mixed lengths: more than one chunk, reordered by length inside `embed`.
     let mut texts: Vec<String> = (0..13)
-        .flat_map(|i| {
-            [
-                format!("chair {i}"),
-                format!("a small side table number {i}"),
-                long.into(),
-            ]
-        })
+        .flat_map(|i| [format!("chair {i}"), format!("a small side table number {i}"), long.into()])
         .collect();
     texts.push("lamp".into());
     let texts: Vec<&str> = texts.iter().map(String::as_str).collect();
@@ -122,10 +109,7 @@ fn label_cache_embeds_each_label_once_and_agrees_with_the_embedder() {
     assert_eq!(second[2], first[0]);
     let direct = cache.embedder().unwrap().embed_one("window").unwrap();
     assert!(max_abs_diff(&second[1], &direct) < 1e-5);
-    assert!(matches!(
-        cache.embed(&["bed", ""]),
-        Err(TextError::EmptyText { index: 1 })
-    ));
+    assert!(matches!(cache.embed(&["bed", ""]), Err(TextError::EmptyText { index: 1 })));
 }
 
 #[test]

@@ -44,10 +44,7 @@ fn no_env_and_no_default_folder_is_an_error_naming_both() {
     let tmp = tempfile::tempdir().unwrap();
     let err = locate_model_in(None, &[tmp.path().to_path_buf()]).unwrap_err();
     assert_names_env_and_default(&err);
-    assert!(
-        err.to_string().contains(&tmp.path().display().to_string()),
-        "{err}"
-    );
+    assert!(err.to_string().contains(&tmp.path().display().to_string()), "{err}");
 }
 
 #[test]

@@ -9,13 +9,13 @@
 use std::time::{Duration, Instant};
 
 use burn::module::Module;
+use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
 use burn::tensor::Distribution;
+use inssplat_synth::{Furniture, Split, Structure};
 use inssplat_trainer::export::{ExportMeta, Weights, to_onnx_bytes};
-use burn::optim::{AdamWConfig, GradientsParams};
 use inssplat_trainer::loss::LossConfig;
 use inssplat_trainer::model::{InsSplatNet, ModelConfig};
-use inssplat_synth::{Furniture, Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
 use inssplat_trainer::train::{TrainConfig, label_cache, update};
@@ -51,13 +51,8 @@ fn bench_train_step(config: &ModelConfig, views: usize, steps: usize) {
         config.sem_dim,
         net.num_params() as f64 / 1e6
     );
-    let images = || {
-        Tensor::<4>::random(
-            [views, 3, size, size],
-            Distribution::Uniform(0.0, 1.0),
-            &device,
-        )
-    };
+    let images =
+        || Tensor::<4>::random([views, 3, size, size], Distribution::Uniform(0.0, 1.0), &device);
     step(&net, images());
     let times: Vec<Duration> = (0..steps)
         .map(|_| {
@@ -80,11 +75,8 @@ fn bench_train_step(config: &ModelConfig, views: usize, steps: usize) {
     let fwd = net.forward_flops(views);
     let inference = Device::flex();
     let net = config.init(&inference).expect("config");
-    let x = Tensor::<4>::random(
-        [views, 3, size, size],
-        Distribution::Uniform(0.0, 1.0),
-        &inference,
-    );
+    let x =
+        Tensor::<4>::random([views, 3, size, size], Distribution::Uniform(0.0, 1.0), &inference);
     let _ = net.forward(x.clone()).expect("forward");
     let t = Instant::now();
     let _ = net.forward(x).expect("forward");
@@ -105,8 +97,21 @@ fn bench_objective_step(config: &ModelConfig, views: usize, steps: usize) {
         Furniture::Catalog(dir) if dir.is_dir() => Some(dir),
         _ => None,
     };
-    let data = DataSpec::Synth { split: Split::Train, furniture_dir: furniture, size: config.image_size as u32, structure: Structure::Instances, antialias: 1 };
-    let plan = ViewPlan { min_views: views, max_views: views, targets: 1, reuse: 1, first_scene: 0, window: None };
+    let data = DataSpec::Synth {
+        split: Split::Train,
+        furniture_dir: furniture,
+        size: config.image_size as u32,
+        structure: Structure::Instances,
+        antialias: 1,
+    };
+    let plan = ViewPlan {
+        min_views: views,
+        max_views: views,
+        targets: 1,
+        reuse: 1,
+        first_scene: 0,
+        window: None,
+    };
     let sampler = Sampler { source: Source::open(&data).expect("synth"), plan, seed: 0, labels };
     let train = TrainConfig::new(config.clone(), LossConfig::new());
     let device = Device::flex().autodiff();
@@ -153,11 +158,7 @@ fn bench_ort(config: &ModelConfig, steps: usize) {
     let net = config.init(&Device::flex()).expect("config");
     let bytes = to_onnx_bytes(
         &net,
-        &ExportMeta {
-            model_version: "bench".into(),
-            train_steps: 0,
-            weights: Weights::F32,
-        },
+        &ExportMeta { model_version: "bench".into(), train_steps: 0, weights: Weights::F32 },
     )
     .expect("export");
     let env = ort::init_from(&path)
@@ -191,10 +192,7 @@ fn bench_ort(config: &ModelConfig, steps: usize) {
 }
 
 fn main() {
-    let steps = std::env::var("STEPS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(3);
+    let steps = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(3);
     let config = ModelConfig::new();
     bench_train_step(&config, 4, steps);
     bench_objective_step(&config, 4, steps);

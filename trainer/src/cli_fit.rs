@@ -59,7 +59,14 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
     if let Some(&bad) = score_at.iter().find(|&&n| n == 0 || n > args.max_steps) {
         bail!("--score-at {bad}: each step count must lie in 1..=--max-steps ({})", args.max_steps);
     }
-    let config = FitConfig { views: args.views, stride: args.stride, max_steps: args.max_steps, lr: args.lr, score_at, ..FitConfig::default() };
+    let config = FitConfig {
+        views: args.views,
+        stride: args.stride,
+        max_steps: args.max_steps,
+        lr: args.lr,
+        score_at,
+        ..FitConfig::default()
+    };
     let mut reports = match &args.json {
         Some(path) if args.resume && path.exists() => finished(path, &config)?,
         _ => Vec::new(),
@@ -71,15 +78,28 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
             eprintln!("{name}: kept from --json");
             continue;
         }
-        let scene = Scene::load(dir).with_context(|| format!("--data: loading {}", dir.display()))?;
+        let scene =
+            Scene::load(dir).with_context(|| format!("--data: loading {}", dir.display()))?;
         let bar = ProgressBar::new(config.max_steps as u64);
-        bar.set_style(ProgressStyle::with_template("{spinner} fit {msg} {pos}/{len} steps [{elapsed_precise}]").expect("template"));
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} fit {msg} {pos}/{len} steps [{elapsed_precise}]",
+            )
+            .expect("template"),
+        );
         let report = fit_scene(&scene, &config, &|step, loss| {
             bar.set_position(step as u64 + 1);
             bar.set_message(format!("{name} ({} of {}) loss {loss:.4}", i + 1, dirs.len()));
         })?;
         bar.finish_and_clear();
-        eprintln!("{}: {} steps in {:.1} s, instance mIoU {}, PQ {}", report.scene, report.steps, report.seconds, pct(report.scores.instance_miou), pct(report.scores.instance_pq));
+        eprintln!(
+            "{}: {} steps in {:.1} s, instance mIoU {}, PQ {}",
+            report.scene,
+            report.steps,
+            report.seconds,
+            pct(report.scores.instance_miou),
+            pct(report.scores.instance_pq)
+        );
         reports.push(report);
         if let Some(path) = &args.json {
             save(path, &reports)?;
@@ -92,11 +112,19 @@ pub fn run_fit(args: FitArgs) -> Result<()> {
 
 /// The reports of an earlier run in `path`, checked against this run's settings.
 fn finished(path: &Path, config: &FitConfig) -> Result<Vec<FitReport>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("--resume: reading {}", path.display()))?;
-    let reports: Vec<FitReport> = serde_json::from_str(&text).with_context(|| format!("--resume: {} is not a list of fit-scene reports", path.display()))?;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("--resume: reading {}", path.display()))?;
+    let reports: Vec<FitReport> = serde_json::from_str(&text).with_context(|| {
+        format!("--resume: {} is not a list of fit-scene reports", path.display())
+    })?;
     let asked = config.settings();
     if let Some(r) = reports.iter().find(|r| r.settings != asked) {
-        bail!("--resume: {} fitted {} with {}; this run asks for {asked}", path.display(), r.scene, r.settings);
+        bail!(
+            "--resume: {} fitted {} with {}; this run asks for {asked}",
+            path.display(),
+            r.scene,
+            r.settings
+        );
     }
     Ok(reports)
 }
@@ -105,7 +133,8 @@ fn finished(path: &Path, config: &FitConfig) -> Result<Vec<FitReport>> {
 /// while writing leaves the last whole file.
 fn save(path: &Path, reports: &[FitReport]) -> Result<()> {
     let tmp = path.with_extension("json.partial");
-    std::fs::write(&tmp, serde_json::to_string_pretty(reports)?).with_context(|| format!("--json {}", tmp.display()))?;
+    std::fs::write(&tmp, serde_json::to_string_pretty(reports)?)
+        .with_context(|| format!("--json {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("--json {}", path.display()))
 }
 
@@ -114,12 +143,37 @@ fn pct(v: Option<f64>) -> String {
 }
 
 fn markdown(reports: &[FitReport]) -> String {
-    let mut out = String::from("| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | inst PQ | instances |\n|---|---|---|---|---|---|---|---|---|---|\n");
-    let row = |s: &FitScores| format!("{} | {} | {} | {}", pct(s.instance_miou), pct(s.instance_acc25), pct(s.instance_pq), s.instances_found);
+    let mut out = String::from(
+        "| scene | views | Gaussians | steps | converged | seconds | inst mIoU | inst Acc@0.25 | inst PQ | instances |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let row = |s: &FitScores| {
+        format!(
+            "{} | {} | {} | {}",
+            pct(s.instance_miou),
+            pct(s.instance_acc25),
+            pct(s.instance_pq),
+            s.instances_found
+        )
+    };
     for r in reports {
-        out += &format!("| {} | {} | {} | {} | {} | {:.1} | {} |\n", r.scene, r.settings.views, r.gaussians, r.steps, r.converged, r.seconds, row(&r.scores));
+        out += &format!(
+            "| {} | {} | {} | {} | {} | {:.1} | {} |\n",
+            r.scene,
+            r.settings.views,
+            r.gaussians,
+            r.steps,
+            r.converged,
+            r.seconds,
+            row(&r.scores)
+        );
     }
-    out += &format!("| mean of {} | | | {:.0} | | {:.1} | {} | |\n", reports.len(), mean(reports, |r| r.steps as f64), mean(reports, |r| r.seconds), means(reports.iter().map(|r| &r.scores)));
+    out += &format!(
+        "| mean of {} | | | {:.0} | | {:.1} | {} | |\n",
+        reports.len(),
+        mean(reports, |r| r.steps as f64),
+        mean(reports, |r| r.seconds),
+        means(reports.iter().map(|r| &r.scores))
+    );
     // Along the way: each step count's means over the fits that were scored there, and over
     // the fits that had already converged before it (their final scores), so that every
     // row covers every scene.
@@ -129,11 +183,20 @@ fn markdown(reports: &[FitReport]) -> String {
         for n in at {
             let points: Vec<(f64, &FitScores)> = reports
                 .iter()
-                .map(|r| r.curve.iter().find(|p| p.steps == n).map_or((r.seconds, &r.scores), |p| (p.seconds, &p.scores)))
+                .map(|r| {
+                    r.curve
+                        .iter()
+                        .find(|p| p.steps == n)
+                        .map_or((r.seconds, &r.scores), |p| (p.seconds, &p.scores))
+                })
                 .collect();
             let scored = reports.iter().filter(|r| r.curve.iter().any(|p| p.steps == n)).count();
             let seconds = points.iter().map(|p| p.0).sum::<f64>() / points.len() as f64;
-            out += &format!("| {n} | {scored} of {} | {seconds:.1} | {} |\n", reports.len(), means(points.iter().map(|p| p.1)));
+            out += &format!(
+                "| {n} | {scored} of {} | {seconds:.1} | {} |\n",
+                reports.len(),
+                means(points.iter().map(|p| p.1))
+            );
         }
     }
     out
@@ -150,6 +213,10 @@ fn means<'a>(scores: impl Iterator<Item = &'a FitScores> + Clone) -> String {
         let v: Vec<f64> = scores.clone().filter_map(f).collect();
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
-    format!("{} | {} | {}", pct(m(|s| s.instance_miou)), pct(m(|s| s.instance_acc25)), pct(m(|s| s.instance_pq)))
+    format!(
+        "{} | {} | {}",
+        pct(m(|s| s.instance_miou)),
+        pct(m(|s| s.instance_acc25)),
+        pct(m(|s| s.instance_pq))
+    )
 }
-

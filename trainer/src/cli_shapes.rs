@@ -8,8 +8,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, anyhow};
 use indicatif::{ProgressBar, ProgressStyle};
 use inssplat_proto::shape::LabelledDescriptor;
-use inssplat_trainer::shapes::{FitShapesConfig, attach, draw_views, fit, scene_examples};
 use inssplat_synth::{self as synth, Furniture, Split, Structure, SynthConfig};
+use inssplat_trainer::shapes::{FitShapesConfig, attach, draw_views, fit, scene_examples};
 use inssplat_trainer::train::label_cache;
 use rayon::prelude::*;
 
@@ -74,15 +74,24 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
     let furniture = || crate::furniture(a.primitives_only, &a.furniture_dir);
     let train = match a.examples.as_slice() {
         [] => examples(Split::Train, a.first_scene, a.scenes, &furniture()?)?,
-        files => files.iter().map(|f| read_examples(f, "--examples")).collect::<Result<Vec<_>>>()?.concat(),
+        files => files
+            .iter()
+            .map(|f| read_examples(f, "--examples"))
+            .collect::<Result<Vec<_>>>()?
+            .concat(),
     };
     let held_out = match &a.held_out {
         Some(path) => read_examples(path, "--held-out")?,
         None => examples(Split::Val, 0, a.val_scenes, &furniture()?)?,
     };
-    let config =
-        FitShapesConfig { epochs: a.epochs, hidden: a.hidden, logit_adjust: a.logit_adjust, ..FitShapesConfig::default() };
-    let texts = if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };
+    let config = FitShapesConfig {
+        epochs: a.epochs,
+        hidden: a.hidden,
+        logit_adjust: a.logit_adjust,
+        ..FitShapesConfig::default()
+    };
+    let texts =
+        if a.semantic { Some(label_cache().context("--semantic: the label texts")?) } else { None };
     let bar = bar(config.epochs as u64, "epochs");
     let (mut classifier, report) =
         fit(&train, &held_out, &config, texts.as_deref(), &|epoch, loss| {
@@ -94,13 +103,23 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
     let held = report.held_out_accuracy.map_or("–".into(), |x| format!("{:.1}%", 100.0 * x));
     let source = |files: &[PathBuf], rooms: String| match files {
         [] => rooms,
-        files => format!("the instances in {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" + ")),
+        files => format!(
+            "the instances in {}",
+            files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" + ")
+        ),
     };
     classifier.provenance = format!(
         "inssplat-train fit-shapes{}{}: fitted on {} ({} examples), {} epochs, hidden {}; accuracy {:.1}% on them, {held} on {} ({} examples)",
         if a.semantic { " --semantic" } else { "" },
-        if a.logit_adjust > 0.0 { format!(" --logit-adjust {}", a.logit_adjust) } else { String::new() },
-        source(&a.examples, format!("the objects of train rooms {}..{}", a.first_scene, a.first_scene + a.scenes)),
+        if a.logit_adjust > 0.0 {
+            format!(" --logit-adjust {}", a.logit_adjust)
+        } else {
+            String::new()
+        },
+        source(
+            &a.examples,
+            format!("the objects of train rooms {}..{}", a.first_scene, a.first_scene + a.scenes)
+        ),
         train.len(),
         config.epochs,
         config.hidden,
@@ -115,18 +134,30 @@ pub fn run_fit_shapes(a: FitShapesArgs) -> Result<()> {
 }
 
 fn read_examples(path: &std::path::Path, flag: &str) -> Result<Vec<LabelledDescriptor>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{flag} {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{flag} {}: not a list of {{label, descriptor}}", path.display()))
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("{flag} {}", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{flag} {}: not a list of {{label, descriptor}}", path.display()))
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(len);
-    bar.set_style(ProgressStyle::with_template(&format!("{{spinner}} {{wide_bar}} {{pos}}/{{len}} {what} {{msg}} eta {{eta}}")).expect("template"));
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} {{wide_bar}} {{pos}}/{{len}} {what} {{msg}} eta {{eta}}"
+        ))
+        .expect("template"),
+    );
     bar
 }
 
 /// Descriptors of the labelled objects (room shell included) of `count` rooms of `split`.
-fn examples(split: Split, first: u64, count: u64, furniture: &Furniture) -> Result<Vec<LabelledDescriptor>> {
+fn examples(
+    split: Split,
+    first: u64,
+    count: u64,
+    furniture: &Furniture,
+) -> Result<Vec<LabelledDescriptor>> {
     let mut cfg = SynthConfig::new(split, furniture.clone());
     cfg.structure = Structure::Instances;
     let bar = bar(count, &format!("{split} rooms"));

@@ -9,10 +9,15 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use inssplat_trainer::export::{ExportMeta, Weights, average_file, export_keeping_metadata, export_onnx, pool_keys_file, quantize_file};
-use inssplat_trainer::loss::{BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig};
-use inssplat_trainer::model::ModelConfig;
 use inssplat_synth::{self as synth, Furniture, Split, Structure};
+use inssplat_trainer::export::{
+    ExportMeta, Weights, average_file, export_keeping_metadata, export_onnx, pool_keys_file,
+    quantize_file,
+};
+use inssplat_trainer::loss::{
+    BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig,
+};
+use inssplat_trainer::model::ModelConfig;
 use inssplat_trainer::train::sample::{DataSpec, describe};
 use inssplat_trainer::train::{self, Compute, RayPlan, Session, TrainConfig, checkpoint};
 
@@ -301,7 +306,8 @@ fn unit_interval(s: &str) -> Result<f64, String> {
 }
 
 fn minutes(m: f64, flag: &str) -> Result<Duration> {
-    Duration::try_from_secs_f64(m * 60.0).with_context(|| format!("{flag}: {m} is not a number of minutes"))
+    Duration::try_from_secs_f64(m * 60.0)
+        .with_context(|| format!("{flag}: {m} is not a number of minutes"))
 }
 
 impl TrainArgs {
@@ -317,42 +323,85 @@ impl TrainArgs {
             .with_sem_dim(self.sem_dim)
             .with_image_skips(self.image_skips)
             // A new network pools or not; --init-from passes 1 on to undo a source's pooling.
-            .with_global_kv_pool(self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()))
+            .with_global_kv_pool(
+                self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()),
+            )
             .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
-            .with_descriptor_head((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)))
+            .with_descriptor_head(
+                (self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)),
+            )
             .with_camera_rays(self.camera_rays.map(usize::from));
         let loss = LossConfig::new()
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
-            .with_depth_gradient_weight((self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight))
+            .with_depth_gradient_weight(
+                (self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight),
+            )
             .with_depth_gradient_strides(
-                (self.depth_gradient_strides != [1]).then(|| self.depth_gradient_strides.iter().map(|&k| usize::from(k)).collect()),
+                (self.depth_gradient_strides != [1])
+                    .then(|| self.depth_gradient_strides.iter().map(|&k| usize::from(k)).collect()),
             )
             .with_depth_relative(self.depth_relative.then_some(true))
-            .with_depth_shape_weight((self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight))
-            .with_depth_instance_balance((self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance))
+            .with_depth_shape_weight(
+                (self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight),
+            )
+            .with_depth_instance_balance(
+                (self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance),
+            )
             .with_instance_weight(self.instance_weight)
             .with_pull_margin(self.pull_margin)
-            .with_assign_weight((self.instance_assign_weight > 0.0).then_some(self.instance_assign_weight))
+            .with_assign_weight(
+                (self.instance_assign_weight > 0.0).then_some(self.instance_assign_weight),
+            )
             .with_camera_weight(self.camera_weight)
             .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
             .with_point_map_offsets(self.point_map_offsets.then_some(true))
-            .with_attention_match_weight((self.attention_match_weight > 0.0).then_some(self.attention_match_weight))
-            .with_descriptor_weight((self.descriptor_weight > 0.0).then_some(self.descriptor_weight))
-            .with_descriptor_samples((self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)))
-            .with_descriptor_grid((self.descriptor_weight > 0.0 && self.descriptor_grid > 0).then_some(usize::from(self.descriptor_grid)))
-            .with_descriptor_min_angle((self.descriptor_weight > 0.0 && self.descriptor_min_angle > 0.0).then_some(self.descriptor_min_angle))
+            .with_attention_match_weight(
+                (self.attention_match_weight > 0.0).then_some(self.attention_match_weight),
+            )
+            .with_descriptor_weight(
+                (self.descriptor_weight > 0.0).then_some(self.descriptor_weight),
+            )
+            .with_descriptor_samples(
+                (self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)),
+            )
+            .with_descriptor_grid(
+                (self.descriptor_weight > 0.0 && self.descriptor_grid > 0)
+                    .then_some(usize::from(self.descriptor_grid)),
+            )
+            .with_descriptor_min_angle(
+                (self.descriptor_weight > 0.0 && self.descriptor_min_angle > 0.0)
+                    .then_some(self.descriptor_min_angle),
+            )
             .with_semantic_weight(self.semantic_weight)
-            .with_semantic_temperature((self.semantic_temperature > 0.0).then_some(self.semantic_temperature))
-            .with_semantic_logit_adjust((self.semantic_logit_adjust > 0.0).then_some(self.semantic_logit_adjust))
-            .with_direct_instance_weight((self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight))
-            .with_direct_semantic_weight((self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight))
+            .with_semantic_temperature(
+                (self.semantic_temperature > 0.0).then_some(self.semantic_temperature),
+            )
+            .with_semantic_logit_adjust(
+                (self.semantic_logit_adjust > 0.0).then_some(self.semantic_logit_adjust),
+            )
+            .with_direct_instance_weight(
+                (self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight),
+            )
+            .with_direct_semantic_weight(
+                (self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight),
+            )
             .with_semantic_objects_only(self.semantic_objects_only.then_some(true))
-            .with_render_depth_gradient((self.render_depth_gradient != 1.0).then_some(self.render_depth_gradient))
-            .with_hard_negatives(pick(self.no_hard_negatives, HardNegatives::SemanticWeighted, HardNegatives::Uniform))
+            .with_render_depth_gradient(
+                (self.render_depth_gradient != 1.0).then_some(self.render_depth_gradient),
+            )
+            .with_hard_negatives(pick(
+                self.no_hard_negatives,
+                HardNegatives::SemanticWeighted,
+                HardNegatives::Uniform,
+            ))
             .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
             .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
-            .with_gaussians(pick(self.frozen_gaussians, GaussianTraining::Trained, GaussianTraining::Frozen));
+            .with_gaussians(pick(
+                self.frozen_gaussians,
+                GaussianTraining::Trained,
+                GaussianTraining::Frozen,
+            ));
         TrainConfig::new(model, loss)
             .with_steps(self.steps.unwrap_or(20_000))
             .with_warmup(self.warmup)
@@ -367,7 +416,10 @@ impl TrainArgs {
             .with_seed(self.seed)
             .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
             .with_rays_only(self.train_rays_only.then_some(true))
-            .with_rays((self.ray_dropout > 0.0 || self.ray_noise > 0.0).then_some(RayPlan { dropout: self.ray_dropout, noise_deg: self.ray_noise }))
+            .with_rays(
+                (self.ray_dropout > 0.0 || self.ray_noise > 0.0)
+                    .then_some(RayPlan { dropout: self.ray_dropout, noise_deg: self.ray_noise }),
+            )
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {
@@ -398,9 +450,16 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
     }
     let session = Session { stop: Some(stop_on_signals()?), ..args.session()? };
     let summary = if args.resume {
-        let dir = checkpoint::latest(&args.out)?.with_context(|| format!("--resume: {} has no checkpoint", args.out.display()))?;
+        let dir = checkpoint::latest(&args.out)?
+            .with_context(|| format!("--resume: {} has no checkpoint", args.out.display()))?;
         let state = checkpoint::read_state(&dir)?;
-        eprintln!("resuming {} at step {} of {} ({})", dir.display(), state.step, args.steps.unwrap_or(state.config.steps), describe(&state.data));
+        eprintln!(
+            "resuming {} at step {} of {} ({})",
+            dir.display(),
+            state.step,
+            args.steps.unwrap_or(state.config.steps),
+            describe(&state.data)
+        );
         train::resume(&args.out, args.steps, &session)?
     } else {
         let data = match &args.data {
@@ -409,14 +468,25 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
                 split: Split::Train,
                 furniture_dir: args.furniture()?,
                 size: args.image_size as u32,
-                structure: if args.shell_background { Structure::Background } else { Structure::Instances },
+                structure: if args.shell_background {
+                    Structure::Background
+                } else {
+                    Structure::Instances
+                },
                 antialias: args.antialias,
             },
         };
         let config = args.config();
         if let Some(from) = &args.init_from {
-            eprintln!("new run in {} from the weights of {}: {} steps, {}", args.out.display(), from.display(), config.steps, describe(&data));
-            train::fine_tune(&args.out, config, data, from, &session).with_context(|| format!("--init-from {}", from.display()))?
+            eprintln!(
+                "new run in {} from the weights of {}: {} steps, {}",
+                args.out.display(),
+                from.display(),
+                config.steps,
+                describe(&data)
+            );
+            train::fine_tune(&args.out, config, data, from, &session)
+                .with_context(|| format!("--init-from {}", from.display()))?
         } else {
             let net = config.model.init(&Device::flex()).map_err(anyhow::Error::msg)?;
             eprintln!(
@@ -442,8 +512,15 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         println!("checkpoint {}; chart {}", dir.display(), args.out.join("loss.png").display());
     }
     if let Some(number) = summary.signal {
-        let at = summary.checkpoint.as_ref().map_or(String::new(), |dir| format!(" in {}", dir.display()));
-        eprintln!("stopped by signal {number} after step {}, checkpoint written{at}; go on with --resume --out {}", summary.steps, args.out.display());
+        let at = summary
+            .checkpoint
+            .as_ref()
+            .map_or(String::new(), |dir| format!(" in {}", dir.display()));
+        eprintln!(
+            "stopped by signal {number} after step {}, checkpoint written{at}; go on with --resume --out {}",
+            summary.steps,
+            args.out.display()
+        );
         std::process::exit(128 + number as i32);
     }
     Ok(())
@@ -458,9 +535,11 @@ fn stop_on_signals() -> Result<Arc<AtomicUsize>> {
     let (stop, seen) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
     for number in [SIGINT, SIGTERM] {
         // Handlers run in the order they were registered: exit if one came before, else note it.
-        flag::register_conditional_shutdown(number, 128 + number, Arc::clone(&seen)).context("installing the signal handlers")?;
+        flag::register_conditional_shutdown(number, 128 + number, Arc::clone(&seen))
+            .context("installing the signal handlers")?;
         flag::register(number, Arc::clone(&seen)).context("installing the signal handlers")?;
-        flag::register_usize(number, Arc::clone(&stop), number as usize).context("installing the signal handlers")?;
+        flag::register_usize(number, Arc::clone(&stop), number as usize)
+            .context("installing the signal handlers")?;
     }
     Ok(stop)
 }
@@ -483,21 +562,40 @@ pub struct ExportArgs {
 }
 
 pub fn run_export(args: ExportArgs) -> Result<()> {
-    let dir = checkpoint::latest(&args.checkpoint)?
-        .with_context(|| format!("--checkpoint: {} is neither a run with checkpoints nor a checkpoint", args.checkpoint.display()))?;
+    let dir = checkpoint::latest(&args.checkpoint)?.with_context(|| {
+        format!(
+            "--checkpoint: {} is neither a run with checkpoints nor a checkpoint",
+            args.checkpoint.display()
+        )
+    })?;
     let state = checkpoint::read_state(&dir)?;
     let net = checkpoint::load_model(&dir, &state, &Device::flex())?;
     let version = args.model_version.unwrap_or_else(|| {
         let run = args.checkpoint.file_name().and_then(|n| n.to_str()).unwrap_or("run");
         format!("inssplat-{}+{run}.{}", env!("CARGO_PKG_VERSION"), state.step)
     });
-    let meta = ExportMeta { model_version: version.clone(), train_steps: state.step, weights: Weights::F32 };
+    let meta = ExportMeta {
+        model_version: version.clone(),
+        train_steps: state.step,
+        weights: Weights::F32,
+    };
     match &args.metadata_from {
-        None => export_onnx(&net, &args.out, &meta).with_context(|| format!("exporting to {}", args.out.display()))?,
-        Some(from) => export_keeping_metadata(&net, &meta, from, &args.out)
-            .with_context(|| format!("exporting to {} with the metadata of --metadata-from {}", args.out.display(), from.display()))?,
+        None => export_onnx(&net, &args.out, &meta)
+            .with_context(|| format!("exporting to {}", args.out.display()))?,
+        Some(from) => export_keeping_metadata(&net, &meta, from, &args.out).with_context(|| {
+            format!(
+                "exporting to {} with the metadata of --metadata-from {}",
+                args.out.display(),
+                from.display()
+            )
+        })?,
     }
-    println!("wrote {} ({version}, {} steps, {:.1} MB)", args.out.display(), state.step, std::fs::metadata(&args.out)?.len() as f64 / 1e6);
+    println!(
+        "wrote {} ({version}, {} steps, {:.1} MB)",
+        args.out.display(),
+        state.step,
+        std::fs::metadata(&args.out)?.len() as f64 / 1e6
+    );
     Ok(())
 }
 
@@ -535,14 +633,26 @@ pub fn run_pool_keys(args: PoolKeysArgs) -> Result<()> {
     let pool = Some(usize::from(args.pool)).filter(|&p| p > 1);
     let meta = pool_keys_file(&args.model, &args.out, pool, args.model_version.as_deref())
         .with_context(|| format!("--model {} --pool {}", args.model.display(), args.pool))?;
-    println!("wrote {} ({}, global keys and values pooled {p}×{p})", args.out.display(), meta.model_version, p = args.pool);
+    println!(
+        "wrote {} ({}, global keys and values pooled {p}×{p})",
+        args.out.display(),
+        meta.model_version,
+        p = args.pool
+    );
     Ok(())
 }
 
 pub fn run_quantize(args: QuantizeArgs) -> Result<()> {
     let meta = quantize_file(&args.model, &args.out, args.model_version.as_deref())?;
     let mb = |p: &PathBuf| std::fs::metadata(p).map_or(0.0, |m| m.len() as f64 / 1e6);
-    println!("wrote {} ({}, int8 linear weights, {:.1} MB; {} is {:.1} MB)", args.out.display(), meta.model_version, mb(&args.out), args.model.display(), mb(&args.model));
+    println!(
+        "wrote {} ({}, int8 linear weights, {:.1} MB; {} is {:.1} MB)",
+        args.out.display(),
+        meta.model_version,
+        mb(&args.out),
+        args.model.display(),
+        mb(&args.model)
+    );
     Ok(())
 }
 
@@ -593,9 +703,15 @@ pub fn run_average(args: AverageArgs) -> Result<()> {
         let run = args.checkpoints[0].file_name().and_then(|n| n.to_str()).unwrap_or("run");
         format!("inssplat-{}+{run}.avg{first}-{last}", env!("CARGO_PKG_VERSION"))
     });
-    let meta = average_file(&args.model, &args.out, &nets, &names, &version, last)
-        .with_context(|| format!("--model {} --out {}", args.model.display(), args.out.display()))?;
-    println!("wrote {} ({}, the mean of {} checkpoints, steps {first}..={last})", args.out.display(), meta.model_version, nets.len());
+    let meta =
+        average_file(&args.model, &args.out, &nets, &names, &version, last).with_context(|| {
+            format!("--model {} --out {}", args.model.display(), args.out.display())
+        })?;
+    println!(
+        "wrote {} ({}, the mean of {} checkpoints, steps {first}..={last})",
+        args.out.display(),
+        meta.model_version,
+        nets.len()
+    );
     Ok(())
 }
-

@@ -5,8 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use inssplat_trainer::train::sample::DataSpec;
 use inssplat_trainer::train;
+use inssplat_trainer::train::sample::DataSpec;
 
 #[derive(clap::Args)]
 pub struct ValidateArgs {
@@ -53,10 +53,13 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
         window: args.view_window.map(usize::from),
         ray_noise_deg: args.ray_noise,
     };
-    let mut csv = String::from("checkpoint,step,sample,total,rgb,geometry,instance,semantic,boundary,abs_rel\n");
+    let mut csv = String::from(
+        "checkpoint,step,sample,total,rgb,geometry,instance,semantic,boundary,abs_rel\n",
+    );
     for path in &args.checkpoints {
         let train::CheckpointScores { dir, step, losses, matching } =
-            train::score_checkpoint(path, &set, args.matching).with_context(|| format!("validating {}", path.display()))?;
+            train::score_checkpoint(path, &set, args.matching)
+                .with_context(|| format!("validating {}", path.display()))?;
         let v = train::mean_loss(&losses);
         println!(
             "{} (step {step}): val loss {:.4} (rgb {:.4}, geom {:.4}, ins {:.4}, sem {:.4}, bd {:.4}) over {} samples",

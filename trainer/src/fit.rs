@@ -7,7 +7,8 @@
 //! clusters a network's output (instances split into their parts apart in 3D included),
 //! rendered at the scene's target cameras (what no Gaussian covers taking the nearest covered
 //! pixel's id, as `inssplat eval` fills a new view), and scored with the evaluation's
-//! instance metric (pooled over target views and visible instances), so its time and instance mIoU stand
+//! instance metric (pooled over target views and visible instances), so its time and instance mIoU
+//! stand
 //! next to `inssplat eval`'s numbers for the feed-forward model. Scored also along the way
 //! (`score_at`), it gives its accuracy against its optimization time.
 
@@ -16,15 +17,15 @@ use std::time::Instant;
 use burn::module::{Module, Param};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use inssplat_proto::{GaussianScene, INSTANCE_DIM};
+use inssplat_geometry::voxel::{VoxelParams, robust_extent};
+use inssplat_metrics::segmentation::{InstancePool, instance_scores};
 use inssplat_proto::dataset::Scene;
 use inssplat_proto::gaussian::{Gaussian, rgb_to_sh_dc};
+use inssplat_proto::{GaussianScene, INSTANCE_DIM};
+use inssplat_raster::masks::{fill_uncovered, render_instance_ids};
+use inssplat_raster::render::RenderOptions;
 use inssplat_understand::cluster::split::{SplitParams, split_disconnected};
 use inssplat_understand::cluster::{ClusterParams, cluster_instances};
-use inssplat_raster::masks::{fill_uncovered, render_instance_ids};
-use inssplat_metrics::segmentation::{InstancePool, instance_scores};
-use inssplat_raster::render::RenderOptions;
-use inssplat_geometry::voxel::{VoxelParams, robust_extent};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -55,14 +56,29 @@ pub struct FitConfig {
 
 impl Default for FitConfig {
     fn default() -> Self {
-        Self { views: 8, stride: 2, lr: 5e-3, instance_weight: 1.0, max_steps: 1500, window: 50, tolerance: 0.005, score_at: Vec::new() }
+        Self {
+            views: 8,
+            stride: 2,
+            lr: 5e-3,
+            instance_weight: 1.0,
+            max_steps: 1500,
+            window: 50,
+            tolerance: 0.005,
+            score_at: Vec::new(),
+        }
     }
 }
 
 impl FitConfig {
     /// The settings a report records of this configuration.
     pub fn settings(&self) -> FitSettings {
-        FitSettings { views: self.views, stride: self.stride, max_steps: self.max_steps, lr: self.lr, score_at: self.score_at.clone() }
+        FitSettings {
+            views: self.views,
+            stride: self.stride,
+            max_steps: self.max_steps,
+            lr: self.lr,
+            score_at: self.score_at.clone(),
+        }
     }
 }
 
@@ -80,7 +96,11 @@ pub struct FitSettings {
 
 impl std::fmt::Display for FitSettings {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "views {}, stride {}, max_steps {}, lr {}, score_at {:?}", self.views, self.stride, self.max_steps, self.lr, self.score_at)
+        write!(
+            f,
+            "views {}, stride {}, max_steps {}, lr {}, score_at {:?}",
+            self.views, self.stride, self.max_steps, self.lr, self.score_at
+        )
     }
 }
 
@@ -177,7 +197,11 @@ fn seed(scene: &Scene, context: &[usize], stride: usize) -> Seed {
                 if !(d > 0.0 && d.is_finite()) {
                     continue;
                 }
-                let p = frame.camera.camera_to_world(frame.camera.unproject(x as f32 + 0.5, y as f32 + 0.5, d));
+                let p = frame.camera.camera_to_world(frame.camera.unproject(
+                    x as f32 + 0.5,
+                    y as f32 + 0.5,
+                    d,
+                ));
                 s.means.extend(p.to_array());
                 s.log_scales.extend([(0.5 * d * stride as f32 / k.fx).ln(); 3]);
                 s.colour.extend((0..3).map(|c| f32::from(frame.rgb[(y * w + x) * 3 + c]) / 255.0));
@@ -189,17 +213,28 @@ fn seed(scene: &Scene, context: &[usize], stride: usize) -> Seed {
 
 /// Fits `scene` from its `config.views`-view context set and scores it on its target views.
 /// `on_step(step, loss)` is called after every step (for progress).
-pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)) -> Result<FitReport, FitError> {
+pub fn fit_scene(
+    scene: &Scene,
+    config: &FitConfig,
+    on_step: &dyn Fn(usize, f32),
+) -> Result<FitReport, FitError> {
     let name = scene.name();
     let bad = |problem: String| FitError::Scene { scene: name.clone(), problem };
-    let eval = scene.eval.as_ref().ok_or_else(|| bad("transforms.json has no `eval` split (synthesize with --split test)".into()))?;
-    let context = eval.context_for(config.views).ok_or_else(|| bad(format!("no {}-view context set in `eval.context`", config.views)))?;
+    let eval = scene.eval.as_ref().ok_or_else(|| {
+        bad("transforms.json has no `eval` split (synthesize with --split test)".into())
+    })?;
+    let context = eval
+        .context_for(config.views)
+        .ok_or_else(|| bad(format!("no {}-view context set in `eval.context`", config.views)))?;
     if config.stride == 0 || config.window == 0 || config.max_steps == 0 {
         return Err(bad("--stride, --max-steps and the convergence window must be ≥ 1".into()));
     }
     let frames: Vec<_> = context.iter().map(|&f| &scene.frames[f]).collect();
     let (w, h) = (frames[0].width() as usize, frames[0].height() as usize);
-    if frames.iter().any(|f| f.width() as usize != w || f.height() as usize != h || f.instances.is_none()) {
+    if frames
+        .iter()
+        .any(|f| f.width() as usize != w || f.height() as usize != h || f.instances.is_none())
+    {
         return Err(bad("context frames must share one size and carry instance masks".into()));
     }
     let seeded = seed(scene, context, config.stride);
@@ -209,18 +244,26 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     }
 
     let device = Device::flex().autodiff();
-    let mut rng = ChaCha8Rng::seed_from_u64(name.bytes().fold(0u64, |a, b| a.wrapping_mul(31).wrapping_add(u64::from(b))));
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        name.bytes().fold(0u64, |a, b| a.wrapping_mul(31).wrapping_add(u64::from(b))),
+    );
     // Small start: a pixel's rendered feature sums several Gaussians, so large random
     // embeddings would average out in the render while staying random per Gaussian, and the 3D
     // clustering (which sees Gaussians, not pixels) would find only noise.
-    let instance_seed: Vec<f32> = (0..n * INSTANCE_DIM).map(|_| rng.random_range(-0.01..0.01)).collect();
-    let param2 = |v: Vec<f32>, c: usize| Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, [n, c]), &device));
+    let instance_seed: Vec<f32> =
+        (0..n * INSTANCE_DIM).map(|_| rng.random_range(-0.01..0.01)).collect();
+    let param2 = |v: Vec<f32>, c: usize| {
+        Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, [n, c]), &device))
+    };
     let identity: Vec<f32> = (0..n).flat_map(|_| [1.0, 0.0, 0.0, 0.0]).collect();
     let mut fitted = Fitted {
         means: param2(seeded.means, 3),
         log_scales: param2(seeded.log_scales, 3),
         rotations: param2(identity, 4),
-        logit_opacity: Param::from_tensor(Tensor::<1>::from_data(TensorData::new(vec![2.0f32; n], [n]), &device)),
+        logit_opacity: Param::from_tensor(Tensor::<1>::from_data(
+            TensorData::new(vec![2.0f32; n], [n]),
+            &device,
+        )),
         colour: param2(seeded.colour, 3),
         instance: param2(instance_seed, INSTANCE_DIM),
     };
@@ -228,7 +271,10 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
     let images: Vec<f32> = frames.iter().flat_map(|f| f.planar_rgb()).collect();
     let v = frames.len();
     let images = Tensor::<4>::from_data(TensorData::new(images, [v, 3, h, w]), &device);
-    let ids: Vec<u32> = frames.iter().flat_map(|f| f.instances.as_ref().into_iter().flatten().map(|&i| u32::from(i))).collect();
+    let ids: Vec<u32> = frames
+        .iter()
+        .flat_map(|f| f.instances.as_ref().into_iter().flatten().map(|&i| u32::from(i)))
+        .collect();
     let no_semantic = Tensor::<4>::zeros([v, 1, h, w], &device);
     let loss_config = LossConfig::new().with_hard_negatives(HardNegatives::Uniform);
 
@@ -244,14 +290,19 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
         let splats = fitted.splats();
         let renders = frames
             .iter()
-            .map(|f| render(splats.clone(), &f.camera, &[], &RenderOptions::default()).map(|r| r.features))
+            .map(|f| {
+                render(splats.clone(), &f.camera, &[], &RenderOptions::default())
+                    .map(|r| r.features)
+            })
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| step_err(e.to_string()))?;
         let rendered = Tensor::stack::<4>(renders, 0);
-        let rgb = rgb_loss(rendered.clone().narrow(1, 0, 3), images.clone()).map_err(|e| step_err(e.to_string()))?;
-        let ins = instance_loss(rendered.narrow(1, 3, INSTANCE_DIM), &no_semantic, &ids, &loss_config)
-            .map_err(|e| step_err(e.to_string()))?
-            .total(&loss_config);
+        let rgb = rgb_loss(rendered.clone().narrow(1, 0, 3), images.clone())
+            .map_err(|e| step_err(e.to_string()))?;
+        let ins =
+            instance_loss(rendered.narrow(1, 3, INSTANCE_DIM), &no_semantic, &ids, &loss_config)
+                .map_err(|e| step_err(e.to_string()))?
+                .total(&loss_config);
         let loss = rgb + ins.mul_scalar(config.instance_weight);
         let value = loss.clone().into_scalar::<f32>();
         if !value.is_finite() {
@@ -296,27 +347,37 @@ pub fn fit_scene(scene: &Scene, config: &FitConfig, on_step: &dyn Fn(usize, f32)
 /// instances on the target frames `targets`.
 fn score(fitted: &Fitted, scene: &Scene, targets: &[usize]) -> Result<FitScores, String> {
     let mut fitted_scene = to_scene(&fitted.valid());
-    let clustering = cluster_instances(&mut fitted_scene, &ClusterParams::default()).map_err(|e| e.to_string())?;
+    let clustering = cluster_instances(&mut fitted_scene, &ClusterParams::default())
+        .map_err(|e| e.to_string())?;
     // The pipeline's split of instances into their parts apart in 3D, with its cell: the
     // voxel edge the pipeline would use for these Gaussians.
     let split = SplitParams::default();
-    let cell = split.cell_voxels * VoxelParams::default().voxel_size(robust_extent(&fitted_scene.means));
-    let added = split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
+    let cell =
+        split.cell_voxels * VoxelParams::default().voxel_size(robust_extent(&fitted_scene.means));
+    let added =
+        split_disconnected(&fitted_scene.means, &mut fitted_scene.instance_id, cell, &split);
     let k = clustering.prototypes.len() + added;
     let mut instances = InstancePool::default();
     for &t in targets {
         let frame = &scene.frames[t];
         let Some(gt) = &frame.instances else { continue };
-        let mut pred = render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| e.to_string())?;
+        let mut pred =
+            render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| e.to_string())?;
         // Filled as `inssplat eval` fills a target view's ids, so that both sides score alike.
-        let (w, h) = (frame.camera.intrinsics.width as usize, frame.camera.intrinsics.height as usize);
+        let (w, h) =
+            (frame.camera.intrinsics.width as usize, frame.camera.intrinsics.height as usize);
         fill_uncovered(&mut pred, None, w, h);
         let gt: Vec<u32> = gt.iter().map(|&i| u32::from(i)).collect();
         if let Some(s) = instance_scores(&pred, &gt).map_err(|e| e.to_string())? {
             instances.add(&s);
         }
     }
-    Ok(FitScores { instances_found: k, instance_miou: instances.miou(), instance_acc25: instances.acc_25(), instance_pq: instances.pq() })
+    Ok(FitScores {
+        instances_found: k,
+        instance_miou: instances.miou(),
+        instance_acc25: instances.acc_25(),
+        instance_pq: instances.pq(),
+    })
 }
 
 /// Whether the last `window` losses' mean is within `tolerance` (relative) of the `window`
@@ -339,7 +400,8 @@ fn to_scene(fitted: &Fitted) -> GaussianScene {
     let rotations = rows(fitted.rotations.val());
     let colour = rows(fitted.colour.val());
     let instance = rows(fitted.instance.val());
-    let opacity = fitted.logit_opacity.val().into_data().try_to_vec::<f32>().expect("f32 parameters");
+    let opacity =
+        fitted.logit_opacity.val().into_data().try_to_vec::<f32>().expect("f32 parameters");
     let n = opacity.len();
     let mut scene = GaussianScene::with_sem_dim(0);
     scene.reserve(n);

@@ -32,8 +32,14 @@ use serde::{Deserialize, Serialize};
 
 pub use attention_match::{MatchScores, attention_match_loss, match_scores, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
-pub use descriptor::{DescriptorMatches, DescriptorScores, descriptor_grid_loss, descriptor_loss, descriptor_matches, descriptor_scores, registration_grid};
-pub use geometry::{CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss, median_depth};
+pub use descriptor::{
+    DescriptorMatches, DescriptorScores, descriptor_grid_loss, descriptor_loss, descriptor_matches,
+    descriptor_scores, registration_grid,
+};
+pub use geometry::{
+    CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss,
+    median_depth,
+};
 pub use instance::{InstanceTerms, instance_loss};
 pub use point_map::{pixel_rays, point_map_loss, point_map_targets};
 pub use semantic::{SemanticForm, semantic_loss};
@@ -327,7 +333,11 @@ pub(crate) fn pixels_per_instance(ids: impl IntoIterator<Item = u32>) -> HashMap
 }
 
 /// A constant float tensor of `shape` from host values.
-pub(crate) fn constant<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
+pub(crate) fn constant<const D: usize>(
+    values: Vec<f32>,
+    shape: [usize; D],
+    device: &Device,
+) -> Tensor<D> {
     Tensor::from_data(TensorData::new(values, shape), device)
 }
 
@@ -338,11 +348,18 @@ pub(crate) fn indices(values: Vec<i64>, device: &Device) -> Tensor<1, Int> {
 }
 
 /// The values of a float tensor on the host.
-pub(crate) fn host<const D: usize>(what: &'static str, x: &Tensor<D>) -> Result<Vec<f32>, LossError> {
+pub(crate) fn host<const D: usize>(
+    what: &'static str,
+    x: &Tensor<D>,
+) -> Result<Vec<f32>, LossError> {
     x.to_data().try_to_vec::<f32>().map_err(|e| LossError::Read { what, message: format!("{e:?}") })
 }
 
-pub(crate) fn check_dims(what: &'static str, expected: &[usize], got: &[usize]) -> Result<(), LossError> {
+pub(crate) fn check_dims(
+    what: &'static str,
+    expected: &[usize],
+    got: &[usize],
+) -> Result<(), LossError> {
     if expected == got {
         Ok(())
     } else {

@@ -10,11 +10,17 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use inssplat_synth::{self as synth, DatasetStats, Furniture, Reserved, Split, Structure, SynthConfig};
+use inssplat_synth::{
+    self as synth, DatasetStats, Furniture, Reserved, Split, Structure, SynthConfig,
+};
 use rayon::prelude::*;
 
 #[derive(Parser)]
-#[command(name = "inssplat-train", version, about = "Train, evaluate and export the inssplat network")]
+#[command(
+    name = "inssplat-train",
+    version,
+    about = "Train, evaluate and export the inssplat network"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -81,7 +87,8 @@ enum ReservedArg {
 
 #[derive(clap::Args)]
 struct SynthArgs {
-    /// Dataset split: train, val or test (disjoint seed ranges; test also marks context/target views).
+    /// Dataset split: train, val or test (disjoint seed ranges; test also marks context/target
+    /// views).
     #[arg(long, env = "INSSPLAT_SYNTH_SPLIT")]
     split: Split,
     /// Number of scenes.
@@ -257,22 +264,27 @@ fn config(a: &SynthArgs) -> Result<SynthConfig> {
 
 fn run_synth(a: SynthArgs) -> Result<()> {
     let cfg = config(&a)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("--out: cannot create {}", a.out.display()))?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("--out: cannot create {}", a.out.display()))?;
     let preview_dir = a.out.join("preview");
     if a.preview > 0 {
-        std::fs::create_dir_all(&preview_dir).with_context(|| format!("cannot create {}", preview_dir.display()))?;
+        std::fs::create_dir_all(&preview_dir)
+            .with_context(|| format!("cannot create {}", preview_dir.display()))?;
     }
     let bar = ProgressBar::new(a.count);
     bar.set_style(
-        ProgressStyle::with_template("{spinner} {wide_bar} {pos}/{len} scenes  {per_sec}  eta {eta}")
-            .expect("progress template"),
+        ProgressStyle::with_template(
+            "{spinner} {wide_bar} {pos}/{len} scenes  {per_sec}  eta {eta}",
+        )
+        .expect("progress template"),
     );
     let start = Instant::now();
     let results: Vec<(DatasetStats, Vec<synth::Credit>)> = (0..a.count)
         .into_par_iter()
         .map(|i| {
             let index = a.seed_offset + i;
-            let s = synth::generate_split(index, &cfg).with_context(|| format!("{} scene {index}", cfg.split))?;
+            let s = synth::generate_split(index, &cfg)
+                .with_context(|| format!("{} scene {index}", cfg.split))?;
             let dir = a.out.join(format!("scene_{index:06}"));
             s.write(&dir).with_context(|| format!("writing {}", dir.display()))?;
             if i < a.preview {
@@ -294,13 +306,22 @@ fn run_synth(a: SynthArgs) -> Result<()> {
     }
     let credits: Vec<_> = credits.into_iter().collect();
     let path = a.out.join("credits.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&credits)?).with_context(|| format!("writing {}", path.display()))?;
-    println!("{} split, {} scenes in {secs:.1} s: {:.2} scenes/s on {} threads", cfg.split, a.count, a.count as f64 / secs.max(1e-9), rayon::current_num_threads());
+    std::fs::write(&path, serde_json::to_string_pretty(&credits)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!(
+        "{} split, {} scenes in {secs:.1} s: {:.2} scenes/s on {} threads",
+        cfg.split,
+        a.count,
+        a.count as f64 / secs.max(1e-9),
+        rayon::current_num_threads()
+    );
     println!("{} catalog models credited in {}", credits.len(), path.display());
     print!("{stats}");
     Ok(())
 }
 
 fn write_preview(scene: &inssplat_proto::dataset::Scene, path: &Path) -> Result<()> {
-    synth::preview::contact_sheet(scene).save(path).with_context(|| format!("writing preview {}", path.display()))
+    synth::preview::contact_sheet(scene)
+        .save(path)
+        .with_context(|| format!("writing preview {}", path.display()))
 }

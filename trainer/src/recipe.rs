@@ -31,7 +31,9 @@ pub fn flags(path: &Path) -> Result<Vec<String>, RecipeError> {
             problem: problem.to_string(),
         };
         if matches!(key.as_str(), "config" | "out" | "resume") {
-            return Err(bad("give the run folder and --resume on the command line, not in a recipe"));
+            return Err(bad(
+                "give the run folder and --resume on the command line, not in a recipe",
+            ));
         }
         let flag = format!("--{}", key.replace('_', "-"));
         let scalar = |v: &toml::Value| match v {
@@ -62,8 +64,12 @@ pub fn expand(args: Vec<OsString>) -> Result<Vec<OsString>, RecipeError> {
     let mut path = None;
     for (i, arg) in args.iter().enumerate() {
         match arg.to_str() {
-            Some("--config") => path = Some(PathBuf::from(args.get(i + 1).ok_or(RecipeError::MissingPath)?)),
-            Some(a) if a.starts_with("--config=") => path = Some(PathBuf::from(&a["--config=".len()..])),
+            Some("--config") => {
+                path = Some(PathBuf::from(args.get(i + 1).ok_or(RecipeError::MissingPath)?))
+            }
+            Some(a) if a.starts_with("--config=") => {
+                path = Some(PathBuf::from(&a["--config=".len()..]))
+            }
             _ => {}
         }
     }
@@ -88,8 +94,23 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.toml");
         std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\ndepth-gradient-strides = [1, 8]\n").unwrap();
-        let args = expand(os(&["t", "train", "--out", "r", "--config", path.to_str().unwrap(), "--lr", "3e-4"])).unwrap();
-        let recipe = ["--lr=0.00015", "--camera-rays=2", "--semantic-objects-only", "--depth-gradient-strides=1,8"];
+        let args = expand(os(&[
+            "t",
+            "train",
+            "--out",
+            "r",
+            "--config",
+            path.to_str().unwrap(),
+            "--lr",
+            "3e-4",
+        ]))
+        .unwrap();
+        let recipe = [
+            "--lr=0.00015",
+            "--camera-rays=2",
+            "--semantic-objects-only",
+            "--depth-gradient-strides=1,8",
+        ];
         let given = ["--out", "r", "--config", path.to_str().unwrap(), "--lr", "3e-4"];
         let want = os(&[&["t", "train"][..], &recipe, &given].concat());
         assert_eq!(args, want);

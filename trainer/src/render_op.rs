@@ -24,15 +24,20 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
-use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, CheckpointStrategy, NoCheckpointing};
+use burn::backend::autodiff::checkpoint::strategy::{
+    BalancedCheckpointing, CheckpointStrategy, NoCheckpointing,
+};
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
 use burn::backend::{
-    Autodiff, Backend, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy, TensorMetadata,
+    Autodiff, Backend, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy,
+    TensorMetadata,
 };
 use burn::prelude::*;
 use inssplat_proto::Camera;
-use inssplat_raster::render::{ForwardState, RenderError, RenderOptions, Splats, render_backward, render_with};
+use inssplat_raster::render::{
+    ForwardState, RenderError, RenderOptions, Splats, render_backward, render_with,
+};
 
 /// Columns of the packed parameter row before the features: mean 3, log-scale 3, rotation 4,
 /// opacity logit 1.
@@ -160,7 +165,12 @@ where
 {
     type State = Arc<Saved>;
 
-    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
+    fn backward(
+        self,
+        ops: Ops<Self::State, 1>,
+        grads: &mut Gradients,
+        _checkpointer: &mut Checkpointer,
+    ) {
         let saved = ops.state;
         unary::<B, _>(ops.parents, ops.node, grads, |grad| {
             let device = grad.device();
@@ -173,7 +183,14 @@ where
             let (d_features, rest) = grad.split_at(grad.len() - 2 * pixels);
             let (d_depth, d_alpha) = rest.split_at(pixels);
             let start = Instant::now();
-            let g = render_backward(&saved.splats.splats(), &saved.camera, &saved.state, d_features, d_depth, d_alpha);
+            let g = render_backward(
+                &saved.splats.splats(),
+                &saved.camera,
+                &saved.state,
+                d_features,
+                d_depth,
+                d_alpha,
+            );
             if let Some(meter) = &saved.meter {
                 meter.add(start.elapsed());
             }
@@ -236,11 +253,18 @@ fn render_with_meter(
         return Err(RenderOpError::Shape { field, expected, got });
     }
     let packed = Tensor::cat(
-        vec![splats.means, splats.log_scales, splats.rotations, splats.logit_opacity.reshape([n, 1]), splats.features],
+        vec![
+            splats.means,
+            splats.log_scales,
+            splats.rotations,
+            splats.logit_opacity.reshape([n, 1]),
+            splats.features,
+        ],
         1,
     );
     let device = packed.device();
-    let host = packed.to_data().try_to_vec::<f32>().map_err(|e| RenderOpError::Read(format!("{e:?}")))?;
+    let host =
+        packed.to_data().try_to_vec::<f32>().map_err(|e| RenderOpError::Read(format!("{e:?}")))?;
     let host = HostSplats::unpack(&host, c);
     let (image, state) = render_with(&host.splats(), camera, background, options)?;
     let (h, w) = (image.height as usize, image.width as usize);
@@ -285,7 +309,11 @@ fn tracked_on_backend(
 
 /// Registers the render in the autodiff graph of `Autodiff<B, C>`, with `input` (the packed
 /// parameters) as its only parent and `output` as its value.
-fn tracked<B, C>(input: Tensor<2>, output: TensorData, saved: Saved) -> Result<Tensor<3>, RenderOpError>
+fn tracked<B, C>(
+    input: Tensor<2>,
+    output: TensorData,
+    saved: Saved,
+) -> Result<Tensor<3>, RenderOpError>
 where
     B: Backend,
     C: CheckpointStrategy,

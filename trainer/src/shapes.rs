@@ -18,9 +18,11 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use glam::Vec3;
 use inssplat_proto::dataset::Scene;
-use inssplat_proto::shape::{DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines};
-use inssplat_text::LabelCache;
+use inssplat_proto::shape::{
+    DESCRIPTOR, Dense, LENGTHS, LabelledDescriptor, ShapeClassifier, label_cosines,
+};
 use inssplat_proto::signature::{META_MODEL_VERSION, META_SHAPE_CLASSIFIER};
+use inssplat_text::LabelCache;
 use inssplat_understand::label::shape::{camera_up, descriptor, ground};
 use prost::Message;
 use rand::seq::SliceRandom;
@@ -57,7 +59,11 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
             if z <= 0.0 {
                 continue;
             }
-            let x = f.camera.camera_to_world(f.camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, z));
+            let x = f.camera.camera_to_world(f.camera.unproject(
+                (p % w) as f32 + 0.5,
+                (p / w) as f32 + 0.5,
+                z,
+            ));
             points.push(x);
             if id > 0 {
                 let m = members.entry(id).or_default();
@@ -72,7 +78,12 @@ pub fn scene_examples(scene: &Scene, views: &[usize]) -> Vec<LabelledDescriptor>
         .iter()
         .filter_map(|(id, (p, c))| {
             let label = scene.instances.iter().find(|i| i.id == u32::from(*id))?.label.clone();
-            Some(LabelledDescriptor { label, descriptor: descriptor(p, c, &g)?, prototype: Vec::new(), scene: String::new() })
+            Some(LabelledDescriptor {
+                label,
+                descriptor: descriptor(p, c, &g)?,
+                prototype: Vec::new(),
+                scene: String::new(),
+            })
         })
         .collect()
 }
@@ -134,7 +145,11 @@ fn label_texts(labels: &[String], cache: &LabelCache) -> Result<Vec<Vec<f32>>, S
 
 /// The classifier's input for `e` (before standardizing): its descriptor, then with `texts`
 /// the cosines of its prototype to them. Err names the example that has no prototype.
-fn example_input(e: &LabelledDescriptor, i: usize, texts: Option<&[Vec<f32>]>) -> Result<Vec<f32>, String> {
+fn example_input(
+    e: &LabelledDescriptor,
+    i: usize,
+    texts: Option<&[Vec<f32>]>,
+) -> Result<Vec<f32>, String> {
     let mut x = e.descriptor.to_vec();
     if let Some(texts) = texts {
         if e.prototype.is_empty() {
@@ -166,19 +181,28 @@ pub fn fit(
     labels.sort();
     labels.dedup();
     let texts = semantic.map(|cache| label_texts(&labels, cache)).transpose()?;
-    let inputs: Vec<Vec<f32>> =
-        train.iter().enumerate().map(|(i, e)| example_input(e, i, texts.as_deref())).collect::<Result<_, _>>()?;
+    let inputs: Vec<Vec<f32>> = train
+        .iter()
+        .enumerate()
+        .map(|(i, e)| example_input(e, i, texts.as_deref()))
+        .collect::<Result<_, _>>()?;
     let d = inputs[0].len();
     let n = train.len() as f32;
     let mean: Vec<f32> = (0..d).map(|a| inputs.iter().map(|x| x[a]).sum::<f32>() / n).collect();
-    let std: Vec<f32> =
-        (0..d).map(|a| (inputs.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4)).collect();
-    let targets: Vec<i64> = train.iter().map(|e| labels.binary_search(&e.label).expect("from train") as i64).collect();
+    let std: Vec<f32> = (0..d)
+        .map(|a| {
+            (inputs.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f32>() / n).sqrt().max(1e-4)
+        })
+        .collect();
+    let targets: Vec<i64> =
+        train.iter().map(|e| labels.binary_search(&e.label).expect("from train") as i64).collect();
 
     let device = Device::flex().autodiff();
     device.seed(config.seed);
     let widths = [d, config.hidden, config.hidden, labels.len()];
-    let mut mlp = Mlp { layers: widths.windows(2).map(|w| LinearConfig::new(w[0], w[1]).init(&device)).collect() };
+    let mut mlp = Mlp {
+        layers: widths.windows(2).map(|w| LinearConfig::new(w[0], w[1]).init(&device)).collect(),
+    };
     let mut optim = AdamConfig::new().init();
     let ce = CrossEntropyLossConfig::new().init(&device);
     let y = Tensor::<1, Int>::from_data(TensorData::new(targets.clone(), [train.len()]), &device);
@@ -189,7 +213,9 @@ pub fn fit(
         let mut x = Vec::with_capacity(train.len() * d);
         for input in &inputs {
             let s = if log_j > 0.0 { rng.random_range(-log_j..log_j).exp() } else { 1.0 };
-            x.extend((0..d).map(|a| (input[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]));
+            x.extend(
+                (0..d).map(|a| (input[a] * if a < LENGTHS { s } else { 1.0 } - mean[a]) / std[a]),
+            );
         }
         let x = Tensor::<2>::from_data(TensorData::new(x, [train.len(), d]), &device);
         let loss = ce.forward(mlp.forward(x), y.clone());
@@ -205,12 +231,22 @@ pub fn fit(
         .layers
         .iter()
         .map(|l| {
-            let w = l.weight.val().into_data().try_into_vec_as::<f32>().map_err(|e| format!("{e:?}"))?;
+            let w = l
+                .weight
+                .val()
+                .into_data()
+                .try_into_vec_as::<f32>()
+                .map_err(|e| format!("{e:?}"))?;
             let [inputs, outputs] = l.weight.dims();
             // burn stores [inputs][outputs]; the contract is [outputs][inputs].
-            let weight = (0..outputs).flat_map(|o| (0..inputs).map(move |i| (o, i))).map(|(o, i)| w[i * outputs + o]).collect();
+            let weight = (0..outputs)
+                .flat_map(|o| (0..inputs).map(move |i| (o, i)))
+                .map(|(o, i)| w[i * outputs + o])
+                .collect();
             let bias = match &l.bias {
-                Some(b) => b.val().into_data().try_into_vec_as::<f32>().map_err(|e| format!("{e:?}"))?,
+                Some(b) => {
+                    b.val().into_data().try_into_vec_as::<f32>().map_err(|e| format!("{e:?}"))?
+                }
                 None => vec![0.0; outputs],
             };
             Ok(Dense { inputs, outputs, weight, bias })
@@ -218,7 +254,8 @@ pub fn fit(
         .collect::<Result<Vec<_>, String>>()?;
     adjust_logits(layers.last_mut().expect("three layers"), &targets, config.logit_adjust);
     let semantic = texts.is_some();
-    let classifier = ShapeClassifier { labels, mean, std, layers, provenance: String::new(), semantic };
+    let classifier =
+        ShapeClassifier { labels, mean, std, layers, provenance: String::new(), semantic };
     classifier.validate().map_err(|e| e.to_string())?;
     let texts = texts.unwrap_or_default();
     let report = FitShapesReport {
@@ -246,7 +283,11 @@ fn adjust_logits(last: &mut Dense, targets: &[i64], tau: f32) {
 /// Share of `examples` whose most probable label is theirs (`None` without examples);
 /// `texts` are the embeddings of a semantic classifier's labels (else unused). Err names an
 /// example a semantic classifier cannot read.
-pub fn accuracy(c: &ShapeClassifier, examples: &[LabelledDescriptor], texts: &[Vec<f32>]) -> Result<Option<f64>, String> {
+pub fn accuracy(
+    c: &ShapeClassifier,
+    examples: &[LabelledDescriptor],
+    texts: &[Vec<f32>],
+) -> Result<Option<f64>, String> {
     let mut right = 0;
     for (i, e) in examples.iter().enumerate() {
         let cosines = example_input(e, i, c.semantic.then_some(texts))?.split_off(DESCRIPTOR.len());
@@ -268,19 +309,31 @@ pub enum AttachError {
 /// Writes `model` to `out` with `classifier` under [`META_SHAPE_CLASSIFIER`] (replacing one
 /// already there) and, when given, a new model version; the graph and weights are copied as
 /// they are.
-pub fn attach(model: &Path, out: &Path, classifier: &ShapeClassifier, version: Option<&str>) -> Result<(), AttachError> {
+pub fn attach(
+    model: &Path,
+    out: &Path,
+    classifier: &ShapeClassifier,
+    version: Option<&str>,
+) -> Result<(), AttachError> {
     fn io(path: &Path) -> impl Fn(std::io::Error) -> AttachError + '_ {
         move |source| AttachError::Io { path: path.display().to_string(), source }
     }
     let bytes = std::fs::read(model).map_err(io(model))?;
-    let mut proto = ModelProto::decode(bytes.as_slice())
-        .map_err(|e| AttachError::NotOnnx { path: model.display().to_string(), message: e.to_string() })?;
+    let mut proto = ModelProto::decode(bytes.as_slice()).map_err(|e| AttachError::NotOnnx {
+        path: model.display().to_string(),
+        message: e.to_string(),
+    })?;
     if proto.graph.is_none() {
-        return Err(AttachError::NotOnnx { path: model.display().to_string(), message: "no graph".into() });
+        return Err(AttachError::NotOnnx {
+            path: model.display().to_string(),
+            message: "no graph".into(),
+        });
     }
     let mut set = |key: &str, value: String| {
         proto.metadata_props.retain(|p| p.key.as_deref() != Some(key));
-        proto.metadata_props.push(StringStringEntryProto { key: Some(key.into()), value: Some(value) });
+        proto
+            .metadata_props
+            .push(StringStringEntryProto { key: Some(key.into()), value: Some(value) });
     };
     set(META_SHAPE_CLASSIFIER, classifier.to_json());
     if let Some(v) = version {

@@ -6,7 +6,10 @@
 
 use burn::prelude::*;
 use inssplat_trainer::loss::descriptor::{NEAR, TEMPERATURE, view_pairs};
-use inssplat_trainer::loss::{DescriptorMatches, descriptor_grid_loss, descriptor_loss, descriptor_matches, descriptor_scores, registration_grid};
+use inssplat_trainer::loss::{
+    DescriptorMatches, descriptor_grid_loss, descriptor_loss, descriptor_matches,
+    descriptor_scores, registration_grid,
+};
 
 use crate::loss_instance::check_gradient;
 use crate::loss_point_map::synthesized;
@@ -50,7 +53,10 @@ fn loss_descriptor_is_infonce_both_ways_over_the_pairs_samples() {
     let near = DescriptorMatches { a: vec![0, 1], b: vec![4 + 3, 4 + 2], offsets: vec![0, 2] };
     assert!(loss(descriptors.clone(), &near).abs() < 1e-6);
     // No matches: zero; a match outside the map: a named error.
-    assert_eq!(loss(descriptors.clone(), &DescriptorMatches { offsets: vec![0], ..Default::default() }), 0.0);
+    assert_eq!(
+        loss(descriptors.clone(), &DescriptorMatches { offsets: vec![0], ..Default::default() }),
+        0.0
+    );
     let outside = DescriptorMatches { a: vec![0], b: vec![8], offsets: vec![0, 1] };
     let err = descriptor_loss(descriptors, &outside).unwrap_err();
     assert!(err.to_string().contains("descriptor map"), "{err}");
@@ -116,9 +122,21 @@ fn loss_descriptor_grid_is_the_cross_entropy_of_the_grid_points_near_the_match()
     let got = grid_loss(descriptors.clone(), &matches, 2);
     assert!((got - want).abs() < 1e-4 * want, "L_desc on the grid {got}, expected {want}");
     // No matches: zero; a match outside the map or a view smaller than the grid: named errors.
-    assert_eq!(grid_loss(descriptors.clone(), &DescriptorMatches { offsets: vec![0], ..Default::default() }, 2), 0.0);
+    assert_eq!(
+        grid_loss(
+            descriptors.clone(),
+            &DescriptorMatches { offsets: vec![0], ..Default::default() },
+            2
+        ),
+        0.0
+    );
     let outside = DescriptorMatches { a: vec![0], b: vec![32], offsets: vec![0, 1] };
-    assert!(descriptor_grid_loss(descriptors.clone(), &outside, 2).unwrap_err().to_string().contains("descriptor map"));
+    assert!(
+        descriptor_grid_loss(descriptors.clone(), &outside, 2)
+            .unwrap_err()
+            .to_string()
+            .contains("descriptor map")
+    );
     let err = descriptor_grid_loss(descriptors, &matches, 4).unwrap_err();
     assert!(err.to_string().contains("registration grid"), "{err}");
 }
@@ -126,7 +144,8 @@ fn loss_descriptor_grid_is_the_cross_entropy_of_the_grid_points_near_the_match()
 #[test]
 fn loss_descriptor_grid_gradient_matches_finite_differences() {
     // Stride 1: every pixel a grid point, those within one pixel positives. Pair (1, 2) empty.
-    let matches = DescriptorMatches { a: vec![0, 3, 1], b: vec![4 + 3, 4, 8 + 2], offsets: vec![0, 2, 3, 3] };
+    let matches =
+        DescriptorMatches { a: vec![0, 3, 1], b: vec![4 + 3, 4, 8 + 2], offsets: vec![0, 2, 3, 3] };
     check_gradient(&VALUES, [3, 3, 2, 2], |x| descriptor_grid_loss(x, &matches, 1).unwrap());
 }
 
@@ -141,7 +160,8 @@ fn descriptor_matches_see_one_point_in_both_views() {
     let m = descriptor_matches(&same, &[depth(0), depth(0)].concat(), size, 100).unwrap();
     assert_eq!((m.pairs(), m.len()), (1, 100));
     assert!(m.a.iter().zip(&m.b).all(|(&a, &b)| b == a + hw), "{m:?}");
-    // Three views along the path: each pair's samples see one world point, within a few pixels' footprint.
+    // Three views along the path: each pair's samples see one world point, within a few pixels'
+    // footprint.
     let frames = [0, 2, 4];
     let cameras: Vec<_> = frames.iter().map(|&f| scene.frames[f].camera).collect();
     let all_depth: Vec<f32> = frames.iter().flat_map(|&f| depth(f)).collect();
@@ -151,8 +171,15 @@ fn descriptor_matches_see_one_point_in_both_views() {
     let world = |i: usize| {
         let (v, p) = (i / hw, i % hw);
         let cam = cameras[v];
-        let cam = inssplat_proto::Camera { intrinsics: cam.intrinsics.scaled_to(size as u32, size as u32), ..cam };
-        cam.camera_to_world(cam.unproject((p % size) as f32 + 0.5, (p / size) as f32 + 0.5, all_depth[i]))
+        let cam = inssplat_proto::Camera {
+            intrinsics: cam.intrinsics.scaled_to(size as u32, size as u32),
+            ..cam
+        };
+        cam.camera_to_world(cam.unproject(
+            (p % size) as f32 + 0.5,
+            (p / size) as f32 + 0.5,
+            all_depth[i],
+        ))
     };
     let mut moved = 0;
     for (&a, &b) in m.a.iter().zip(&m.b) {
@@ -161,7 +188,11 @@ fn descriptor_matches_see_one_point_in_both_views() {
         assert!((pa - pb).length() < 0.05 * z, "sample {a} sees {pa}, its match {b} sees {pb}");
         moved += usize::from(a % hw != b % hw);
     }
-    assert!(moved > m.len() / 2, "{moved} of {} matches moved: the views are not the same", m.len());
+    assert!(
+        moved > m.len() / 2,
+        "{moved} of {} matches moved: the views are not the same",
+        m.len()
+    );
 }
 
 #[test]
@@ -170,7 +201,8 @@ fn turned_at_least_keeps_only_the_pairs_that_turn_that_much() {
     let (_dir, scene) = synthesized(3, size as u32, size as u32, 16, (0.5, 0.6));
     let frames = [0, 2, 4, 0];
     let cameras: Vec<_> = frames.iter().map(|&f| scene.frames[f].camera).collect();
-    let depth: Vec<f32> = frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
+    let depth: Vec<f32> =
+        frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
     let m = descriptor_matches(&cameras, &depth, size, 20).unwrap();
     let angle = |k: usize| {
         let (a, b) = view_pairs(4).nth(k).unwrap();
@@ -191,21 +223,33 @@ fn turned_at_least_keeps_only_the_pairs_that_turn_that_much() {
 }
 
 /// D = 16 random Fourier features of the world point each pixel of `frames` sees.
-fn true_point_descriptors(scene: &inssplat_proto::dataset::Scene, frames: &[usize], size: usize) -> Vec<f32> {
+fn true_point_descriptors(
+    scene: &inssplat_proto::dataset::Scene,
+    frames: &[usize],
+    size: usize,
+) -> Vec<f32> {
     let hw = size * size;
     let mut out = vec![0.0f32; frames.len() * 16 * hw];
     let directions: Vec<glam::Vec3> = (0..8)
         .map(|k| {
             let k = k as f32;
-            glam::Vec3::new((1.7 * k + 0.3).sin(), (2.3 * k + 1.1).cos(), (0.9 * k + 2.0).sin()) * 6.0
+            glam::Vec3::new((1.7 * k + 0.3).sin(), (2.3 * k + 1.1).cos(), (0.9 * k + 2.0).sin())
+                * 6.0
         })
         .collect();
     for (v, &f) in frames.iter().enumerate() {
         let frame = &scene.frames[f];
-        let cam = inssplat_proto::Camera { intrinsics: frame.camera.intrinsics.scaled_to(size as u32, size as u32), ..frame.camera };
+        let cam = inssplat_proto::Camera {
+            intrinsics: frame.camera.intrinsics.scaled_to(size as u32, size as u32),
+            ..frame.camera
+        };
         let depth = frame.depth.as_ref().unwrap();
         for p in 0..hw {
-            let point = cam.camera_to_world(cam.unproject((p % size) as f32 + 0.5, (p / size) as f32 + 0.5, depth[p].max(0.1)));
+            let point = cam.camera_to_world(cam.unproject(
+                (p % size) as f32 + 0.5,
+                (p / size) as f32 + 0.5,
+                depth[p].max(0.1),
+            ));
             for (k, dir) in directions.iter().enumerate() {
                 out[(v * 16 + 2 * k) * hw + p] = dir.dot(point).sin();
                 out[(v * 16 + 2 * k + 1) * hw + p] = dir.dot(point).cos();
@@ -221,7 +265,8 @@ fn descriptors_of_the_true_point_match_and_others_do_not() {
     let (_dir, scene) = synthesized(5, size as u32, size as u32, 16, (0.5, 0.6));
     let frames = [0, 2];
     let cameras: Vec<_> = frames.iter().map(|&f| scene.frames[f].camera).collect();
-    let depth: Vec<f32> = frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
+    let depth: Vec<f32> =
+        frames.iter().flat_map(|&f| scene.frames[f].depth.clone().unwrap()).collect();
     let matches = descriptor_matches(&cameras, &depth, size, 64).unwrap();
     assert!(matches.len() > 20, "{} matches", matches.len());
     let dims = [2, 16, size, size];
@@ -238,8 +283,18 @@ fn descriptors_of_the_true_point_match_and_others_do_not() {
     let bad = descriptor_scores(&shuffled, dims, &matches, 4);
     assert!(good.within_stride > 0.8, "{good:?}");
     assert!(bad.within_stride < 0.2, "{bad:?}");
-    let (l_good, l_bad) = (loss(tensor(&truth, dims), &matches), loss(tensor(&shuffled, dims), &matches));
-    assert!(l_good < 0.5 * l_bad, "L_desc {l_good} of the true point's descriptors against {l_bad} shuffled");
-    let (l_good, l_bad) = (grid_loss(tensor(&truth, dims), &matches, 4), grid_loss(tensor(&shuffled, dims), &matches, 4));
-    assert!(l_good < 0.5 * l_bad, "L_desc on the grid {l_good} of the true point's descriptors against {l_bad} shuffled");
+    let (l_good, l_bad) =
+        (loss(tensor(&truth, dims), &matches), loss(tensor(&shuffled, dims), &matches));
+    assert!(
+        l_good < 0.5 * l_bad,
+        "L_desc {l_good} of the true point's descriptors against {l_bad} shuffled"
+    );
+    let (l_good, l_bad) = (
+        grid_loss(tensor(&truth, dims), &matches, 4),
+        grid_loss(tensor(&shuffled, dims), &matches, 4),
+    );
+    assert!(
+        l_good < 0.5 * l_bad,
+        "L_desc on the grid {l_good} of the true point's descriptors against {l_bad} shuffled"
+    );
 }

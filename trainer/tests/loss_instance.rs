@@ -3,7 +3,9 @@
 //! gradient term.
 
 use burn::prelude::*;
-use inssplat_trainer::loss::{CrossView, HardNegatives, LossConfig, boundary_rgb_loss, depth_loss, instance_loss};
+use inssplat_trainer::loss::{
+    CrossView, HardNegatives, LossConfig, boundary_rgb_loss, depth_loss, instance_loss,
+};
 
 fn tensor<const D: usize>(values: &[f32], shape: [usize; D], device: &Device) -> Tensor<D> {
     Tensor::from_data(TensorData::new(values.to_vec(), shape), device)
@@ -14,7 +16,10 @@ fn scalar(x: Tensor<1>) -> f64 {
 }
 
 fn close(got: f64, expected: f64, what: &str) {
-    assert!((got - expected).abs() <= 1e-5 + 1e-5 * expected.abs(), "{what}: got {got}, expected {expected}");
+    assert!(
+        (got - expected).abs() <= 1e-5 + 1e-5 * expected.abs(),
+        "{what}: got {got}, expected {expected}"
+    );
 }
 
 fn unit(v: [f64; 2]) -> [f64; 2] {
@@ -45,10 +50,18 @@ fn loss_instance_push_with_hard_negatives() {
     close(scalar(terms.total(&config)), eta * 0.6, "L_ins");
     // Ablation: no hard negatives, η ≡ 1.
     let uniform = config.clone().with_hard_negatives(HardNegatives::Uniform);
-    close(scalar(instance_loss(embedding.clone(), &semantic, &[1, 2], &uniform).unwrap().push), 0.6, "η ≡ 1");
+    close(
+        scalar(instance_loss(embedding.clone(), &semantic, &[1, 2], &uniform).unwrap().push),
+        0.6,
+        "η ≡ 1",
+    );
     // Semantics below τ_sem: η = 1 as well.
     let apart = tensor(&[1.0, 0.0, 0.0, 1.0], [1, 2, 1, 2], &device);
-    close(scalar(instance_loss(embedding, &apart, &[1, 2], &config).unwrap().push), 0.6, "cos_sem < τ");
+    close(
+        scalar(instance_loss(embedding, &apart, &[1, 2], &config).unwrap().push),
+        0.6,
+        "cos_sem < τ",
+    );
 }
 
 #[test]
@@ -69,7 +82,8 @@ fn loss_instance_pull_push_cross_two_views() {
     let mu1 = unit([2.4, 1.4]);
     let mu2 = [0.0, 1.0];
     // pull = ½·(⅓ Σ_{p∈1} hinge + hinge(f3·μ2) = 0).
-    let pull = 0.5 * ((hinge(dot(f[0], mu1)) + hinge(dot(f[1], mu1)) + hinge(dot(f[2], mu1))) / 3.0);
+    let pull =
+        0.5 * ((hinge(dot(f[0], mu1)) + hinge(dot(f[1], mu1)) + hinge(dot(f[2], mu1))) / 3.0);
     assert!(pull > 0.0, "the example has an active pull hinge");
     // Same semantics for both instances: η = η_max = 3; one pair; δ_push = 1.
     let push = 3.0 * dot(mu1, mu2).max(0.0);
@@ -77,7 +91,8 @@ fn loss_instance_pull_push_cross_two_views() {
     // instance 2 is seen once and does not count.
     let other0 = f[2];
     let other1 = unit([1.8, 0.6]);
-    let cross = 0.5 * ((hinge(dot(f[0], other0)) + hinge(dot(f[1], other0))) / 2.0 + hinge(dot(f[2], other1)));
+    let cross = 0.5
+        * ((hinge(dot(f[0], other0)) + hinge(dot(f[1], other0))) / 2.0 + hinge(dot(f[2], other1)));
     close(scalar(terms.pull.clone()), pull, "pull");
     close(scalar(terms.push.clone()), push, "push");
     close(scalar(terms.cross.clone()), cross, "cross");
@@ -86,7 +101,11 @@ fn loss_instance_pull_push_cross_two_views() {
     // Ablation: no cross-view term.
     let embedding = tensor(&[1.0, 0.8, 0.0, 0.6, 0.6, 0.0, 0.8, 1.0], [2, 2, 1, 2], &device);
     let no_cross = config.with_cross_view(CrossView::Off);
-    close(scalar(instance_loss(embedding, &semantic, &ids, &no_cross).unwrap().cross), 0.0, "no cross");
+    close(
+        scalar(instance_loss(embedding, &semantic, &ids, &no_cross).unwrap().cross),
+        0.0,
+        "no cross",
+    );
 }
 
 #[test]
@@ -113,11 +132,19 @@ fn loss_instance_assignment_scores_the_nearest_prototype() {
     close(scalar(terms.assign.clone()), expected, "assign");
     let without = instance_loss(embedding, &semantic, &ids, &off).unwrap();
     close(scalar(without.assign.clone()), 0.0, "assign off");
-    close(scalar(terms.total(&on)), scalar(without.total(&off)) + 0.5 * expected, "L_ins with assign");
+    close(
+        scalar(terms.total(&on)),
+        scalar(without.total(&off)) + 0.5 * expected,
+        "L_ins with assign",
+    );
 }
 
 /// Central differences of `loss` at `x` against the autodiff gradient of the same loss.
-pub(crate) fn check_gradient(values: &[f32], shape: [usize; 4], loss: impl Fn(Tensor<4>) -> Tensor<1>) {
+pub(crate) fn check_gradient(
+    values: &[f32],
+    shape: [usize; 4],
+    loss: impl Fn(Tensor<4>) -> Tensor<1>,
+) {
     let ad = Device::flex().autodiff();
     let x = tensor(values, shape, &ad).require_grad();
     let grads = loss(x.clone()).backward();
@@ -144,7 +171,8 @@ fn loss_instance_gradient_matches_finite_differences() {
     // Margins chosen so that every hinge is active and smooth at this point: δ_pull = 0 (1 − cos
     // > 0 off the prototype) and δ_push = 1.5 (cos > −0.5 between the prototypes); the
     // assignment term on.
-    let config = LossConfig::new().with_pull_margin(0.0).with_push_margin(1.5).with_assign_weight(Some(0.5));
+    let config =
+        LossConfig::new().with_pull_margin(0.0).with_push_margin(1.5).with_assign_weight(Some(0.5));
     let values = [
         0.9, 0.7, 0.2, -0.3, 0.5, 0.1, 0.3, 0.8, -0.2, 0.6, 0.4, 0.9, // view 0, E = 3, 2×2
         0.7, -0.1, 0.5, 0.2, 0.3, 0.6, 0.9, 0.1, 0.4, -0.5, 0.8, 0.3, // view 1
@@ -181,7 +209,8 @@ fn loss_depth_strided_and_relative_gradients_match_finite_differences() {
     // 2 views of 4×4, one pixel without ground truth; the errors rise by 0.07 a pixel in
     // row-major order, so every difference at every stride stays ≥ 0.07 from its kink. Once
     // with the error over the scene's scale, once over each pixel's own depth.
-    let target: Vec<f32> = (0..32).map(|i| if i == 9 { 0.0 } else { 1.0 + 0.05 * (i % 7) as f32 }).collect();
+    let target: Vec<f32> =
+        (0..32).map(|i| if i == 9 { 0.0 } else { 1.0 + 0.05 * (i % 7) as f32 }).collect();
     let depth: Vec<f32> = (0..32).map(|i| target[i] + 0.3 + 0.07 * (i % 16) as f32).collect();
     let conf: Vec<f32> = (0..32).map(|i| 1.0 + 0.05 * i as f32).collect();
     let ids: Vec<u32> = (0..32).map(|i| [1, 2, 2, 3][i % 4]).collect();
@@ -202,8 +231,10 @@ fn loss_depth_gradient_matches_finite_differences() {
     // 2 views of 3×3, one pixel without ground truth; predictions kept ≥ 0.05 from the ground
     // truth, from their neighbours' differences' kinks and (scaled by their view's ŝ, about
     // 0.96 and 0.97) from the shape term's, so ±h stays on one side of every |·|.
-    let target = [2.0, 2.1, 0.0, 2.4, 2.5, 2.6, 1.0, 1.2, 3.0, 3.0, 2.9, 2.8, 1.5, 1.6, 2.7, 1.4, 1.5, 2.6];
-    let depth = [2.3, 1.8, 2.0, 2.0, 2.9, 2.2, 1.4, 0.9, 3.5, 2.6, 3.4, 2.5, 1.9, 1.1, 3.1, 1.0, 2.0, 2.3];
+    let target =
+        [2.0, 2.1, 0.0, 2.4, 2.5, 2.6, 1.0, 1.2, 3.0, 3.0, 2.9, 2.8, 1.5, 1.6, 2.7, 1.4, 1.5, 2.6];
+    let depth =
+        [2.3, 1.8, 2.0, 2.0, 2.9, 2.2, 1.4, 0.9, 3.5, 2.6, 3.4, 2.5, 1.9, 1.1, 3.1, 1.0, 2.0, 2.3];
     let conf: Vec<f32> = (0..18).map(|i| 1.0 + 0.1 * i as f32).collect();
     // Three instances of unequal size, weighed half uniformly, half per instance.
     let ids: Vec<u32> = (0..18).map(|i| [1, 1, 2, 3, 1, 1][i % 6]).collect();

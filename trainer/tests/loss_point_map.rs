@@ -4,8 +4,8 @@
 
 use burn::prelude::*;
 use inssplat_proto::dataset::Scene;
-use inssplat_trainer::loss::{point_map_loss, point_map_targets};
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
+use inssplat_trainer::loss::{point_map_loss, point_map_targets};
 
 use crate::loss_instance::check_gradient;
 
@@ -32,17 +32,29 @@ fn loss_point_map_is_the_mean_distance_over_valid_pixels_by_the_scale() {
 #[test]
 fn loss_point_map_gradient_matches_finite_differences() {
     let predicted = [
-        0.3, 1.2, -0.4, 0.8, /* y */ 0.1, -0.6, 0.9, 0.2, /* z */ 2.1, 1.4, 2.6, 0.7, // view 0, 2×2
-        -0.2, 0.5, 1.1, 0.4, /* y */ 0.7, 0.3, -0.8, 0.6, /* z */ 1.9, 2.4, 0.9, 1.6, // view 1
+        0.3, 1.2, -0.4, 0.8, /* y */ 0.1, -0.6, 0.9, 0.2, /* z */ 2.1, 1.4, 2.6,
+        0.7, // view 0, 2×2
+        -0.2, 0.5, 1.1, 0.4, /* y */ 0.7, 0.3, -0.8, 0.6, /* z */ 1.9, 2.4, 0.9,
+        1.6, // view 1
     ];
-    let target: Vec<f32> = predicted.iter().enumerate().map(|(i, x)| x + 0.3 * ((i * 7 % 5) as f32 - 2.0) + 0.05).collect();
+    let target: Vec<f32> = predicted
+        .iter()
+        .enumerate()
+        .map(|(i, x)| x + 0.3 * ((i * 7 % 5) as f32 - 2.0) + 0.05)
+        .collect();
     let depth = [2.0, 1.5, 0.0, 1.0, 1.8, 0.0, 2.2, 1.1];
     check_gradient(&predicted, [2, 3, 2, 2], |x| point_map_loss(x, &target, &depth, 1.7).unwrap());
 }
 
 /// Train scene `index` synthesized at `width`×`height` with `frames` frames along a path of
 /// `overlap`, written and read back (the folder lives as long as the returned guard).
-pub(crate) fn synthesized(index: u64, width: u32, height: u32, frames: usize, overlap: (f32, f32)) -> (tempfile::TempDir, Scene) {
+pub(crate) fn synthesized(
+    index: u64,
+    width: u32,
+    height: u32,
+    frames: usize,
+    overlap: (f32, f32),
+) -> (tempfile::TempDir, Scene) {
     let mut cfg = SynthConfig::new(Split::Train, Furniture::from_env());
     (cfg.width, cfg.height, cfg.frames, cfg.overlap) = (width, height, (frames, frames), overlap);
     let tmp = tempfile::tempdir().unwrap();
@@ -94,16 +106,30 @@ fn point_map_targets_put_every_view_in_view_zeros_frame() {
     // The offsets are the points less the pixels' own points: zero for view 0.
     for v in 0..cameras.len() {
         for p in (0..hw).step_by(29) {
-            let own = scene.frames[v].camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, depth[v * hw + p]);
+            let own = scene.frames[v].camera.unproject(
+                (p % w) as f32 + 0.5,
+                (p / w) as f32 + 0.5,
+                depth[v * hw + p],
+            );
             let point = glam::Vec3::new(at(v, 0, p), at(v, 1, p), at(v, 2, p));
             let offset = glam::Vec3::from_array([0, 1, 2].map(|c| offsets[(v * 3 + c) * hw + p]));
-            assert!((offset - (point - own)).length() < 1e-4 * point.length().max(1.0), "view {v} pixel {p}: offset {offset}");
+            assert!(
+                (offset - (point - own)).length() < 1e-4 * point.length().max(1.0),
+                "view {v} pixel {p}: offset {offset}"
+            );
         }
     }
     let moved = median_disagreement(&|v, p| glam::Vec3::new(at(v, 0, p), at(v, 1, p), at(v, 2, p)));
     let unmoved = median_disagreement(&|v, p| {
-        scene.frames[v].camera.unproject((p % w) as f32 + 0.5, (p / w) as f32 + 0.5, depth[v * hw + p])
+        scene.frames[v].camera.unproject(
+            (p % w) as f32 + 0.5,
+            (p / w) as f32 + 0.5,
+            depth[v * hw + p],
+        )
     });
     assert!(moved < 0.02, "median relative depth disagreement {moved}");
-    assert!(unmoved > 5.0 * moved, "left in their own frames the points disagree by {unmoved}, carried by {moved}");
+    assert!(
+        unmoved > 5.0 * moved,
+        "left in their own frames the points disagree by {unmoved}, carried by {moved}"
+    );
 }

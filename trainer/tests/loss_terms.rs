@@ -5,8 +5,9 @@ use burn::prelude::*;
 use glam::{Quat, Vec3};
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_trainer::loss::{
-    BoundaryTerm, LossConfig, LossError, LossTerms, boundary_rgb_loss, boundary_weights, camera_loss, camera_targets,
-    SemanticForm, depth_loss, depth_weights, geometry_loss, median_depth, rgb_loss, semantic_loss,
+    BoundaryTerm, LossConfig, LossError, LossTerms, SemanticForm, boundary_rgb_loss,
+    boundary_weights, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss,
+    median_depth, rgb_loss, semantic_loss,
 };
 
 fn tensor<const D: usize>(values: &[f32], shape: [usize; D]) -> Tensor<D> {
@@ -18,7 +19,10 @@ fn scalar(x: Tensor<1>) -> f64 {
 }
 
 fn close(got: f64, expected: f64, what: &str) {
-    assert!((got - expected).abs() <= 1e-5 + 1e-5 * expected.abs(), "{what}: got {got}, expected {expected}");
+    assert!(
+        (got - expected).abs() <= 1e-5 + 1e-5 * expected.abs(),
+        "{what}: got {got}, expected {expected}"
+    );
 }
 
 fn sigmoid(x: f64) -> f64 {
@@ -34,10 +38,18 @@ fn loss_config_defaults_are_the_papers() {
     );
     assert_eq!([c.pull_weight, c.push_weight, c.cross_weight], [2.0, 1.0, 2.0]);
     assert_eq!([c.eta_max, c.tau_sem], [3.0, 0.5]);
-    assert_eq!([c.boundary_threshold, c.boundary_temperature, c.charbonnier_eps], [0.15, 0.05, 1e-3]);
+    assert_eq!(
+        [c.boundary_threshold, c.boundary_temperature, c.charbonnier_eps],
+        [0.15, 0.05, 1e-3]
+    );
     let one = |v: f32| tensor(&[v], [1]);
-    let terms =
-        LossTerms { rgb: one(1.0), geometry: one(2.0), instance: one(3.0), semantic: one(4.0), boundary: one(5.0) };
+    let terms = LossTerms {
+        rgb: one(1.0),
+        geometry: one(2.0),
+        instance: one(3.0),
+        semantic: one(4.0),
+        boundary: one(5.0),
+    };
     close(scalar(c.total(&terms)), 1.0 + 2.0 + 0.03 + 0.08 + 0.1, "total");
 }
 
@@ -66,16 +78,27 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     let conf = tensor(&[2.0, 1.5, e as f32, 1.0], [1, 1, 2, 2]);
     let config = LossConfig::new();
     let alpha = 0.2;
-    let expected = ((2.0 * 0.3 / 3.0 - alpha * 2f64.ln()) + (e * 0.4 / 3.0 - alpha * 1.0) + 0.0) / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &config).unwrap()), expected, "L_depth");
+    let expected =
+        ((2.0 * 0.3 / 3.0 - alpha * 2f64.ln()) + (e * 0.4 / 3.0 - alpha * 1.0) + 0.0) / 3.0;
+    close(
+        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &config).unwrap()),
+        expected,
+        "L_depth",
+    );
 
     // The gradient term: errors e = (0.3, 5, −0.4, 0) row-major on the 2×2 view. Pairs with
     // both pixels valid: ∂y at pixel 0 (|−0.4 − 0.3| = 0.7) and ∂x at pixel 2 (|0 + 0.4|);
     // pixel 1 has no ground truth, so its pairs count nothing.
     let k = 0.5;
     let with_gradient = config.clone().with_depth_gradient_weight(Some(k));
-    let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln()) + (e * (0.4 + k * 0.4) / 3.0 - alpha)) / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_gradient).unwrap()), expected, "L_depth with ∂ term");
+    let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln())
+        + (e * (0.4 + k * 0.4) / 3.0 - alpha))
+        / 3.0;
+    close(
+        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_gradient).unwrap()),
+        expected,
+        "L_depth with ∂ term",
+    );
 
     // Strides: on a 1×3 row, gt (1, 2, 3) (median 2), errors (0.1, −0.2, 0.4), unit
     // confidence. Stride 2 pairs pixels 0 and 2 (|0.4 − 0.1| at pixel 0); strides 1 and 2 add
@@ -85,8 +108,14 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     let unit = tensor(&[1.0; 3], [1, 1, 1, 3]);
     let l1 = 0.1 + 0.2 + 0.4;
     for (strides, pairs) in [(vec![2], 0.3), (vec![1, 2], 0.3 + 0.3 + 0.6), (vec![3], 0.0)] {
-        let strided = config.clone().with_depth_gradient_weight(Some(k)).with_depth_gradient_strides(Some(strides.clone()));
-        let got = scalar(depth_loss(row.clone(), unit.clone(), &[1.0, 2.0, 3.0], &[1, 1, 1], 2.0, &strided).unwrap());
+        let strided = config
+            .clone()
+            .with_depth_gradient_weight(Some(k))
+            .with_depth_gradient_strides(Some(strides.clone()));
+        let got = scalar(
+            depth_loss(row.clone(), unit.clone(), &[1.0, 2.0, 3.0], &[1, 1, 1], 2.0, &strided)
+                .unwrap(),
+        );
         close(got, (l1 + k * pairs) / 2.0 / 3.0, &format!("L_depth with strides {strides:?}"));
     }
 
@@ -94,13 +123,24 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
     // valid pixels; a fourth pixel without ground truth counts nothing (and is no NaN).
     let relative = config.clone().with_depth_relative(Some(true));
     let row4 = tensor(&[1.1, 1.8, 3.4, 5.0], [1, 1, 1, 4]);
-    let got = scalar(depth_loss(row4, tensor(&[1.0; 4], [1, 1, 1, 4]), &[1.0, 2.0, 3.0, 0.0], &[1, 1, 1, 1], 2.0, &relative).unwrap());
+    let got = scalar(
+        depth_loss(
+            row4,
+            tensor(&[1.0; 4], [1, 1, 1, 4]),
+            &[1.0, 2.0, 3.0, 0.0],
+            &[1, 1, 1, 1],
+            2.0,
+            &relative,
+        )
+        .unwrap(),
+    );
     close(got, (0.1 + 0.1 + 0.4 / 3.0) / 3.0, "relative L_depth");
 
     // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
     // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
     let (pred, truth) = ([2.3, 3.6, 3.0], [2.0, 4.0, 3.0]);
-    let s_hat = (0..3).map(|i| pred[i] * truth[i]).sum::<f64>() / pred.iter().map(|p| p * p).sum::<f64>();
+    let s_hat =
+        (0..3).map(|i| pred[i] * truth[i]).sum::<f64>() / pred.iter().map(|p| p * p).sum::<f64>();
     let shape = |i: usize| (s_hat * pred[i] - truth[i]).abs();
     let k = 0.8;
     let with_shape = config.clone().with_depth_shape_weight(Some(k));
@@ -108,24 +148,41 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
         + (e * (0.4 + k * shape(1)) / 3.0 - alpha)
         + k * shape(2) / 3.0)
         / 3.0;
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_shape).unwrap()), expected, "L_depth with shape term");
+    close(
+        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_shape).unwrap()),
+        expected,
+        "L_depth with shape term",
+    );
     // It ignores the view's scale: a prediction off by a factor only pays the L1 term.
     let doubled = tensor(&[4.0, 1.0, 8.0, 6.0], [1, 1, 2, 2]);
     let ones = tensor(&[1.0; 4], [1, 1, 2, 2]);
     let plain = scalar(depth_loss(doubled.clone(), ones.clone(), &gt, &ids, 3.0, &config).unwrap());
-    close(scalar(depth_loss(doubled, ones, &gt, &ids, 3.0, &with_shape).unwrap()), plain, "shape term of a scaled truth");
+    close(
+        scalar(depth_loss(doubled, ones, &gt, &ids, 3.0, &with_shape).unwrap()),
+        plain,
+        "shape term of a scaled truth",
+    );
 
     // Instance balance β: instance 1 has the valid pixels 0 and 3, instance 2 pixel 2, so at
     // β = 1 pixel 2 weighs ½ and pixels 0 and 3 ¼ each; at β = ½ the mean of that and ⅓ each.
     assert_eq!(depth_weights(&gt, &ids, 1.0), vec![0.25, 0.0, 0.5, 0.25]);
     let half = depth_weights(&gt, &ids, 0.5);
-    for (got, want) in half.iter().zip([(0.25 + 1.0 / 3.0) / 2.0, 0.0, (0.5 + 1.0 / 3.0) / 2.0, (0.25 + 1.0 / 3.0) / 2.0]) {
+    for (got, want) in half.iter().zip([
+        (0.25 + 1.0 / 3.0) / 2.0,
+        0.0,
+        (0.5 + 1.0 / 3.0) / 2.0,
+        (0.25 + 1.0 / 3.0) / 2.0,
+    ]) {
         close(f64::from(*got), want, "β = ½ weight");
     }
     let per_pixel = [2.0 * 0.3 / 3.0 - alpha * 2f64.ln(), 0.0, e * 0.4 / 3.0 - alpha, 0.0];
     let balanced = config.clone().with_depth_instance_balance(Some(1.0));
     let expected = 0.25 * per_pixel[0] + 0.5 * per_pixel[2] + 0.25 * per_pixel[3];
-    close(scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &balanced).unwrap()), expected, "balanced L_depth");
+    close(
+        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &balanced).unwrap()),
+        expected,
+        "balanced L_depth",
+    );
     // Ids of pixels without ground truth count nowhere, and one instance is uniform weighting.
     let one = depth_weights(&gt, &[7, 9, 7, 7], 1.0);
     assert_eq!(one, depth_weights(&gt, &ids, 0.0));
@@ -151,7 +208,17 @@ fn loss_camera_targets_are_relative_to_view_zero() {
     }
     let (fy1, fx1) = cams[1].intrinsics.fov();
     let sign = if targets[1][3] * rel_r.w >= 0.0 { 1.0 } else { -1.0 };
-    let want = [rel_t.x, rel_t.y, rel_t.z, sign * rel_r.w, sign * rel_r.x, sign * rel_r.y, sign * rel_r.z, fy1, fx1];
+    let want = [
+        rel_t.x,
+        rel_t.y,
+        rel_t.z,
+        sign * rel_r.w,
+        sign * rel_r.x,
+        sign * rel_r.y,
+        sign * rel_r.z,
+        fy1,
+        fx1,
+    ];
     for (got, want) in targets[1].iter().zip(want) {
         assert!((got - want).abs() < 1e-5, "view 1 target {:?} vs {want:?}", targets[1]);
     }
@@ -159,26 +226,46 @@ fn loss_camera_targets_are_relative_to_view_zero() {
 
 #[test]
 fn loss_camera_hand_values() {
-    let targets = [[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2], [1.0, 2.0, 3.0, 0.0, 1.0, 0.0, 0.0, 0.8, 1.0]];
+    let targets = [
+        [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2],
+        [1.0, 2.0, 3.0, 0.0, 1.0, 0.0, 0.0, 0.8, 1.0],
+    ];
     // View 0: fov_y off by 0.1. View 1: x off by 0.3, rotation = −2·target (same rotation).
-    let pred =
-        tensor(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.1, 1.2, 1.3, 2.0, 3.0, 0.0, -2.0, 0.0, 0.0, 0.8, 1.0], [2, 9]);
-    close(scalar(camera_loss(pred, &targets, 2.0).unwrap()), 0.1 / 4.0 + 0.3 / 3.0 / 2.0, "L_cam, sign-invariant");
+    let pred = tensor(
+        &[
+            0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.1, 1.2, 1.3, 2.0, 3.0, 0.0, -2.0, 0.0, 0.0, 0.8,
+            1.0,
+        ],
+        [2, 9],
+    );
+    close(
+        scalar(camera_loss(pred, &targets, 2.0).unwrap()),
+        0.1 / 4.0 + 0.3 / 3.0 / 2.0,
+        "L_cam, sign-invariant",
+    );
     // Rotation by angle a about x against the identity: mean |(cos a/2 − 1, sin a/2, 0, 0)|.
     let a: f64 = 0.5;
     let (c, s) = ((a / 2.0).cos(), (a / 2.0).sin());
     let targets = [targets[0], [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.8, 1.0]];
     let pred = tensor(
-        &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2, 0.0, 0.0, 0.0, c as f32, s as f32, 0.0, 0.0, 0.8, 1.0],
+        &[
+            0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.2, 0.0, 0.0, 0.0, c as f32, s as f32, 0.0,
+            0.0, 0.8, 1.0,
+        ],
         [2, 9],
     );
-    close(scalar(camera_loss(pred.clone(), &targets, 1.0).unwrap()), ((1.0 - c) + s) / 4.0, "L_cam rotation");
+    close(
+        scalar(camera_loss(pred.clone(), &targets, 1.0).unwrap()),
+        ((1.0 - c) + s) / 4.0,
+        "L_cam rotation",
+    );
 
     // L_geom = L_depth + L_cam with the scene's median depth as the scale.
     let gt = [2.0, 4.0];
     let depth = tensor(&[3.0, 4.0], [1, 1, 1, 2]);
     let conf = tensor(&[1.0, 1.0], [1, 1, 1, 2]);
-    let geom = geometry_loss(depth, conf, &gt, &[3, 4], pred, &targets, &LossConfig::new()).unwrap();
+    let geom =
+        geometry_loss(depth, conf, &gt, &[3, 4], pred, &targets, &LossConfig::new()).unwrap();
     close(scalar(geom), (1.0 / 4.0) / 2.0 + ((1.0 - c) + s) / 4.0, "L_geom");
 }
 
@@ -191,9 +278,17 @@ fn loss_semantic_hand_values() {
     let teacher = tensor(&[9.0, 9.0, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0], [3, 3]);
     let weight = tensor(&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [3, 2]);
     let loss = |ids: &[u32], bias: [f32; 3]| {
-        semantic_loss(semantic.clone(), ids, teacher.clone(), weight.clone(), tensor(&bias, [3]), SemanticForm::Cosine)
+        semantic_loss(
+            semantic.clone(),
+            ids,
+            teacher.clone(),
+            weight.clone(),
+            tensor(&bias, [3]),
+            SemanticForm::Cosine,
+        )
     };
-    // b = 0. Pixel 1: (1,0,0)·(1,0,0) → cos 1; pixel 2: (0,1,0)·(0,0,2) → 0; pixel 3: (1,1,0)·(1,0,0) → 1/√2.
+    // b = 0. Pixel 1: (1,0,0)·(1,0,0) → cos 1; pixel 2: (0,1,0)·(0,0,2) → 0; pixel 3:
+    // (1,1,0)·(1,0,0) → 1/√2.
     let expected = (0.0 + 1.0 + (1.0 - 0.5f64.sqrt())) / 3.0;
     close(scalar(loss(&ids, [0.0; 3]).unwrap()), expected, "L_sem");
     // b = (0, 0, 1): (1,0,1) → 1/√2; (0,1,1) vs (0,0,2) → 1/√2; (1,1,1) vs (1,0,0) → 1/√3.
@@ -201,7 +296,10 @@ fn loss_semantic_hand_values() {
     close(scalar(loss(&ids, [0.0, 0.0, 1.0]).unwrap()), expected, "L_sem with bias");
     // Only background: zero. An id without a teacher row: error.
     close(scalar(loss(&[0; 4], [0.0; 3]).unwrap()), 0.0, "background");
-    assert_eq!(loss(&[0, 1, 3, 1], [0.0; 3]).unwrap_err(), LossError::TeacherRow { id: 3, rows: 3 });
+    assert_eq!(
+        loss(&[0, 1, 3, 1], [0.0; 3]).unwrap_err(),
+        LossError::TeacherRow { id: 3, rows: 3 }
+    );
 }
 
 /// The contrastive L_sem of a 1×5 view, with `log_prior` added to the vocabulary's logits,
@@ -213,7 +311,8 @@ fn loss_semantic_hand_values() {
 fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
     let ids = [0, 1, 2, 3, 1];
     let features: [(f32, f32); 5] = [(9.0, 9.0), (1.0, 0.0), (1.0, 1.0), (0.0, 2.0), (3.0, 1.0)];
-    let planar: Vec<f32> = features.iter().map(|f| f.0).chain(features.iter().map(|f| f.1)).collect();
+    let planar: Vec<f32> =
+        features.iter().map(|f| f.0).chain(features.iter().map(|f| f.1)).collect();
     let semantic = tensor(&planar, [1, 2, 1, 5]);
     let teacher = tensor(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 1.0, 0.0, 0.0], [4, 3]);
     let weight = tensor(&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0], [3, 2]);
@@ -224,7 +323,11 @@ fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
     let loss = semantic_loss(semantic, &ids, teacher, weight, bias, form).unwrap();
     // Offsets of B, C and A: the prior's, A the smallest of them (the rarest label).
     let least = log_prior.iter().copied().fold(f32::INFINITY, f32::min);
-    let [ob, oc, oa] = if log_prior.is_empty() { [0.0; 3] } else { [log_prior[0], log_prior[1], least].map(f64::from) };
+    let [ob, oc, oa] = if log_prior.is_empty() {
+        [0.0; 3]
+    } else {
+        [log_prior[0], log_prior[1], least].map(f64::from)
+    };
     // Pixel p (label pixels 1..5) has cos_A = l0/|y|, cos_B = l1/|y|, cos_C = 1/|y|,
     // |y| = sqrt(l0² + l1² + 1); CE of its own class; weights: instance 1 has 2 pixels,
     // instances 2 and 3 one each.
@@ -258,14 +361,22 @@ fn logit_adjusted_l_sem_charges_the_frequent_label_more_and_a_uniform_prior_noth
     let prior = [0.6f32.ln(), 0.1f32.ln()];
     let (adjusted, expected) = contrastive_loss_and_hand_value(&prior);
     close(adjusted, expected, "logit-adjusted L_sem");
-    assert!((adjusted - plain).abs() > 1e-3, "the prior must change the loss: {adjusted} vs {plain}");
+    assert!(
+        (adjusted - plain).abs() > 1e-3,
+        "the prior must change the loss: {adjusted} vs {plain}"
+    );
     // The prior's scale follows LossConfig::semantic_log_prior: a·ln π over the labels asked.
     let counts = [("chair".to_string(), 60u64), ("bed".to_string(), 10)].into_iter().collect();
-    let config = LossConfig::new().with_semantic_logit_adjust(Some(2.0)).with_semantic_label_counts(Some(counts));
+    let config = LossConfig::new()
+        .with_semantic_logit_adjust(Some(2.0))
+        .with_semantic_label_counts(Some(counts));
     let got = config.semantic_log_prior(&["chair", "bed", "piano"]);
     let want = [60.0f64, 10.0, 10.0].map(|n| (2.0 * (n / 80.0).ln()) as f32);
     assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-6), "{got:?} vs {want:?}");
-    assert!(LossConfig::new().semantic_log_prior(&["chair"]).is_empty(), "no adjustment asked, no prior");
+    assert!(
+        LossConfig::new().semantic_log_prior(&["chair"]).is_empty(),
+        "no adjustment asked, no prior"
+    );
 }
 
 /// A 1×9 strip (or its 9×1 transpose): pixels 0–1 embed as (1, 0), pixels 2–8 as (0.8, 0.6)
@@ -297,7 +408,8 @@ fn loss_boundary_rgb_hand_values() {
     let embedding = tensor(&strip_embedding(), [1, 2, 1, 9]);
     // Rendered = target + 0.1·x in every channel.
     let target: Vec<f32> = (0..27).map(|i| (i % 5) as f32 * 0.1).collect();
-    let rendered: Vec<f32> = target.iter().enumerate().map(|(i, t)| t + 0.1 * (i % 9) as f32).collect();
+    let rendered: Vec<f32> =
+        target.iter().enumerate().map(|(i, t)| t + 0.1 * (i % 9) as f32).collect();
     let eps = 1e-3f64;
     let (near, far) = (sigmoid(1.0), sigmoid(-3.0));
     let (mut num, mut den) = (0.0, 0.0);
@@ -307,9 +419,19 @@ fn loss_boundary_rgb_hand_values() {
         num += b * (d * d + eps * eps).sqrt();
         den += b;
     }
-    let loss = boundary_rgb_loss(tensor(&rendered, [1, 3, 1, 9]), tensor(&target, [1, 3, 1, 9]), &embedding, &config);
+    let loss = boundary_rgb_loss(
+        tensor(&rendered, [1, 3, 1, 9]),
+        tensor(&target, [1, 3, 1, 9]),
+        &embedding,
+        &config,
+    );
     close(scalar(loss.unwrap()), num / den, "L_bd-rgb");
     let off = config.with_boundary(BoundaryTerm::Off);
-    let loss = boundary_rgb_loss(tensor(&rendered, [1, 3, 1, 9]), tensor(&target, [1, 3, 1, 9]), &embedding, &off);
+    let loss = boundary_rgb_loss(
+        tensor(&rendered, [1, 3, 1, 9]),
+        tensor(&target, [1, 3, 1, 9]),
+        &embedding,
+        &off,
+    );
     close(scalar(loss.unwrap()), 0.0, "ablated");
 }

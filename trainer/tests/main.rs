@@ -1,5 +1,6 @@
 //! The trainer's integration tests, one test binary (one link) for all of them: the synth
-//! command, training recipes, the model, losses and their gradients, the training loop, export parity, fit-scene and the
+//! command, training recipes, the model, losses and their gradients, the training loop, export
+//! parity, fit-scene and the
 //! shape classifier.
 
 mod average;
@@ -11,10 +12,10 @@ mod loss_instance;
 mod loss_point_map;
 mod loss_terms;
 mod model_forward;
-mod shapes;
+mod recipe;
 mod render_op_grad;
+mod shapes;
 mod synth_cli;
 mod synth_stats;
-mod recipe;
 mod train_loop;
 mod train_resume;

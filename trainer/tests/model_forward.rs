@@ -36,18 +36,11 @@ fn model_outputs_follow_the_signature() {
         assert_eq!(out.camera.dims(), [views, sig::CAMERA_CHANNELS]);
         assert_eq!(out.depth.dims(), [views, 1, 32, 32]);
         assert_eq!(out.depth_conf.dims(), [views, 1, 32, 32]);
-        assert_eq!(
-            out.gaussians.dims(),
-            [views, sig::GAUSSIAN_CHANNELS, 32, 32]
-        );
+        assert_eq!(out.gaussians.dims(), [views, sig::GAUSSIAN_CHANNELS, 32, 32]);
         assert_eq!(out.instance.dims(), [views, 8, 32, 32]);
         assert_eq!(out.semantic.dims(), [views, 12, 32, 32]);
         let camera = values(out.camera);
-        assert_eq!(
-            &camera[..7],
-            &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
-            "view 0 is the world frame"
-        );
+        assert_eq!(&camera[..7], &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], "view 0 is the world frame");
         assert!(
             camera
                 .chunks(9)
@@ -63,39 +56,21 @@ fn model_outputs_follow_the_signature() {
 
 #[test]
 fn model_rejects_bad_configs_and_inputs() {
-    assert!(matches!(
-        small().with_patch(6).validate(),
-        Err(ModelError::Config(_))
-    ));
-    assert!(matches!(
-        small().with_image_size(36).validate(),
-        Err(ModelError::Config(_))
-    ));
-    assert!(matches!(
-        small().with_depth(3).validate(),
-        Err(ModelError::Config(_))
-    ));
-    assert!(matches!(
-        small().with_heads(5).validate(),
-        Err(ModelError::Config(_))
-    ));
+    assert!(matches!(small().with_patch(6).validate(), Err(ModelError::Config(_))));
+    assert!(matches!(small().with_image_size(36).validate(), Err(ModelError::Config(_))));
+    assert!(matches!(small().with_depth(3).validate(), Err(ModelError::Config(_))));
+    assert!(matches!(small().with_heads(5).validate(), Err(ModelError::Config(_))));
     let device = Device::flex();
     let net = small().init(&device).expect("config");
     let wrong = Tensor::<4>::zeros([2, 3, 16, 16], &device);
-    assert!(matches!(
-        net.forward(wrong),
-        Err(ModelError::InputShape { .. })
-    ));
+    assert!(matches!(net.forward(wrong), Err(ModelError::InputShape { .. })));
 }
 
 #[test]
 fn model_default_size_and_gradients() {
     let config = ModelConfig::new();
     let params = config.init(&Device::flex()).expect("config").num_params();
-    assert!(
-        (2_000_000..6_000_000).contains(&params),
-        "default network has {params} parameters"
-    );
+    assert!((2_000_000..6_000_000).contains(&params), "default network has {params} parameters");
 
     let device = Device::flex().autodiff();
     let net = small().init(&device).expect("config");
@@ -107,17 +82,10 @@ fn model_default_size_and_gradients() {
         + out.instance.mean()
         + out.semantic.mean();
     let grads = loss.backward();
-    let mut visitor = GradCheck {
-        grads: &grads,
-        with: 0,
-        without: 0,
-    };
+    let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
     net.visit(&mut visitor);
     // Φ_sem (weight and bias) is used by the losses, not by the forward pass.
-    assert_eq!(
-        visitor.without, 2,
-        "every tensor but Φ_sem's receives a finite gradient"
-    );
+    assert_eq!(visitor.without, 2, "every tensor but Φ_sem's receives a finite gradient");
     assert!(visitor.with > 20);
     assert!(net.forward_flops(4) > 0);
 }
@@ -125,7 +93,12 @@ fn model_default_size_and_gradients() {
 /// The parameters of `net` that get no non-zero finite gradient from its output `out` (every
 /// head's maps and the cameras summed).
 fn tensors_without_gradient(net: &InsSplatNet, out: ModelOutput) -> usize {
-    let grads = (out.camera.sum() + out.depth.mean() + out.gaussians.mean() + out.instance.mean() + out.semantic.mean()).backward();
+    let grads = (out.camera.sum()
+        + out.depth.mean()
+        + out.gaussians.mean()
+        + out.instance.mean()
+        + out.semantic.mean())
+    .backward();
     let mut visitor = GradCheck { grads: &grads, with: 0, without: 0 };
     net.visit(&mut visitor);
     visitor.without
@@ -144,11 +117,7 @@ impl ModuleVisitor for GradCheck<'_> {
             let s = values(g.abs().sum())[0];
             s > 0.0 && s.is_finite()
         });
-        if ok {
-            self.with += 1
-        } else {
-            self.without += 1
-        }
+        if ok { self.with += 1 } else { self.without += 1 }
     }
 }
 
@@ -159,23 +128,40 @@ impl ModuleVisitor for GradCheck<'_> {
 #[test]
 fn camera_rays_join_at_zero_learn_and_are_checked() {
     use glam::Vec3;
-    use inssplat_proto::{Camera, Intrinsics};
     use inssplat_proto::rays::{patch_rays, ray_channels};
+    use inssplat_proto::{Camera, Intrinsics};
     let device = Device::flex().autodiff();
     device.seed(3);
     let source = small().init(&device).expect("config");
-    let grown = inssplat_trainer::train::grow(&source, small().with_camera_rays(Some(2)), 9, &device).expect("grow");
+    let grown =
+        inssplat_trainer::train::grow(&source, small().with_camera_rays(Some(2)), 9, &device)
+            .expect("grow");
     let k = Intrinsics::from_fov_y(32, 32, 1.1);
     let cameras: Vec<Camera> = (0..3)
-        .map(|i| Camera::look_at(k, Vec3::new(0.4 * i as f32, 0.1, 0.0), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y))
+        .map(|i| {
+            Camera::look_at(
+                k,
+                Vec3::new(0.4 * i as f32, 0.1, 0.0),
+                Vec3::new(0.0, 0.0, 3.0),
+                Vec3::NEG_Y,
+            )
+        })
         .collect();
-    let rays = Tensor::<3>::from_data(TensorData::new(patch_rays(&cameras, 32, 8, 2, 2.5), [3, 16, ray_channels(2)]), &device);
+    let rays = Tensor::<3>::from_data(
+        TensorData::new(patch_rays(&cameras, 32, 8, 2, 2.5), [3, 16, ray_channels(2)]),
+        &device,
+    );
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
     let plain = source.forward(images.clone()).expect("forward");
-    let with = grown.forward_with_rays(images.clone(), Some(rays.clone())).expect("forward with rays");
+    let with =
+        grown.forward_with_rays(images.clone(), Some(rays.clone())).expect("forward with rays");
     assert_eq!(values(plain.depth), values(with.depth.clone()));
     assert_eq!(values(plain.instance), values(with.instance.clone()));
-    assert_eq!(tensors_without_gradient(&grown, with), 2, "the ray layer's weight receives a gradient like every tensor but Φ_sem's two");
+    assert_eq!(
+        tensors_without_gradient(&grown, with),
+        2,
+        "the ray layer's weight receives a gradient like every tensor but Φ_sem's two"
+    );
     assert!(matches!(grown.forward(images.clone()), Err(ModelError::Rays(_))));
     assert!(matches!(source.forward_with_rays(images, Some(rays)), Err(ModelError::Rays(_))));
 }
@@ -189,16 +175,27 @@ fn a_wider_mlp_starts_where_the_source_was_and_learns() {
     let device = Device::flex().autodiff();
     device.seed(4);
     let source = small().init(&device).expect("config");
-    let grown = inssplat_trainer::train::grow(&source, small().with_mlp_ratio(6), 9, &device).expect("grow");
+    let grown = inssplat_trainer::train::grow(&source, small().with_mlp_ratio(6), 9, &device)
+        .expect("grow");
     assert_eq!(grown.config().mlp_ratio, 6);
-    assert_eq!(grown.num_params() - source.num_params(), 2 * (64 * 32 + 64 + 64 * 32), "two blocks, each 64 more hidden units: their reads, biases and writes");
+    assert_eq!(
+        grown.num_params() - source.num_params(),
+        2 * (64 * 32 + 64 + 64 * 32),
+        "two blocks, each 64 more hidden units: their reads, biases and writes"
+    );
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
-    let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    let (a, b) =
+        (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
     assert_eq!(values(a.camera), values(b.camera.clone()));
     assert_eq!(values(a.depth), values(b.depth.clone()));
     assert_eq!(values(a.instance), values(b.instance.clone()));
-    assert_eq!(tensors_without_gradient(&grown, b), 2, "every tensor but Φ_sem's two receives a gradient");
-    let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device).expect_err("narrowing is refused");
+    assert_eq!(
+        tensors_without_gradient(&grown, b),
+        2,
+        "every tensor but Φ_sem's two receives a gradient"
+    );
+    let err = inssplat_trainer::train::grow(&grown, small().with_mlp_ratio(2), 9, &device)
+        .expect_err("narrowing is refused");
     assert!(err.to_string().contains("cannot narrow"), "{err}");
 }
 
@@ -211,22 +208,37 @@ fn a_wider_semantic_feature_starts_where_the_source_was_and_learns() {
     device.seed(5);
     let source = small().init(&device).expect("config");
     let d_s = source.config().sem_dim;
-    let grown = inssplat_trainer::train::grow(&source, small().with_sem_dim(d_s + 4), 9, &device).expect("grow");
+    let grown = inssplat_trainer::train::grow(&source, small().with_sem_dim(d_s + 4), 9, &device)
+        .expect("grow");
     assert_eq!(grown.config().sem_dim, d_s + 4);
     let last = small().decoder_channels(small().stages());
-    assert_eq!(grown.num_params() - source.num_params(), 4 * (last + 1) + 4 * 384, "four output rows (weights and biases) and four rows of Φ_sem");
+    assert_eq!(
+        grown.num_params() - source.num_params(),
+        4 * (last + 1) + 4 * 384,
+        "four output rows (weights and biases) and four rows of Φ_sem"
+    );
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
-    let (a, b) = (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
+    let (a, b) =
+        (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
     assert_eq!(values(a.depth), values(b.depth.clone()));
     assert_eq!(values(a.gaussians), values(b.gaussians.clone()));
     assert_eq!(values(a.instance), values(b.instance.clone()));
     assert_eq!(values(a.semantic.clone()), values(b.semantic.clone().narrow(1, 0, d_s)));
     let new = values(b.semantic.clone().narrow(1, d_s, 4));
     assert!(new.iter().any(|v| v.abs() > 1e-3), "the new channels carry features of their own");
-    let text = |net: &InsSplatNet, s: Tensor<4>| values(net.project_semantic(s.permute([0, 2, 3, 1])));
+    let text =
+        |net: &InsSplatNet, s: Tensor<4>| values(net.project_semantic(s.permute([0, 2, 3, 1])));
     let (ta, tb) = (text(&source, a.semantic), text(&grown, b.semantic.clone()));
-    assert!(ta.iter().zip(&tb).all(|(x, y)| (x - y).abs() <= 1e-5 * (1.0 + x.abs())), "Φ_sem reads the new channels through zeros");
-    assert_eq!(tensors_without_gradient(&grown, b), 2, "every tensor but Φ_sem's two receives a gradient");
-    let err = inssplat_trainer::train::grow(&grown, small().with_sem_dim(d_s), 9, &device).expect_err("narrowing is refused");
+    assert!(
+        ta.iter().zip(&tb).all(|(x, y)| (x - y).abs() <= 1e-5 * (1.0 + x.abs())),
+        "Φ_sem reads the new channels through zeros"
+    );
+    assert_eq!(
+        tensors_without_gradient(&grown, b),
+        2,
+        "every tensor but Φ_sem's two receives a gradient"
+    );
+    let err = inssplat_trainer::train::grow(&grown, small().with_sem_dim(d_s), 9, &device)
+        .expect_err("narrowing is refused");
     assert!(err.to_string().contains("cannot narrow"), "{err}");
 }

@@ -16,7 +16,9 @@ use burn::prelude::*;
 use glam::Vec3;
 use inssplat_proto::{Camera, Intrinsics};
 use inssplat_raster::render::{AlphaCutoff, RenderOptions, Splats, render_with};
-use inssplat_trainer::render_op::{BackwardMeter, RenderOpError, SplatTensors, render, render_metered};
+use inssplat_trainer::render_op::{
+    BackwardMeter, RenderOpError, SplatTensors, render, render_metered,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -47,7 +49,10 @@ impl Params {
         ];
         let n = placed.len();
         Self([
-            placed.iter().flat_map(|(p, _)| cam.camera_to_world(Vec3::from(*p)).to_array()).collect(),
+            placed
+                .iter()
+                .flat_map(|(p, _)| cam.camera_to_world(Vec3::from(*p)).to_array())
+                .collect(),
             placed.iter().flat_map(|(_, s)| *s).collect(),
             (0..4 * n).map(|_| rng.random_range(-1.5..1.5f32)).collect(),
             (0..n).map(|_| rng.random_range(-1.5..0.5f32)).collect(),
@@ -61,7 +66,9 @@ impl Params {
 
     fn tensors(&self, device: &Device) -> SplatTensors {
         let n = self.count();
-        let t2 = |v: &Vec<f32>, w: usize| Tensor::<2>::from_data(TensorData::new(v.clone(), [n, w]), device);
+        let t2 = |v: &Vec<f32>, w: usize| {
+            Tensor::<2>::from_data(TensorData::new(v.clone(), [n, w]), device)
+        };
         SplatTensors {
             means: t2(&self.0[0], 3),
             log_scales: t2(&self.0[1], 3),
@@ -96,7 +103,9 @@ fn weights(params: &Params, cam: &Camera) -> Weights {
 /// The loss through the op on a plain (non-autodiff) device, in f64.
 fn host_loss(params: &Params, cam: &Camera, w: &Weights) -> f64 {
     let r = render(params.tensors(&Device::flex()), cam, &BACKGROUND, &OPTIONS).unwrap();
-    let dot = |t: Vec<f32>, w: &[f32]| t.iter().zip(w).map(|(&a, &b)| f64::from(a) * f64::from(b)).sum::<f64>();
+    let dot = |t: Vec<f32>, w: &[f32]| {
+        t.iter().zip(w).map(|(&a, &b)| f64::from(a) * f64::from(b)).sum::<f64>()
+    };
     let v = |t: TensorData| t.try_to_vec::<f32>().unwrap();
     dot(v(r.features.into_data()), &w.features)
         + dot(v(r.depth.into_data()), &w.depth)
@@ -115,11 +124,15 @@ fn autodiff_grads(params: &Params, cam: &Camera, w: &Weights, device: &Device) -
     };
     let r = render(s.clone(), cam, &BACKGROUND, &OPTIONS).unwrap();
     let [_, h, wd] = r.features.dims();
-    let features = Tensor::<3>::from_data(TensorData::new(w.features.clone(), [CHANNELS, h, wd]), device);
+    let features =
+        Tensor::<3>::from_data(TensorData::new(w.features.clone(), [CHANNELS, h, wd]), device);
     let plane = |v: &Vec<f32>| Tensor::<2>::from_data(TensorData::new(v.clone(), [h, wd]), device);
-    let loss = (r.features * features).sum() + (r.depth * plane(&w.depth)).sum() + (r.alpha * plane(&w.alpha)).sum();
+    let loss = (r.features * features).sum()
+        + (r.depth * plane(&w.depth)).sum()
+        + (r.alpha * plane(&w.alpha)).sum();
     let grads = loss.backward();
-    let v = |t: Option<TensorData>| t.expect("every input has a gradient").try_to_vec::<f32>().unwrap();
+    let v =
+        |t: Option<TensorData>| t.expect("every input has a gradient").try_to_vec::<f32>().unwrap();
     [
         v(s.means.grad(&grads).map(Tensor::into_data)),
         v(s.log_scales.grad(&grads).map(Tensor::into_data)),
@@ -150,7 +163,9 @@ fn check_against_finite_differences(device: &Device) {
         for (i, (&a, &f)) in analytic[kind].iter().zip(&fd).enumerate() {
             let tol = 2e-2 * f.abs() + 2e-3 * scale;
             if !a.is_finite() || (f64::from(a) - f).abs() > tol {
-                failures.push(format!("{name}[{i}]: autodiff {a}, finite difference {f} (tolerance {tol:.2e})"));
+                failures.push(format!(
+                    "{name}[{i}]: autodiff {a}, finite difference {f} (tolerance {tol:.2e})"
+                ));
             }
         }
     }

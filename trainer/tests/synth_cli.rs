@@ -11,19 +11,41 @@ fn bin() -> Command {
 fn synth_cli_writes_scenes_previews_and_statistics() {
     let tmp = tempfile::tempdir().unwrap();
     let out = bin()
-        .args(["synth", "--split", "val", "--count", "2", "--size", "24", "--frames", "3", "--preview"])
+        .args([
+            "synth",
+            "--split",
+            "val",
+            "--count",
+            "2",
+            "--size",
+            "24",
+            "--frames",
+            "3",
+            "--preview",
+        ])
         .arg("--out")
         .arg(tmp.path())
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("scenes/s") && stdout.contains("share of pixels per class"), "{stdout}");
+    assert!(
+        stdout.contains("scenes/s") && stdout.contains("share of pixels per class"),
+        "{stdout}"
+    );
     assert!(stdout.contains("instances of one category"), "{stdout}");
-    for f in ["scene_000000/transforms.json", "scene_000001/images/002.png", "preview/scene_000000.png", "credits.json"] {
+    for f in [
+        "scene_000000/transforms.json",
+        "scene_000001/images/002.png",
+        "preview/scene_000000.png",
+        "credits.json",
+    ] {
         assert!(tmp.path().join(f).is_file(), "{f} missing");
     }
-    assert!(!tmp.path().join("preview/scene_000001.png").exists(), "--preview alone previews one scene");
+    assert!(
+        !tmp.path().join("preview/scene_000001.png").exists(),
+        "--preview alone previews one scene"
+    );
 }
 
 #[test]
@@ -39,7 +61,16 @@ fn synth_cli_names_the_bad_flag() {
     assert!(!out.status.success());
     assert!(stderr.contains("--furniture-dir") && stderr.contains("/nonexistent/sh3d"), "{stderr}");
     let out = bin()
-        .args(["synth", "--split", "train", "--count", "1", "--primitives-only", "--reserved", "include"])
+        .args([
+            "synth",
+            "--split",
+            "train",
+            "--count",
+            "1",
+            "--primitives-only",
+            "--reserved",
+            "include",
+        ])
         .arg("--out")
         .arg(tmp.path())
         .output()

@@ -7,9 +7,11 @@
 use std::collections::BTreeSet;
 
 use inssplat_synth::layout::{self, Source};
-use inssplat_trainer::train::sample::{DataSpec, Source as DataSource};
 use inssplat_synth::room::Room;
-use inssplat_synth::{self as synth, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig};
+use inssplat_synth::{
+    self as synth, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig,
+};
+use inssplat_trainer::train::sample::{DataSpec, Source as DataSource};
 use rand::SeedableRng;
 
 /// Train-split rooms at 32×32, six frames each: enough to render what a room shows, quickly.
@@ -43,9 +45,18 @@ fn synth_layouts_span_twenty_categories_with_repeats() {
         Furniture::Primitives => unreachable!(),
     };
     let catalog = Catalog::open(&dir).unwrap();
-    assert!(catalog.labels(Reserved::Exclude).len() >= 20, "{:?}", catalog.labels(Reserved::Exclude));
+    assert!(
+        catalog.labels(Reserved::Exclude).len() >= 20,
+        "{:?}",
+        catalog.labels(Reserved::Exclude)
+    );
     let cfg = SynthConfig::new(Split::Train, Furniture::Catalog(dir));
-    let source = Source { catalog: Some(&catalog), reserved: Reserved::Exclude, mesh_share: 0.6, contrast: 1.0 };
+    let source = Source {
+        catalog: Some(&catalog),
+        reserved: Reserved::Exclude,
+        mesh_share: 0.6,
+        contrast: 1.0,
+    };
     let mut labels = BTreeSet::new();
     let mut repeats = 0;
     let n = 60;
@@ -69,17 +80,31 @@ fn synth_furniture_labels_are_the_layout_that_the_rendered_scene_shows() {
     let cfg = small_train_rooms();
     for index in 0..6 {
         let placed = synth::furniture_labels(index, &cfg).unwrap();
-        assert_eq!(placed, synth::furniture_labels(index, &cfg).unwrap(), "scene {index}: the same layout each time");
+        assert_eq!(
+            placed,
+            synth::furniture_labels(index, &cfg).unwrap(),
+            "scene {index}: the same layout each time"
+        );
         // Every furniture instance the frames show is one the layout placed (as a multiset).
         let mut left: std::collections::BTreeMap<&str, i32> = Default::default();
         placed.iter().for_each(|l| *left.entry(l).or_default() += 1);
         let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let shown: Vec<&str> = scene.instances.iter().map(|i| i.label.as_str()).filter(|l| !synth::stats::SHELL_LABELS.contains(l)).collect();
+        let shown: Vec<&str> = scene
+            .instances
+            .iter()
+            .map(|i| i.label.as_str())
+            .filter(|l| !synth::stats::SHELL_LABELS.contains(l))
+            .collect();
         assert!(!shown.is_empty(), "scene {index} shows no furniture");
         for label in &shown {
-            let n = left.get_mut(label).unwrap_or_else(|| panic!("scene {index} shows a {label} its layout did not place: {placed:?}"));
+            let n = left.get_mut(label).unwrap_or_else(|| {
+                panic!("scene {index} shows a {label} its layout did not place: {placed:?}")
+            });
             *n -= 1;
-            assert!(*n >= 0, "scene {index} shows more of {label} than its layout placed: {placed:?}");
+            assert!(
+                *n >= 0,
+                "scene {index} shows more of {label} than its layout placed: {placed:?}"
+            );
         }
     }
 }
@@ -92,10 +117,19 @@ fn a_folder_of_scenes_counts_the_furniture_its_transforms_list() {
     for index in 0..3 {
         let scene = synth::generate_split(index, &cfg).unwrap();
         scene.write(&tmp.path().join(format!("scene_{index}"))).unwrap();
-        for inst in scene.scene.instances.iter().filter(|i| !synth::stats::SHELL_LABELS.contains(&i.label.as_str())) {
+        for inst in scene
+            .scene
+            .instances
+            .iter()
+            .filter(|i| !synth::stats::SHELL_LABELS.contains(&i.label.as_str()))
+        {
             *want.entry(inst.label.clone()).or_default() += 1;
         }
     }
     let source = DataSource::open(&DataSpec::Folder(tmp.path().to_path_buf())).unwrap();
-    assert_eq!(source.label_counts(0, 10).unwrap(), want, "each folder counted once, the shell left out");
+    assert_eq!(
+        source.label_counts(0, 10).unwrap(),
+        want,
+        "each folder counted once, the shell left out"
+    );
 }

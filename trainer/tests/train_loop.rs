@@ -15,30 +15,57 @@ use std::time::Duration;
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use inssplat_synth::{Split, Structure};
 use inssplat_trainer::loss::{LossConfig, SemanticForm, instance_loss, semantic_loss};
 use inssplat_trainer::model::ModelConfig;
-use inssplat_synth::{Split, Structure};
 use inssplat_trainer::train::sample::{DataSpec, Prefetcher, Sample, Sampler, Source, ViewPlan};
 use inssplat_trainer::train::step::objective;
-use inssplat_trainer::train::{self, Session, batch, TrainConfig, checkpoint, label_cache, seeded_init, update};
+use inssplat_trainer::train::{
+    self, Session, TrainConfig, batch, checkpoint, label_cache, seeded_init, update,
+};
 
 pub(crate) fn tiny_model() -> ModelConfig {
-    ModelConfig::new().with_image_size(32).with_patch(4).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32).with_sem_dim(8)
+    ModelConfig::new()
+        .with_image_size(32)
+        .with_patch(4)
+        .with_dim(32)
+        .with_depth(2)
+        .with_heads(2)
+        .with_decoder_dim(32)
+        .with_sem_dim(8)
 }
 
 pub(crate) fn tiny_data() -> DataSpec {
-    DataSpec::Synth { split: Split::Train, furniture_dir: None, size: 32, structure: Structure::Instances, antialias: 1 }
+    DataSpec::Synth {
+        split: Split::Train,
+        furniture_dir: None,
+        size: 32,
+        structure: Structure::Instances,
+        antialias: 1,
+    }
 }
 
 pub(crate) fn quiet_session() -> Session {
-    Session { checkpoint_every: Duration::from_secs(3600), val_every: 0, progress: false, ..Session::default() }
+    Session {
+        checkpoint_every: Duration::from_secs(3600),
+        val_every: 0,
+        progress: false,
+        ..Session::default()
+    }
 }
 
 /// Sample `index` of a sampler with seed `seed`: 3 input views and 1 target of a tiny scene.
 fn three_view_sample(seed: u64, index: u64) -> Sample {
     let sampler = Sampler {
         source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 3, max_views: 3, targets: 1, reuse: 1, first_scene: 0, window: None },
+        plan: ViewPlan {
+            min_views: 3,
+            max_views: 3,
+            targets: 1,
+            reuse: 1,
+            first_scene: 0,
+            window: None,
+        },
         seed,
         labels: label_cache().unwrap(),
     };
@@ -48,7 +75,13 @@ fn three_view_sample(seed: u64, index: u64) -> Sample {
 /// The input views of `sample` as `[inputs, 3, size, size]`.
 fn input_images(sample: &Sample, device: &Device) -> Tensor<4> {
     let (inputs, size) = (sample.inputs, sample.size);
-    Tensor::from_data(TensorData::new(sample.images[..inputs * 3 * size * size].to_vec(), [inputs, 3, size, size]), device)
+    Tensor::from_data(
+        TensorData::new(
+            sample.images[..inputs * 3 * size * size].to_vec(),
+            [inputs, 3, size, size],
+        ),
+        device,
+    )
 }
 
 /// A direct term of weight 0.5 adds half of `own` (the term on the network's own outputs) to
@@ -56,7 +89,10 @@ fn input_images(sample: &Sample, device: &Device) -> Tensor<4> {
 fn assert_direct_term_adds_half(what: &str, own: f32, half: f32, without: f32, zero: f32) {
     assert!(own > 0.1, "{what} of a random network's own outputs: {own}");
     let added = half - without;
-    assert!((added - 0.5 * own).abs() <= 1e-4 * own.max(1.0), "{what}: added {added}, expected 0.5 × {own}");
+    assert!(
+        (added - 0.5 * own).abs() <= 1e-4 * own.max(1.0),
+        "{what}: added {added}, expected 0.5 × {own}"
+    );
     assert_eq!(zero, without, "{what}: weight 0");
 }
 
@@ -80,7 +116,10 @@ impl burn::module::ModuleVisitor for Collect<'_> {
 fn a_small_network_overfits_one_scene() {
     // α = 0 drops the −α·log(conf) reward, so every term is ≥ 0 and "falls 10×" is meaningful.
     let loss = LossConfig::new().with_depth_conf_alpha(0.0);
-    let config = TrainConfig::new(tiny_model(), loss.clone()).with_lr(3e-3).with_weight_decay(0.0).with_grad_clip(0.0);
+    let config = TrainConfig::new(tiny_model(), loss.clone())
+        .with_lr(3e-3)
+        .with_weight_decay(0.0)
+        .with_grad_clip(0.0);
     let sample = three_view_sample(1, 5);
     let device = Device::flex().autodiff();
     let mut net = seeded_init(&config.model, 3, &device).unwrap();
@@ -94,14 +133,19 @@ fn a_small_network_overfits_one_scene() {
     }
     let first = losses[0];
     let last = losses[losses.len() - 5..].iter().sum::<f32>() / 5.0;
-    assert!(last * 10.0 <= first, "loss {first} -> {last} (every 10th: {:?})", losses.iter().step_by(10).collect::<Vec<_>>());
+    assert!(
+        last * 10.0 <= first,
+        "loss {first} -> {last} (every 10th: {:?})",
+        losses.iter().step_by(10).collect::<Vec<_>>()
+    );
 }
 
 /// Share of each instance's input-view pixels whose own semantic feature (through Φ_sem) lies
 /// nearest its label among the vocabulary's, averaged over the instances.
 fn named_right(net: &inssplat_trainer::model::InsSplatNet, sample: &Sample) -> f64 {
     let (inputs, size) = (sample.inputs, sample.size);
-    let semantic = net.forward(input_images(sample, &Device::flex())).unwrap().semantic.permute([0, 2, 3, 1]);
+    let semantic =
+        net.forward(input_images(sample, &Device::flex())).unwrap().semantic.permute([0, 2, 3, 1]);
     let text: Vec<f32> = net.project_semantic(semantic).into_data().try_to_vec().unwrap();
     let vocabulary: Vec<&[f32]> = sample.vocabulary.chunks_exact(384).collect();
     let cos = |a: &[f32], b: &[f32]| {
@@ -109,7 +153,9 @@ fn named_right(net: &inssplat_trainer::model::InsSplatNet, sample: &Sample) -> f
         dot / (a.iter().map(|x| x * x).sum::<f32>() * b.iter().map(|x| x * x).sum::<f32>()).sqrt()
     };
     let mut per_instance: std::collections::BTreeMap<u32, (usize, usize)> = Default::default();
-    for (p, &id) in sample.ids[..inputs * size * size].iter().enumerate().filter(|(_, id)| **id != 0) {
+    for (p, &id) in
+        sample.ids[..inputs * size * size].iter().enumerate().filter(|(_, id)| **id != 0)
+    {
         let label = &sample.teacher[id as usize * 384..(id as usize + 1) * 384];
         let y = &text[p * 384..(p + 1) * 384];
         let best = vocabulary.iter().max_by(|a, b| cos(y, a).total_cmp(&cos(y, b))).unwrap();
@@ -117,7 +163,8 @@ fn named_right(net: &inssplat_trainer::model::InsSplatNet, sample: &Sample) -> f
         entry.0 += usize::from(*best == label);
         entry.1 += 1;
     }
-    per_instance.values().map(|(right, all)| *right as f64 / *all as f64).sum::<f64>() / per_instance.len() as f64
+    per_instance.values().map(|(right, all)| *right as f64 / *all as f64).sum::<f64>()
+        / per_instance.len() as f64
 }
 
 /// The contrastive L_sem with its direct term names what it is shown: a tiny network fitting one
@@ -127,8 +174,15 @@ fn named_right(net: &inssplat_trainer::model::InsSplatNet, sample: &Sample) -> f
 /// Gaussians it covers does, whatever each Gaussian's own feature says.
 #[test]
 fn the_contrastive_l_sem_learns_to_name_the_objects_of_one_scene() {
-    let loss = LossConfig::new().with_depth_conf_alpha(0.0).with_semantic_weight(1.0).with_semantic_temperature(Some(0.1)).with_direct_semantic_weight(Some(1.0));
-    let config = TrainConfig::new(tiny_model(), loss.clone()).with_lr(3e-3).with_weight_decay(0.0).with_grad_clip(0.0);
+    let loss = LossConfig::new()
+        .with_depth_conf_alpha(0.0)
+        .with_semantic_weight(1.0)
+        .with_semantic_temperature(Some(0.1))
+        .with_direct_semantic_weight(Some(1.0));
+    let config = TrainConfig::new(tiny_model(), loss.clone())
+        .with_lr(3e-3)
+        .with_weight_decay(0.0)
+        .with_grad_clip(0.0);
     let sample = three_view_sample(4, 2);
     let device = Device::flex().autodiff();
     let mut net = seeded_init(&config.model, 6, &device).unwrap();
@@ -151,11 +205,15 @@ fn the_direct_instance_term_adds_l_ins_of_the_networks_own_embeddings() {
     let net = seeded_init(&tiny_model(), 4, &device).unwrap();
     let paper = LossConfig::new();
     let direct = paper.clone().with_direct_instance_weight(Some(0.5));
-    let instance = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().instance;
+    let instance =
+        |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().instance;
 
     let out = net.forward(input_images(&sample, &device)).unwrap();
     let own_ids = &sample.ids[..sample.inputs * sample.size * sample.size];
-    let own = instance_loss(out.instance, &out.semantic, own_ids, &paper).unwrap().total(&paper).into_scalar::<f32>();
+    let own = instance_loss(out.instance, &out.semantic, own_ids, &paper)
+        .unwrap()
+        .total(&paper)
+        .into_scalar::<f32>();
     let zero = instance(&paper.clone().with_direct_instance_weight(Some(0.0)));
     assert_direct_term_adds_half("L_ins", own, instance(&direct), instance(&paper), zero);
 }
@@ -167,14 +225,23 @@ fn the_direct_semantic_term_adds_l_sem_of_the_networks_own_features() {
     let net = seeded_init(&tiny_model(), 7, &device).unwrap();
     let renders = LossConfig::new().with_semantic_temperature(Some(0.1));
     let direct = renders.clone().with_direct_semantic_weight(Some(0.5));
-    let semantic = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
+    let semantic =
+        |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
 
-    let teacher = Tensor::<2>::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), 384]), &device);
+    let teacher = Tensor::<2>::from_data(
+        TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), 384]),
+        &device,
+    );
     let (weight, bias) = net.sem_proj();
-    let form = SemanticForm::Contrastive { temperature: 0.1, vocabulary: &sample.vocabulary, log_prior: &[] };
+    let form = SemanticForm::Contrastive {
+        temperature: 0.1,
+        vocabulary: &sample.vocabulary,
+        log_prior: &[],
+    };
     let features = net.forward(input_images(&sample, &device)).unwrap().semantic;
     let own_ids = &sample.ids[..sample.inputs * sample.size * sample.size];
-    let own = semantic_loss(features, own_ids, teacher, weight, bias, form).unwrap().into_scalar::<f32>();
+    let own =
+        semantic_loss(features, own_ids, teacher, weight, bias, form).unwrap().into_scalar::<f32>();
     let zero = semantic(&renders.clone().with_direct_semantic_weight(Some(0.0)));
     assert_direct_term_adds_half("L_sem", own, semantic(&direct), semantic(&renders), zero);
 }
@@ -184,25 +251,37 @@ fn l_sem_on_the_furniture_alone_leaves_the_shells_pixels_out() {
     let sample = three_view_sample(4, 0);
     // The shell's ids are exactly the instances whose teacher row is wall, floor or ceiling.
     let shell_rows = label_cache().unwrap().embed(&["wall", "floor", "ceiling"]).unwrap();
-    let shown: std::collections::BTreeSet<u32> = sample.ids.iter().copied().filter(|&i| i != 0).collect();
+    let shown: std::collections::BTreeSet<u32> =
+        sample.ids.iter().copied().filter(|&i| i != 0).collect();
     for &id in &shown {
         let row = &sample.teacher[id as usize * 384..(id as usize + 1) * 384];
         let is_shell = shell_rows.iter().any(|r| r.as_slice() == row);
         assert_eq!(sample.shell.contains(&id), is_shell, "instance {id}");
     }
-    assert!(!sample.shell.is_empty() && shown.iter().any(|id| !sample.shell.contains(id)), "{shown:?} {:?}", sample.shell);
+    assert!(
+        !sample.shell.is_empty() && shown.iter().any(|id| !sample.shell.contains(id)),
+        "{shown:?} {:?}",
+        sample.shell
+    );
 
     let device = Device::flex();
     let net = seeded_init(&tiny_model(), 9, &device).unwrap();
-    let semantic = |s: &Sample, config: &LossConfig| objective(&net, s, config, &device).unwrap().values().semantic;
-    let all = LossConfig::new().with_semantic_temperature(Some(0.1)).with_direct_semantic_weight(Some(0.5));
+    let semantic = |s: &Sample, config: &LossConfig| {
+        objective(&net, s, config, &device).unwrap().values().semantic
+    };
+    let all = LossConfig::new()
+        .with_semantic_temperature(Some(0.1))
+        .with_direct_semantic_weight(Some(0.5));
     let objects = all.clone().with_semantic_objects_only(Some(true));
     // The same as the scene with its shell unlabelled: the render does not read the ids.
     let mut bare = sample.clone();
     bare.ids.iter_mut().filter(|id| sample.shell.contains(id)).for_each(|id| *id = 0);
     let (with_shell, without) = (semantic(&sample, &all), semantic(&sample, &objects));
     assert_eq!(without, semantic(&bare, &all));
-    assert!(without.is_finite() && without > 0.0 && without != with_shell, "{without} vs {with_shell}");
+    assert!(
+        without.is_finite() && without > 0.0 && without != with_shell,
+        "{without} vs {with_shell}"
+    );
 }
 
 #[test]
@@ -212,7 +291,8 @@ fn a_sample_carries_the_whole_label_vocabulary_for_the_contrastive_l_sem() {
     assert_eq!(sample.vocabulary.len(), labels.len() * 384);
     // Every label the scene shows is a vocabulary row.
     let rows: Vec<&[f32]> = sample.vocabulary.chunks_exact(384).collect();
-    let shown: std::collections::BTreeSet<u32> = sample.ids.iter().copied().filter(|&i| i != 0).collect();
+    let shown: std::collections::BTreeSet<u32> =
+        sample.ids.iter().copied().filter(|&i| i != 0).collect();
     assert!(shown.len() >= 2, "{shown:?}");
     for id in shown {
         let row = &sample.teacher[id as usize * 384..(id as usize + 1) * 384];
@@ -220,10 +300,14 @@ fn a_sample_carries_the_whole_label_vocabulary_for_the_contrastive_l_sem() {
     }
     let device = Device::flex();
     let net = seeded_init(&tiny_model(), 5, &device).unwrap();
-    let semantic = |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
+    let semantic =
+        |config: &LossConfig| objective(&net, &sample, config, &device).unwrap().values().semantic;
     let contrastive = semantic(&LossConfig::new().with_semantic_temperature(Some(0.1)));
     let cosine = semantic(&LossConfig::new());
-    assert!(contrastive.is_finite() && contrastive > 0.0 && contrastive != cosine, "{contrastive} vs cosine {cosine}");
+    assert!(
+        contrastive.is_finite() && contrastive > 0.0 && contrastive != cosine,
+        "{contrastive} vs cosine {cosine}"
+    );
 }
 
 #[test]
@@ -232,7 +316,14 @@ fn the_prefetcher_hands_out_the_samplers_samples_in_order_from_several_threads()
     // scene once and keeps it for its second sample.
     let sampler = Sampler {
         source: Source::open(&tiny_data()).unwrap(),
-        plan: ViewPlan { min_views: 2, max_views: 4, targets: 1, reuse: 2, first_scene: 7, window: None },
+        plan: ViewPlan {
+            min_views: 2,
+            max_views: 4,
+            targets: 1,
+            reuse: 2,
+            first_scene: 7,
+            window: None,
+        },
         seed: 11,
         labels: label_cache().unwrap(),
     };
@@ -240,8 +331,15 @@ fn the_prefetcher_hands_out_the_samplers_samples_in_order_from_several_threads()
     let mut seen = Vec::new();
     for (index, sample) in prefetch {
         let (got, want) = (sample.unwrap(), sampler.sample(index).unwrap());
-        assert_eq!((&got.scene, got.inputs, &got.cameras), (&want.scene, want.inputs, &want.cameras), "sample {index}");
-        assert!(got.images == want.images && got.depth == want.depth && got.ids == want.ids, "sample {index}: other pixels");
+        assert_eq!(
+            (&got.scene, got.inputs, &got.cameras),
+            (&want.scene, want.inputs, &want.cameras),
+            "sample {index}"
+        );
+        assert!(
+            got.images == want.images && got.depth == want.depth && got.ids == want.ids,
+            "sample {index}: other pixels"
+        );
         seen.push(index);
     }
     assert_eq!(seen, (3..13).collect::<Vec<_>>());
@@ -262,21 +360,32 @@ fn a_config_saved_before_the_direct_terms_and_contrastive_l_sem_reads_as_without
         json.as_object_mut().unwrap().remove(field);
     }
     let old: LossConfig = serde_json::from_value(json).unwrap();
-    assert_eq!((old.direct_instance_weight, old.semantic_temperature, old.direct_semantic_weight), (None, None, None));
+    assert_eq!(
+        (old.direct_instance_weight, old.semantic_temperature, old.direct_semantic_weight),
+        (None, None, None)
+    );
 }
 
 #[test]
 fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     let run = tempfile::tempdir().unwrap();
-    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(6);
+    let config = TrainConfig::new(tiny_model(), LossConfig::new())
+        .with_steps(2)
+        .with_max_views(3)
+        .with_seed(6);
     let session = Session { val_every: 2, val_samples: 2, ..quiet_session() };
     let s = train::train(run.path(), config, tiny_data(), &session).unwrap();
     let logged = s.last_val.expect("validated at step 2").total;
     let set = |samples: usize| train::ValidationSet { samples, ..Default::default() };
-    let train::CheckpointScores { dir, step, losses: each, matching } = train::score_checkpoint(run.path(), &set(2), true).unwrap();
+    let train::CheckpointScores { dir, step, losses: each, matching } =
+        train::score_checkpoint(run.path(), &set(2), true).unwrap();
     assert_eq!((dir, step, each.len()), (s.checkpoint.unwrap(), 2, 2));
     let v = train::mean_loss(&each);
-    assert!((v.total - logged).abs() <= 1e-5 * logged.abs().max(1.0), "validate {} against the run's {logged}", v.total);
+    assert!(
+        (v.total - logged).abs() <= 1e-5 * logged.abs().max(1.0),
+        "validate {} against the run's {logged}",
+        v.total
+    );
     // More samples: the first two are the run's, so the mean moves but stays a loss.
     let more = train::score_checkpoint(run.path(), &set(6), false).unwrap();
     assert!(more.matching.is_none(), "matching scored only when asked");
@@ -291,13 +400,21 @@ fn validating_a_checkpoint_reproduces_the_runs_own_validation() {
     assert!(m.tokens > 0, "{m:?}");
     assert!(m.cross_entropy.is_finite() && m.cross_entropy > 0.0, "{m:?}");
     assert!(m.top1 <= m.within_one && m.within_one < 0.5, "{m:?}");
-    assert!(matching.descriptors.is_none(), "a network without a descriptor head has no descriptor scores");
+    assert!(
+        matching.descriptors.is_none(),
+        "a network without a descriptor head has no descriptor scores"
+    );
     // Two steps from random weights: a depth, but far from the truth.
     assert_eq!(matching.depth_abs_rel.len(), 2, "one AbsRel a sample");
     let abs_rel = matching.mean_depth_abs_rel().expect("synthesized rooms have true depth");
     assert!(abs_rel > 0.05 && abs_rel.is_finite(), "AbsRel {abs_rel}");
     // Views from 3 consecutive frames are other views, so another depth.
-    let near = train::score_checkpoint(run.path(), &train::ValidationSet { window: Some(3), ..set(2) }, true).unwrap();
+    let near = train::score_checkpoint(
+        run.path(),
+        &train::ValidationSet { window: Some(3), ..set(2) },
+        true,
+    )
+    .unwrap();
     assert_ne!(near.matching.expect("asked for").depth_abs_rel, matching.depth_abs_rel);
     let empty = tempfile::tempdir().unwrap();
     let err = train::score_checkpoint(empty.path(), &set(2), true).err().expect("no checkpoint");
@@ -313,7 +430,12 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
     let plan = train::RayPlan { dropout: 0.5, noise_deg: 10.0 };
     let losses = |rays: Option<usize>, noise: f32| {
         let run = tempfile::tempdir().unwrap();
-        let config = TrainConfig::new(tiny_model().with_camera_rays(rays), LossConfig::new()).with_steps(3).with_warmup(0).with_lr(1e-2).with_max_views(3).with_seed(2);
+        let config = TrainConfig::new(tiny_model().with_camera_rays(rays), LossConfig::new())
+            .with_steps(3)
+            .with_warmup(0)
+            .with_lr(1e-2)
+            .with_max_views(3)
+            .with_seed(2);
         train::train(run.path(), config, tiny_data(), &quiet_session()).unwrap();
         let set = train::ValidationSet { samples: 2, ray_noise_deg: noise, ..Default::default() };
         train::score_checkpoint(run.path(), &set, false).unwrap().losses
@@ -321,12 +443,17 @@ fn ray_noise_moves_only_a_network_that_reads_rays() {
     assert_ne!(losses(Some(1), 0.0), losses(Some(1), 30.0));
     assert_eq!(losses(None, 0.0), losses(None, 30.0));
     let run = tempfile::tempdir().unwrap();
-    let config = TrainConfig::new(tiny_model().with_camera_rays(Some(1)), LossConfig::new()).with_steps(3).with_max_views(3).with_rays(Some(plan));
+    let config = TrainConfig::new(tiny_model().with_camera_rays(Some(1)), LossConfig::new())
+        .with_steps(3)
+        .with_max_views(3)
+        .with_rays(Some(plan));
     let summary = train::train(run.path(), config, tiny_data(), &quiet_session()).unwrap();
     let state = checkpoint::read_state(&summary.checkpoint.unwrap()).unwrap();
     assert_eq!(state.config.rays, Some(plan), "the plan is kept for a resume");
-    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1).with_rays(Some(plan));
-    let err = train::train(&run.path().join("plain"), config, tiny_data(), &quiet_session()).unwrap_err();
+    let config =
+        TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1).with_rays(Some(plan));
+    let err =
+        train::train(&run.path().join("plain"), config, tiny_data(), &quiet_session()).unwrap_err();
     assert!(err.to_string().contains("--camera-rays"), "{err}");
 }
 
@@ -338,51 +465,118 @@ fn training_the_ray_layer_alone_keeps_every_other_weight() {
     use burn::store::ModuleSnapshot;
     use burn::tensor::Distribution;
     use inssplat_proto::rays::ray_channels;
-    let load = |dir: &Path| checkpoint::load_model(dir, &checkpoint::read_state(dir).unwrap(), &Device::flex()).unwrap();
-    let named = |net: &inssplat_trainer::model::InsSplatNet| -> std::collections::HashMap<String, Vec<u8>> {
-        net.collect(None, None, false).into_iter().map(|t| t.into_parts().map(|(name, _, _, _, bytes)| (name, bytes.to_vec())).unwrap()).collect()
+    let load = |dir: &Path| {
+        checkpoint::load_model(dir, &checkpoint::read_state(dir).unwrap(), &Device::flex()).unwrap()
     };
+    let named =
+        |net: &inssplat_trainer::model::InsSplatNet| -> std::collections::HashMap<String, Vec<u8>> {
+            net.collect(None, None, false)
+                .into_iter()
+                .map(|t| {
+                    t.into_parts().map(|(name, _, _, _, bytes)| (name, bytes.to_vec())).unwrap()
+                })
+                .collect()
+        };
     let source = tempfile::tempdir().unwrap();
-    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(4);
-    let source_dir = train::train(source.path(), config, tiny_data(), &quiet_session()).unwrap().checkpoint.unwrap();
-    let rays_only = |model| TrainConfig::new(model, LossConfig::new()).with_steps(2).with_warmup(0).with_lr(1e-2).with_max_views(3).with_rays_only(Some(true));
+    let config = TrainConfig::new(tiny_model(), LossConfig::new())
+        .with_steps(2)
+        .with_max_views(3)
+        .with_seed(4);
+    let source_dir = train::train(source.path(), config, tiny_data(), &quiet_session())
+        .unwrap()
+        .checkpoint
+        .unwrap();
+    let rays_only = |model| {
+        TrainConfig::new(model, LossConfig::new())
+            .with_steps(2)
+            .with_warmup(0)
+            .with_lr(1e-2)
+            .with_max_views(3)
+            .with_rays_only(Some(true))
+    };
     let tuned = tempfile::tempdir().unwrap();
-    let tuned_dir = train::fine_tune(tuned.path(), rays_only(tiny_model().with_camera_rays(Some(1))), tiny_data(), source.path(), &quiet_session()).unwrap().checkpoint.unwrap();
+    let tuned_dir = train::fine_tune(
+        tuned.path(),
+        rays_only(tiny_model().with_camera_rays(Some(1))),
+        tiny_data(),
+        source.path(),
+        &quiet_session(),
+    )
+    .unwrap()
+    .checkpoint
+    .unwrap();
     let (plain, tuned_net) = (load(&source_dir), load(&tuned_dir));
     let (before, after) = (named(&plain), named(&tuned_net));
     assert_eq!(after.len(), before.len() + 1, "the ray layer's weight is new");
     for (name, bytes) in &before {
         assert!(after[name] == *bytes, "{name} moved");
     }
-    let ray_weight = after.iter().find(|(name, _)| name.starts_with("ray_embed") && name.ends_with("weight")).expect("a ray layer").1;
+    let ray_weight = after
+        .iter()
+        .find(|(name, _)| name.starts_with("ray_embed") && name.ends_with("weight"))
+        .expect("a ray layer")
+        .1;
     assert!(ray_weight.iter().any(|&b| b != 0), "the ray layer left zero");
     let c = tuned_net.config();
-    let images = Tensor::<4>::random([3, 3, c.image_size, c.image_size], Distribution::Uniform(0.0, 1.0), &Device::flex());
+    let images = Tensor::<4>::random(
+        [3, 3, c.image_size, c.image_size],
+        Distribution::Uniform(0.0, 1.0),
+        &Device::flex(),
+    );
     let zero_rays = Tensor::<3>::zeros([3, c.grid() * c.grid(), ray_channels(1)], &Device::flex());
-    let (a, b) = (plain.forward(images.clone()).unwrap(), tuned_net.forward_with_rays(images, Some(zero_rays)).unwrap());
-    for (x, y) in [(a.depth, b.depth), (a.instance, b.instance), (a.semantic, b.semantic), (a.gaussians, b.gaussians)] {
-        assert_eq!(x.into_data().try_into_vec_as::<f32>().unwrap(), y.into_data().try_into_vec_as::<f32>().unwrap(), "zero rays moved an output");
+    let (a, b) = (
+        plain.forward(images.clone()).unwrap(),
+        tuned_net.forward_with_rays(images, Some(zero_rays)).unwrap(),
+    );
+    for (x, y) in [
+        (a.depth, b.depth),
+        (a.instance, b.instance),
+        (a.semantic, b.semantic),
+        (a.gaussians, b.gaussians),
+    ] {
+        assert_eq!(
+            x.into_data().try_into_vec_as::<f32>().unwrap(),
+            y.into_data().try_into_vec_as::<f32>().unwrap(),
+            "zero rays moved an output"
+        );
     }
-    let err = train::train(&tuned.path().join("plain"), rays_only(tiny_model()), tiny_data(), &quiet_session()).unwrap_err();
+    let err = train::train(
+        &tuned.path().join("plain"),
+        rays_only(tiny_model()),
+        tiny_data(),
+        &quiet_session(),
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("--camera-rays"), "{err}");
     // Read as a network without rays, the checkpoint is refused, naming the tensor it would drop.
     let mut state = checkpoint::read_state(&tuned_dir).unwrap();
     state.config.model.camera_rays = None;
-    let err = checkpoint::load_model(&tuned_dir, &state, &Device::flex()).expect_err("an unread tensor");
-    assert!(err.to_string().contains("ray_embed.weight") && err.to_string().contains("model.bpk"), "{err}");
+    let err =
+        checkpoint::load_model(&tuned_dir, &state, &Device::flex()).expect_err("an unread tensor");
+    assert!(
+        err.to_string().contains("ray_embed.weight") && err.to_string().contains("model.bpk"),
+        "{err}"
+    );
 }
 
 #[test]
 fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
     let source = tempfile::tempdir().unwrap();
-    let config = TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(2).with_max_views(3).with_seed(4);
+    let config = TrainConfig::new(tiny_model(), LossConfig::new())
+        .with_steps(2)
+        .with_max_views(3)
+        .with_seed(4);
     let s = train::train(source.path(), config, tiny_data(), &quiet_session()).unwrap();
     let source_dir = s.checkpoint.unwrap();
     // A different shape on the command line is replaced by the checkpoint's; a tiny learning
     // rate keeps the one step from moving the weights measurably.
-    let other = TrainConfig::new(tiny_model().with_dim(48), LossConfig::new()).with_steps(1).with_warmup(0).with_lr(1e-12);
+    let other = TrainConfig::new(tiny_model().with_dim(48), LossConfig::new())
+        .with_steps(1)
+        .with_warmup(0)
+        .with_lr(1e-12);
     let tuned = tempfile::tempdir().unwrap();
-    let t = train::fine_tune(tuned.path(), other, tiny_data(), source.path(), &quiet_session()).unwrap();
+    let t = train::fine_tune(tuned.path(), other, tiny_data(), source.path(), &quiet_session())
+        .unwrap();
     let tuned_dir = t.checkpoint.unwrap();
     let state = checkpoint::read_state(&tuned_dir).unwrap();
     assert_eq!((state.step, state.config.model.dim), (1, 32));
@@ -393,8 +587,14 @@ fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
     assert!(max_diff <= 1e-6, "fine-tune moved from its source by {max_diff}");
     // No checkpoint to start from: a named error.
     let empty = tempfile::tempdir().unwrap();
-    let err = train::fine_tune(&empty.path().join("run"), TrainConfig::new(tiny_model(), LossConfig::new()), tiny_data(), empty.path(), &quiet_session())
-        .unwrap_err();
+    let err = train::fine_tune(
+        &empty.path().join("run"),
+        TrainConfig::new(tiny_model(), LossConfig::new()),
+        tiny_data(),
+        empty.path(),
+        &quiet_session(),
+    )
+    .unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
 }
 
@@ -414,8 +614,19 @@ fn bad_data_and_checkpoints_are_named_errors() {
     let empty = tmp.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let run = tmp.path().join("run");
-    let err = failure(bin().args(["train", "--quiet", "--steps", "1", "--out"]).arg(&run).arg("--data").arg(&empty));
-    assert!(err.contains("--data") && err.contains(&*empty.to_string_lossy()) && err.contains("no scene folders"), "{err}");
+    let err = failure(
+        bin()
+            .args(["train", "--quiet", "--steps", "1", "--out"])
+            .arg(&run)
+            .arg("--data")
+            .arg(&empty),
+    );
+    assert!(
+        err.contains("--data")
+            && err.contains(&*empty.to_string_lossy())
+            && err.contains("no scene folders"),
+        "{err}"
+    );
 
     let err = failure(bin().args(["train", "--quiet", "--resume", "--out"]).arg(&run));
     assert!(err.contains("--resume") && err.contains("no checkpoint"), "{err}");
@@ -424,30 +635,71 @@ fn bad_data_and_checkpoints_are_named_errors() {
     // A build without the `gpu` feature refuses the GPU by name, before it makes the run folder.
     if !cfg!(feature = "gpu") {
         let gpu_run = tmp.path().join("gpu");
-        let err = failure(bin().args(["train", "--quiet", "--steps", "1", "--primitives-only", "--device", "gpu", "--out"]).arg(&gpu_run));
+        let err = failure(
+            bin()
+                .args([
+                    "train",
+                    "--quiet",
+                    "--steps",
+                    "1",
+                    "--primitives-only",
+                    "--device",
+                    "gpu",
+                    "--out",
+                ])
+                .arg(&gpu_run),
+        );
         assert!(err.contains("--device gpu") && err.contains("--features gpu"), "{err}");
         assert!(!gpu_run.exists());
     }
 
     // A point-map weight for a network without a point-map head (the CLI adds the head).
-    let headless = TrainConfig::new(tiny_model(), LossConfig::new().with_point_map_weight(Some(1.0))).with_steps(1);
-    let err = train::train(&tmp.path().join("headless"), headless, tiny_data(), &quiet_session()).unwrap_err().to_string();
+    let headless =
+        TrainConfig::new(tiny_model(), LossConfig::new().with_point_map_weight(Some(1.0)))
+            .with_steps(1);
+    let err = train::train(&tmp.path().join("headless"), headless, tiny_data(), &quiet_session())
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("point-map weight") && err.contains("point-map head"), "{err}");
-    let headless = TrainConfig::new(tiny_model(), LossConfig::new().with_descriptor_weight(Some(1.0))).with_steps(1);
-    let err = train::train(&tmp.path().join("headless_d"), headless, tiny_data(), &quiet_session()).unwrap_err().to_string();
+    let headless =
+        TrainConfig::new(tiny_model(), LossConfig::new().with_descriptor_weight(Some(1.0)))
+            .with_steps(1);
+    let err = train::train(&tmp.path().join("headless_d"), headless, tiny_data(), &quiet_session())
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("descriptor weight") && err.contains("descriptor head"), "{err}");
 
     // A checkpoint whose state.json describes another network than its weights.
-    let t = train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1), tiny_data(), &quiet_session()).unwrap();
+    let t = train::train(
+        &run,
+        TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(1),
+        tiny_data(),
+        &quiet_session(),
+    )
+    .unwrap();
     let dir = t.checkpoint.unwrap();
     let state_path = dir.join("state.json");
     let text = std::fs::read_to_string(&state_path).unwrap().replace("\"dim\": 32", "\"dim\": 48");
     std::fs::write(&state_path, text).unwrap();
-    let err = failure(bin().arg("export").arg("--checkpoint").arg(&run).arg("--out").arg(tmp.path().join("m.onnx")));
+    let err = failure(
+        bin()
+            .arg("export")
+            .arg("--checkpoint")
+            .arg(&run)
+            .arg("--out")
+            .arg(tmp.path().join("m.onnx")),
+    );
     assert!(err.contains("incompatible checkpoint") && err.contains("model.bpk"), "{err}");
 
     std::fs::write(&state_path, "{ not json").unwrap();
-    let err = failure(bin().arg("export").arg("--checkpoint").arg(&dir).arg("--out").arg(tmp.path().join("m.onnx")));
+    let err = failure(
+        bin()
+            .arg("export")
+            .arg("--checkpoint")
+            .arg(&dir)
+            .arg("--out")
+            .arg(tmp.path().join("m.onnx")),
+    );
     assert!(err.contains("state.json") && err.contains("not a checkpoint state"), "{err}");
 }
 
@@ -458,14 +710,32 @@ fn two_samples_on_threads_give_the_mean_gradient_of_one_graph() {
     let net = seeded_init(&tiny_model(), 5, &device).unwrap();
     let samples = vec![three_view_sample(1, 5), three_view_sample(2, 9)];
     let parallel = batch::gradients(&net, &samples, &loss, &device).unwrap();
-    let (a, b) = (objective(&net, &samples[0], &loss, &device).unwrap(), objective(&net, &samples[1], &loss, &device).unwrap());
+    let (a, b) = (
+        objective(&net, &samples[0], &loss, &device).unwrap(),
+        objective(&net, &samples[1], &loss, &device).unwrap(),
+    );
     let mean_total = (a.values().total + b.values().total) / 2.0;
-    assert!((parallel.values.total - mean_total).abs() <= 1e-5 * mean_total.abs(), "{} vs {mean_total}", parallel.values.total);
-    let reference = GradientsParams::from_grads((a.total + b.total).div_scalar(2.0).backward(), &net);
-    let mut compare = Compare { a: &parallel.grads, b: &reference, tensors: 0, nonzero: 0, worst: 0.0 };
+    assert!(
+        (parallel.values.total - mean_total).abs() <= 1e-5 * mean_total.abs(),
+        "{} vs {mean_total}",
+        parallel.values.total
+    );
+    let reference =
+        GradientsParams::from_grads((a.total + b.total).div_scalar(2.0).backward(), &net);
+    let mut compare =
+        Compare { a: &parallel.grads, b: &reference, tensors: 0, nonzero: 0, worst: 0.0 };
     net.visit(&mut compare);
-    assert!(compare.nonzero > 10, "only {} of {} gradients are non-zero", compare.nonzero, compare.tensors);
-    assert!(compare.worst <= 1e-4, "threaded and single-graph gradients differ by {} (relative)", compare.worst);
+    assert!(
+        compare.nonzero > 10,
+        "only {} of {} gradients are non-zero",
+        compare.nonzero,
+        compare.tensors
+    );
+    assert!(
+        compare.worst <= 1e-4,
+        "threaded and single-graph gradients differ by {} (relative)",
+        compare.worst
+    );
 }
 
 /// Compares two gradient sets parameter by parameter: worst relative difference per tensor.
@@ -479,9 +749,16 @@ struct Compare<'a> {
 
 impl burn::module::ModuleVisitor for Compare<'_> {
     fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
-        let read = |g: &GradientsParams| g.get::<D>(param.id).map(|t| t.into_data().try_to_vec::<f32>().unwrap());
+        let read = |g: &GradientsParams| {
+            g.get::<D>(param.id).map(|t| t.into_data().try_to_vec::<f32>().unwrap())
+        };
         let (a, b) = (read(self.a), read(self.b));
-        assert_eq!(a.is_some(), b.is_some(), "parameter {} has a gradient on one side only", param.id);
+        assert_eq!(
+            a.is_some(),
+            b.is_some(),
+            "parameter {} has a gradient on one side only",
+            param.id
+        );
         let (Some(a), Some(b)) = (a, b) else { return };
         self.tensors += 1;
         let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs()));

@@ -63,16 +63,21 @@ fn interrupted_run_resumes_exactly(samples_per_step: Option<usize>) {
     let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
     let col = |name: &str| header.iter().position(|c| *c == name).unwrap();
     let (backward, raster) = (col("backward_s"), col("render_backward_s"));
-    let rows: Vec<Vec<f64>> = log.lines().skip(1).map(|l| l.split(',').map(|c| c.parse().unwrap()).collect()).collect();
+    let rows: Vec<Vec<f64>> =
+        log.lines().skip(1).map(|l| l.split(',').map(|c| c.parse().unwrap()).collect()).collect();
     for r in &rows {
-        assert!(r[raster] >= 0.0 && (samples_per_step.is_some_and(|k| k > 1) || r[raster] <= r[backward]), "{r:?}");
+        assert!(
+            r[raster] >= 0.0
+                && (samples_per_step.is_some_and(|k| k > 1) || r[raster] <= r[backward]),
+            "{r:?}"
+        );
     }
     assert!(rows.iter().map(|r| r[raster]).sum::<f64>() > 0.0, "{log}");
     assert!(pieces.path().join("loss.png").is_file());
     // Only the newest `keep` checkpoints stay.
-    let kept = std::fs::read_dir(checkpoint::checkpoints_dir(pieces.path())).unwrap().filter(|e| {
-        e.as_ref().unwrap().file_name().to_string_lossy().starts_with("step_")
-    });
+    let kept = std::fs::read_dir(checkpoint::checkpoints_dir(pieces.path()))
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().starts_with("step_"));
     assert_eq!(kept.count(), 2);
     // A second start in the same folder refuses to overwrite the run.
     let again = train::train(pieces.path(), config(), tiny_data(), &quiet_session()).unwrap_err();
@@ -86,12 +91,38 @@ fn interrupted_run_resumes_exactly(samples_per_step: Option<usize>) {
 fn resuming_keeps_the_checkpoints_the_run_kept() {
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("run");
-    let every_step = Session { checkpoint_every: Duration::ZERO, keep: Some(10), ..quiet_session() };
-    train::train(&run, TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_max_views(2), tiny_data(), &every_step).unwrap();
-    let steps = || checkpoint::all(&run).iter().map(|d| checkpoint::read_state(d).unwrap().step).collect::<Vec<_>>();
+    let every_step =
+        Session { checkpoint_every: Duration::ZERO, keep: Some(10), ..quiet_session() };
+    train::train(
+        &run,
+        TrainConfig::new(tiny_model(), LossConfig::new()).with_steps(4).with_max_views(2),
+        tiny_data(),
+        &every_step,
+    )
+    .unwrap();
+    let steps = || {
+        checkpoint::all(&run)
+            .iter()
+            .map(|d| checkpoint::read_state(d).unwrap().step)
+            .collect::<Vec<_>>()
+    };
     assert_eq!(steps(), [1, 2, 3, 4], "a checkpoint after every step");
     let resume = |steps: &str, extra: &[&str]| {
-        let out = bin().args(["train", "--quiet", "--resume", "--steps", steps, "--checkpoint-minutes", "0", "--out"]).arg(&run).args(extra).output().unwrap();
+        let out = bin()
+            .args([
+                "train",
+                "--quiet",
+                "--resume",
+                "--steps",
+                steps,
+                "--checkpoint-minutes",
+                "0",
+                "--out",
+            ])
+            .arg(&run)
+            .args(extra)
+            .output()
+            .unwrap();
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     };
     resume("6", &[]);
@@ -104,7 +135,20 @@ fn resuming_keeps_the_checkpoints_the_run_kept() {
 fn a_terminated_run_checkpoints_its_last_step_and_resumes_from_it() {
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("run");
-    let tiny = ["--primitives-only", "--image-size", "32", "--dim", "32", "--depth", "2", "--heads", "2", "--val-every", "0", "--quiet"];
+    let tiny = [
+        "--primitives-only",
+        "--image-size",
+        "32",
+        "--dim",
+        "32",
+        "--depth",
+        "2",
+        "--heads",
+        "2",
+        "--val-every",
+        "0",
+        "--quiet",
+    ];
     let child = bin()
         .args(["train", "--steps", "1000", "--checkpoint-minutes", "60", "--out"])
         .arg(&run)
@@ -113,7 +157,10 @@ fn a_terminated_run_checkpoints_its_last_step_and_resumes_from_it() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let logged = || std::fs::read_to_string(run.join("train_log.csv")).map_or(0, |t| t.lines().count().saturating_sub(1));
+    let logged = || {
+        std::fs::read_to_string(run.join("train_log.csv"))
+            .map_or(0, |t| t.lines().count().saturating_sub(1))
+    };
     let start = std::time::Instant::now();
     while logged() < 3 {
         assert!(start.elapsed() < Duration::from_secs(120), "no 3 steps logged in 2 minutes");
@@ -128,10 +175,24 @@ fn a_terminated_run_checkpoints_its_last_step_and_resumes_from_it() {
     let steps = logged();
     let dir = checkpoint::latest(&run).unwrap().expect("a checkpoint written on SIGTERM");
     assert_eq!(checkpoint::read_state(&dir).unwrap().step as usize, steps);
-    assert!(err.contains(&format!("stopped by signal {} after step {steps}", libc::SIGTERM)) && err.contains("--resume"), "{err}");
+    assert!(
+        err.contains(&format!("stopped by signal {} after step {steps}", libc::SIGTERM))
+            && err.contains("--resume"),
+        "{err}"
+    );
     // --resume goes on from there.
-    let out = bin().args(["train", "--resume", "--quiet", "--steps"]).arg((steps + 1).to_string()).arg("--out").arg(&run).output().unwrap();
+    let out = bin()
+        .args(["train", "--resume", "--quiet", "--steps"])
+        .arg((steps + 1).to_string())
+        .arg("--out")
+        .arg(&run)
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(String::from_utf8_lossy(&out.stdout).contains(&format!("steps {steps}..{}", steps + 1)), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains(&format!("steps {steps}..{}", steps + 1)),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     assert_eq!(logged(), steps + 1);
 }

@@ -34,7 +34,10 @@ impl Default for SuperpixelParams {
 pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelParams) -> Vec<u32> {
     let n = width * height;
     assert_eq!(planar.len(), 3 * n, "a planar RGB image of {width}×{height}");
-    assert!(4 * n as u64 <= 1 << 32, "{width}×{height}: too many pixels to number the edges in 32 bits");
+    assert!(
+        4 * n as u64 <= 1 << 32,
+        "{width}×{height}: too many pixels to number the edges in 32 bits"
+    );
     let image = blur(planar, width, height, params.sigma);
     let colour = |i: usize| [image[i], image[n + i], image[2 * n + i]];
     // Each edge as one sortable word: its weight's bits (non-negative floats sort as their
@@ -51,7 +54,8 @@ pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelP
                     continue;
                 }
                 let (a, b) = (colour(i), colour(ny as usize * width + nx as usize));
-                let w = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                let w =
+                    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
                 edges.push(u64::from(w.to_bits()) << 32 | (4 * i + d) as u64);
             }
         }
@@ -60,7 +64,11 @@ pub fn segment(planar: &[f32], width: usize, height: usize, params: &SuperpixelP
     let ends = |e: u64| {
         let id = (e & 0xffff_ffff) as usize;
         let (i, (dy, dx)) = (id / 4, STEPS[id % 4]);
-        (f32::from_bits((e >> 32) as u32), i, ((i / width) as isize + dy) as usize * width + ((i % width) as isize + dx) as usize)
+        (
+            f32::from_bits((e >> 32) as u32),
+            i,
+            ((i / width) as isize + dy) as usize * width + ((i % width) as isize + dx) as usize,
+        )
     };
     let k = params.scale / 255.0;
     let mut forest = DisjointSetForest::new(n);
@@ -110,7 +118,8 @@ fn blur(planar: &[f32], width: usize, height: usize, sigma: f32) -> Vec<f32> {
         return planar.to_vec();
     }
     let radius = (4.0 * sigma).ceil() as isize;
-    let kernel: Vec<f32> = (-radius..=radius).map(|t| (-(t * t) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let kernel: Vec<f32> =
+        (-radius..=radius).map(|t| (-(t * t) as f32 / (2.0 * sigma * sigma)).exp()).collect();
     let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
         let mut dst = vec![0.0; src.len()];
         for (p, plane) in src.chunks_exact(width * height).enumerate() {
@@ -142,7 +151,9 @@ pub fn snap(features: &mut [f32], segments: &[u32]) {
     assert_eq!(features.len() % pixels.max(1), 0, "a planar map of {pixels} pixels");
     let channels = features.len() / pixels.max(1);
     let count = segments.iter().max().map_or(0, |&m| m as usize + 1);
-    let length = |p: usize| (0..channels).map(|c| features[c * pixels + p].powi(2)).sum::<f32>().sqrt().max(1e-12);
+    let length = |p: usize| {
+        (0..channels).map(|c| features[c * pixels + p].powi(2)).sum::<f32>().sqrt().max(1e-12)
+    };
     let lengths: Vec<f32> = (0..pixels).map(length).collect();
     let mut sums = vec![0.0f32; count * channels];
     for (p, &s) in segments.iter().enumerate() {
@@ -169,7 +180,12 @@ pub fn vote(ids: &mut [u32], segments: &[u32]) {
     for (&s, &id) in segments.iter().zip(ids.iter()) {
         *tallies[s as usize].entry(id).or_default() += 1;
     }
-    let winners: Vec<u32> = tallies.iter().map(|t| t.iter().max_by_key(|(id, n)| (**n, std::cmp::Reverse(**id))).map_or(0, |(id, _)| *id)).collect();
+    let winners: Vec<u32> = tallies
+        .iter()
+        .map(|t| {
+            t.iter().max_by_key(|(id, n)| (**n, std::cmp::Reverse(**id))).map_or(0, |(id, _)| *id)
+        })
+        .collect();
     for (&s, id) in segments.iter().zip(ids.iter_mut()) {
         *id = winners[s as usize];
     }
@@ -181,14 +197,17 @@ mod tests {
 
     /// A `w`×`h` planar image whose left `split` columns are one colour and the rest another.
     fn two_halves(w: usize, h: usize, split: usize, left: [f32; 3], right: [f32; 3]) -> Vec<f32> {
-        (0..3).flat_map(|c| (0..w * h).map(move |i| if i % w < split { left[c] } else { right[c] })).collect()
+        (0..3)
+            .flat_map(|c| (0..w * h).map(move |i| if i % w < split { left[c] } else { right[c] }))
+            .collect()
     }
 
     #[test]
     fn two_flat_regions_give_two_segments_along_their_edge() {
         let (w, h) = (20, 12);
         let image = two_halves(w, h, 7, [0.9, 0.1, 0.1], [0.1, 0.2, 0.8]);
-        let seg = segment(&image, w, h, &SuperpixelParams { sigma: 0.0, ..SuperpixelParams::default() });
+        let seg =
+            segment(&image, w, h, &SuperpixelParams { sigma: 0.0, ..SuperpixelParams::default() });
         for (i, &s) in seg.iter().enumerate() {
             assert_eq!(s, u32::from(i % w >= 7), "pixel {i}");
         }

@@ -1,6 +1,7 @@
 //! Matches of two views on the network's learned per-pixel descriptors (the optional
 //! `descriptors` output, `[D][H][W]` per view, compared after L2 normalization), which
-//! registration matches where a pair's keypoints found no pose: on the synthetic rooms at 128² BRIEF
+//! registration matches where a pair's keypoints found no pose: on the synthetic rooms at 128²
+//! BRIEF
 //! links no pair to 79 of the 280 non-reference views of the 40 val scenes at 8 views, though
 //! they overlap another view by 80% (median). This module owns the descriptor maps'
 //! preparation (every pixel normalized, a grid of points every
@@ -107,7 +108,9 @@ impl DenseView {
         let g = self.grid[k];
         let cols = g.col.saturating_sub(1)..(g.col + 2).min(self.cols);
         (g.row.saturating_sub(1)..(g.row + 2).min(self.rows))
-            .flat_map(move |row| cols.clone().map(move |col| self.cells[(row * self.cols + col) as usize]))
+            .flat_map(move |row| {
+                cols.clone().map(move |col| self.cells[(row * self.cols + col) as usize])
+            })
             .filter(|&i| i != NONE)
             .map(|i| i as usize)
     }
@@ -119,9 +122,14 @@ impl DenseView {
 /// When the map's size is not D × the view's pixels.
 pub fn prepare(view: &RegisterView<'_>, params: &RegisterParams) -> Option<DenseView> {
     let map = view.descriptors?;
-    let (width, height) = (view.camera.intrinsics.width as usize, view.camera.intrinsics.height as usize);
+    let (width, height) =
+        (view.camera.intrinsics.width as usize, view.camera.intrinsics.height as usize);
     let (dim, size) = (map.dim, width * height);
-    assert!(dim > 0 && map.data.len() == dim * size, "descriptor map of {} values for D = {dim} at {width}×{height}", map.data.len());
+    assert!(
+        dim > 0 && map.data.len() == dim * size,
+        "descriptor map of {} values for D = {dim} at {width}×{height}",
+        map.data.len()
+    );
     let mut pixels = vec![0.0f32; size * dim];
     for (d, plane) in map.data.chunks_exact(size).enumerate() {
         for (p, &v) in plane.iter().enumerate() {
@@ -139,7 +147,10 @@ pub fn prepare(view: &RegisterView<'_>, params: &RegisterParams) -> Option<Dense
     let stride = params.descriptor_stride.max(1);
     let [x0, y0, x1, y1] = view.photo;
     let (x1, y1) = (x1.min(width as u32), y1.min(height as u32));
-    let (xs, ys) = ((x0 + stride / 2..x1).step_by(stride as usize), (y0 + stride / 2..y1).step_by(stride as usize));
+    let (xs, ys) = (
+        (x0 + stride / 2..x1).step_by(stride as usize),
+        (y0 + stride / 2..y1).step_by(stride as usize),
+    );
     let (cols, rows) = (xs.len() as u32, ys.len() as u32);
     let mut dense = DenseView {
         width,
@@ -206,7 +217,10 @@ fn max_of(row: &[f32]) -> f32 {
 #[inline(always)]
 fn arg_max(row: &[f32]) -> (f32, usize) {
     let top = max_of(row);
-    let chunk = row.chunks_exact(LANES).position(|c| c.iter().fold(false, |hit, &s| hit | (s == top))).unwrap_or(0);
+    let chunk = row
+        .chunks_exact(LANES)
+        .position(|c| c.iter().fold(false, |hit, &s| hit | (s == top)))
+        .unwrap_or(0);
     let at = row[chunk * LANES..].iter().position(|&s| s == top).unwrap_or(0);
     (top, chunk * LANES + at)
 }
@@ -274,7 +288,8 @@ pub fn match_views(a: &DenseView, b: &DenseView, params: &RegisterParams) -> Vec
     let (best_in_b, best_in_a) = nearest(a, b);
     let mut out = Vec::new();
     for (ia, (cos, ib, second)) in best_in_b.into_iter().enumerate() {
-        let distinct = second == f32::NEG_INFINITY || (1.0 - cos) < params.descriptor_ratio * (1.0 - second);
+        let distinct =
+            second == f32::NEG_INFINITY || (1.0 - cos) < params.descriptor_ratio * (1.0 - second);
         if cos >= params.descriptor_min_cos && distinct && best_in_a[ib] as usize == ia {
             let ga = &a.grid[ia];
             out.push((ga.centre(), refine(b, a.descriptor(ga.x, ga.y), &b.grid[ib])));
@@ -315,7 +330,11 @@ mod tests {
     const DIM: usize = 16;
 
     fn camera() -> Camera {
-        Camera { intrinsics: Intrinsics::from_fov_y(SIZE, SIZE, 1.0), rotation: Quat::IDENTITY, translation: Vec3::ZERO }
+        Camera {
+            intrinsics: Intrinsics::from_fov_y(SIZE, SIZE, 1.0),
+            rotation: Quat::IDENTITY,
+            translation: Vec3::ZERO,
+        }
     }
 
     /// A smooth map: the sines and cosines of 8 random projections of each pixel's position
@@ -325,7 +344,10 @@ mod tests {
         let waves: Vec<(Vec2, f32)> = (0..DIM / 2)
             .map(|_| {
                 let angle = rng.random_range(0.0..std::f32::consts::TAU);
-                (Vec2::from_angle(angle) * rng.random_range(0.15..0.8), rng.random_range(0.0..std::f32::consts::TAU))
+                (
+                    Vec2::from_angle(angle) * rng.random_range(0.15..0.8),
+                    rng.random_range(0.0..std::f32::consts::TAU),
+                )
             })
             .collect();
         let pixels = (SIZE * SIZE) as usize;
@@ -350,7 +372,14 @@ mod tests {
         let (rgb, depth, camera) = (vec![0.5; 3 * pixels], vec![2.0; pixels], camera());
         // A letterboxed photo: the grid starts inside it.
         let photo = [0, 4, SIZE, SIZE - 4];
-        let view = RegisterView { rgb: &rgb, depth: &depth, photo, camera: &camera, descriptors: Some(Descriptors { data: &data, dim: DIM }), detail: None };
+        let view = RegisterView {
+            rgb: &rgb,
+            depth: &depth,
+            photo,
+            camera: &camera,
+            descriptors: Some(Descriptors { data: &data, dim: DIM }),
+            detail: None,
+        };
         let params = RegisterParams::default();
         let dense = prepare(&view, &params).expect("descriptors");
         // Every 4th pixel from 2 across 40 columns, and from 6 in rows 4..36.
@@ -369,14 +398,25 @@ mod tests {
         let (map_a, map_b) = (smooth_map(Vec2::ZERO, 5), smooth_map(shift, 5));
         let pixels = (SIZE * SIZE) as usize;
         let (rgb, depth, camera) = (vec![0.5; 3 * pixels], vec![2.0; pixels], camera());
-        let view = |data| RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: Some(Descriptors { data, dim: DIM }), detail: None };
+        let view = |data| RegisterView {
+            rgb: &rgb,
+            depth: &depth,
+            photo: [0, 0, SIZE, SIZE],
+            camera: &camera,
+            descriptors: Some(Descriptors { data, dim: DIM }),
+            detail: None,
+        };
         let params = RegisterParams::default();
-        let (a, b) = (prepare(&view(&map_a), &params).unwrap(), prepare(&view(&map_b), &params).unwrap());
+        let (a, b) =
+            (prepare(&view(&map_a), &params).unwrap(), prepare(&view(&map_b), &params).unwrap());
         let matches = match_views(&a, &b, &params);
         let inside = |p: Vec2| p.x < SIZE as f32 && p.y < SIZE as f32;
         let seen = a.grid.iter().filter(|g| inside(g.centre() + shift)).count();
         let exact = matches.iter().filter(|(pa, pb)| *pb == *pa + shift).count();
-        assert!(matches.iter().all(|(pa, pb)| *pb == *pa + shift || !inside(*pa + shift)), "{matches:?}");
+        assert!(
+            matches.iter().all(|(pa, pb)| *pb == *pa + shift || !inside(*pa + shift)),
+            "{matches:?}"
+        );
         assert!(exact * 10 >= seen * 8, "{exact} exact matches of {seen} grid points that b sees");
     }
 
@@ -389,7 +429,14 @@ mod tests {
         let views: Vec<_> = maps
             .iter()
             .map(|m| {
-                let v = RegisterView { rgb: &rgb, depth: &depth, photo: [1, 0, SIZE, SIZE - 1], camera: &camera, descriptors: Some(Descriptors { data: m, dim: DIM }), detail: None };
+                let v = RegisterView {
+                    rgb: &rgb,
+                    depth: &depth,
+                    photo: [1, 0, SIZE, SIZE - 1],
+                    camera: &camera,
+                    descriptors: Some(Descriptors { data: m, dim: DIM }),
+                    detail: None,
+                };
                 prepare(&v, &params).unwrap()
             })
             .collect();
@@ -399,7 +446,14 @@ mod tests {
     #[test]
     fn views_without_descriptors_are_not_prepared() {
         let (rgb, depth, camera) = (vec![0.5; 3 * 1600], vec![1.0; 1600], camera());
-        let view = RegisterView { rgb: &rgb, depth: &depth, photo: [0, 0, SIZE, SIZE], camera: &camera, descriptors: None, detail: None };
+        let view = RegisterView {
+            rgb: &rgb,
+            depth: &depth,
+            photo: [0, 0, SIZE, SIZE],
+            camera: &camera,
+            descriptors: None,
+            detail: None,
+        };
         assert!(prepare(&view, &RegisterParams::default()).is_none());
     }
 }

@@ -68,7 +68,9 @@ pub fn test_pairs() -> Vec<TestPair> {
             return c as u32;
         }
     };
-    (0..BITS).map(|_| TestPair { p0: Point::new(coord(), coord()), p1: Point::new(coord(), coord()) }).collect()
+    (0..BITS)
+        .map(|_| TestPair { p0: Point::new(coord(), coord()), p1: Point::new(coord(), coord()) })
+        .collect()
 }
 
 /// BT.601 luma of an RGB colour in [0, 1], as an 8-bit grey.
@@ -114,8 +116,13 @@ impl KeypointImage {
             let i = ((y0 + y).min(height - 1) * width + (x0 + x).min(width - 1)) as usize;
             luma(rgb[i], rgb[px + i], rgb[2 * px + i])
         });
-        let up = imageops::resize(&grey, w * UPSAMPLE, h * UPSAMPLE, imageops::FilterType::Triangle);
-        Self { grey: padded(&up), per_view: UPSAMPLE as f32, origin: Vec2::new(x0 as f32, y0 as f32) }
+        let up =
+            imageops::resize(&grey, w * UPSAMPLE, h * UPSAMPLE, imageops::FilterType::Triangle);
+        Self {
+            grey: padded(&up),
+            per_view: UPSAMPLE as f32,
+            origin: Vec2::new(x0 as f32, y0 as f32),
+        }
     }
 
     /// A photo with `per_view` of its pixels to a view pixel, its top-left corner at view
@@ -150,7 +157,8 @@ pub fn detect(image: &KeypointImage, pairs: &[TestPair], params: &RegisterParams
         if !inside {
             continue;
         }
-        let (col, row) = (((c.x - PAD) as f32 / cell) as usize, ((c.y - PAD) as f32 / cell) as usize);
+        let (col, row) =
+            (((c.x - PAD) as f32 / cell) as usize, ((c.y - PAD) as f32 / cell) as usize);
         let slot = &mut best[row.min(rows - 1) * cols + col.min(cols - 1)];
         if slot.is_none_or(|(s, _, _)| c.score > s) {
             *slot = Some((c.score, c.x, c.y));
@@ -161,11 +169,15 @@ pub fn detect(image: &KeypointImage, pairs: &[TestPair], params: &RegisterParams
     kept.truncate(params.max_keypoints);
     let keypoints: Vec<Point<u32>> = kept.iter().map(|&(_, x, y)| Point::new(x, y)).collect();
     let pairs = pairs.to_vec();
-    let (briefs, _) = brief(&image.grey, &keypoints, BITS, Some(&pairs)).expect("padded keypoints are a patch radius inside");
+    let (briefs, _) = brief(&image.grey, &keypoints, BITS, Some(&pairs))
+        .expect("padded keypoints are a patch radius inside");
     let descriptors = briefs.iter().map(|d| std::array::from_fn(|k| d.bits[k])).collect();
     let points = keypoints
         .iter()
-        .map(|p| image.origin + Vec2::new((p.x - PAD) as f32 + 0.5, (p.y - PAD) as f32 + 0.5) / image.per_view)
+        .map(|p| {
+            image.origin
+                + Vec2::new((p.x - PAD) as f32 + 0.5, (p.y - PAD) as f32 + 0.5) / image.per_view
+        })
         .collect();
     Features { points, descriptors }
 }
@@ -207,7 +219,8 @@ pub fn match_features(a: &Features, b: &Features, params: &RegisterParams) -> Ve
     }
     let nb = b.len();
     let dist = distances(&a.descriptors, &b.descriptors);
-    let best_in_a_for = |j: usize| (0..a.len()).min_by_key(|&i| dist[i * nb + j]).expect("a is not empty");
+    let best_in_a_for =
+        |j: usize| (0..a.len()).min_by_key(|&i| dist[i * nb + j]).expect("a is not empty");
     let mut out = Vec::new();
     for i in 0..a.len() {
         let row = &dist[i * nb..(i + 1) * nb];
@@ -259,8 +272,16 @@ mod tests {
         let pairs = test_pairs();
         // The same cells of 8 image pixels: the photo as its own view, and as a view at half
         // its scale whose photo starts at (3, 5).
-        let own = detect(&KeypointImage::of_photo(&photo, 1.0, Vec2::ZERO), &pairs, &RegisterParams { grid_cell: 8, ..RegisterParams::default() });
-        let half = detect(&KeypointImage::of_photo(&photo, 2.0, Vec2::new(3.0, 5.0)), &pairs, &RegisterParams::default());
+        let own = detect(
+            &KeypointImage::of_photo(&photo, 1.0, Vec2::ZERO),
+            &pairs,
+            &RegisterParams { grid_cell: 8, ..RegisterParams::default() },
+        );
+        let half = detect(
+            &KeypointImage::of_photo(&photo, 2.0, Vec2::new(3.0, 5.0)),
+            &pairs,
+            &RegisterParams::default(),
+        );
         assert!(own.len() > 20, "{} keypoints", own.len());
         assert_eq!(own.descriptors, half.descriptors);
         for (a, b) in own.points.iter().zip(&half.points) {
@@ -276,11 +297,23 @@ mod tests {
         let px = 96 * 96;
         let mut rgb = vec![0.0; 3 * px];
         for (x, y, p) in photo.enumerate_pixels() {
-            (0..3).for_each(|c| rgb[c * px + ((y + 16) * 96 + x) as usize] = f32::from(p[c]) / 255.0);
+            (0..3)
+                .for_each(|c| rgb[c * px + ((y + 16) * 96 + x) as usize] = f32::from(p[c]) / 255.0);
         }
-        let found = detect(&KeypointImage::of_view(&rgb, 96, 96, [0, 16, 96, 80]), &test_pairs(), &RegisterParams::default());
+        let found = detect(
+            &KeypointImage::of_view(&rgb, 96, 96, [0, 16, 96, 80]),
+            &test_pairs(),
+            &RegisterParams::default(),
+        );
         assert!(found.len() > 20, "{} keypoints", found.len());
         let m = PHOTO_MARGIN;
-        assert!(found.points.iter().all(|p| p.y >= 16.0 + m && p.y <= 80.0 - m && p.x >= m && p.x <= 96.0 - m), "{:?}", found.points);
+        assert!(
+            found
+                .points
+                .iter()
+                .all(|p| p.y >= 16.0 + m && p.y <= 80.0 - m && p.x >= m && p.x <= 96.0 - m),
+            "{:?}",
+            found.points
+        );
     }
 }

@@ -93,7 +93,8 @@ pub fn refine(
             let views = [(e.i, block[e.i]), (e.j, block[e.j])];
             for c in e.corr {
                 let Some(r0) = residuals(poses, e, c, focal.scale) else { continue };
-                if (r0[0] * r0[0] + r0[1] * r0[1]).max(r0[2] * r0[2] + r0[3] * r0[3]) >= gate * gate {
+                if (r0[0] * r0[0] + r0[1] * r0[1]).max(r0[2] * r0[2] + r0[3] * r0[3]) >= gate * gate
+                {
                     continue;
                 }
                 used += 1;

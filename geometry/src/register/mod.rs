@@ -196,11 +196,14 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         .collect();
     let n = views.len();
     let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
-    let matches: Vec<Vec<Correspondence>> =
-        jobs.par_iter().map(|&(i, j)| keypoint_correspondences(&views[i], &views[j], &feats[i], &feats[j], params)).collect();
+    let matches: Vec<Vec<Correspondence>> = jobs
+        .par_iter()
+        .map(|&(i, j)| keypoint_correspondences(&views[i], &views[j], &feats[i], &feats[j], params))
+        .collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
     let mut pairs = pair_poses(&jobs, &matches, &cameras, params);
-    let measured = if params.estimate_focal { shared_focal(&cameras, &pairs, params) } else { None };
+    let measured =
+        if params.estimate_focal { shared_focal(&cameras, &pairs, params) } else { None };
     if let Some(scale) = measured {
         // The inliers chosen through a wrong focal length favour the matches it fits, so the
         // pairs are solved again, RANSAC included, at the focal length they measured.
@@ -249,7 +252,8 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
         }
         root = component.iter().position(Option::is_none).unwrap_or(n);
     }
-    let component: Vec<usize> = component.into_iter().map(|c| c.expect("every view is placed")).collect();
+    let component: Vec<usize> =
+        component.into_iter().map(|c| c.expect("every view is placed")).collect();
     let focal = Focal { scale: 1.0, free: measured.is_some() };
     let polish = refine_jointly(&mut cameras, &component, &pairs, focal, params);
     for cam in &mut cameras {
@@ -260,13 +264,25 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
 
 /// Every pair's relative pose from its `matches` (in the order of `jobs`), at the intrinsics of
 /// `cameras`.
-fn pair_poses(jobs: &[(usize, usize)], matches: &[Vec<Correspondence>], cameras: &[Camera], params: &RegisterParams) -> Vec<PairPose> {
+fn pair_poses(
+    jobs: &[(usize, usize)],
+    matches: &[Vec<Correspondence>],
+    cameras: &[Camera],
+    params: &RegisterParams,
+) -> Vec<PairPose> {
     let n = cameras.len();
     jobs.par_iter()
         .zip(matches)
         .map(|(&(i, j), corr)| {
             let mut rng = pair_rng(params, n, i, j);
-            let (pose, inliers) = relative_pose(corr, &cameras[i].intrinsics, &cameras[j].intrinsics, params, &mut rng).unzip();
+            let (pose, inliers) = relative_pose(
+                corr,
+                &cameras[i].intrinsics,
+                &cameras[j].intrinsics,
+                params,
+                &mut rng,
+            )
+            .unzip();
             PairPose { i, j, pose, inliers: inliers.unwrap_or_default(), learned: false }
         })
         .collect()
@@ -274,7 +290,9 @@ fn pair_poses(jobs: &[(usize, usize)], matches: &[Vec<Correspondence>], cameras:
 
 /// The RANSAC stream of pair (`i`, `j`) of `n` views: its own, from [`RegisterParams::seed`].
 fn pair_rng(params: &RegisterParams, n: usize, i: usize, j: usize) -> ChaCha8Rng {
-    ChaCha8Rng::seed_from_u64(params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15))
+    ChaCha8Rng::seed_from_u64(
+        params.seed ^ ((i * n + j) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+    )
 }
 
 fn scale_focal(camera: &mut Camera, scale: f64) {
@@ -298,7 +316,8 @@ fn shared_focal(cameras: &[Camera], pairs: &[PairPose], params: &RegisterParams)
         .par_iter()
         .filter_map(|p| {
             let (ki, kj) = (&cameras[p.i].intrinsics, &cameras[p.j].intrinsics);
-            let (scale, variance) = relative::pair_focal(p.pose.as_ref()?, &p.inliers, ki, kj, params)?;
+            let (scale, variance) =
+                relative::pair_focal(p.pose.as_ref()?, &p.inliers, ki, kj, params)?;
             (variance > 0.0 && scale.is_finite()).then(|| (scale.ln(), 1.0 / variance))
         })
         .collect();
@@ -308,10 +327,13 @@ fn shared_focal(cameras: &[Camera], pairs: &[PairPose], params: &RegisterParams)
         return None;
     }
     let mut seen = 0.0;
-    estimates.iter().find(|e| {
-        seen += e.1;
-        seen >= 0.5 * total
-    }).map(|e| e.0.exp())
+    estimates
+        .iter()
+        .find(|e| {
+            seen += e.1;
+            seen >= 0.5 * total
+        })
+        .map(|e| e.0.exp())
 }
 
 /// The pose after `last` if the camera moves once more as it did from `prev` to `last`
@@ -326,11 +348,23 @@ fn continued_motion(prev: &Camera, last: &Camera) -> (Quat, Vec3) {
 /// stays), gating matches at [`JOINT_GATE`] × the inlier threshold: a chain's drift may have
 /// moved a pair's inliers beyond it.
 /// Returns the focal multiplier, refined with the poses when `focal` is free.
-fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose], mut focal: Focal, params: &RegisterParams) -> f64 {
+fn refine_jointly(
+    cameras: &mut [Camera],
+    component: &[usize],
+    pairs: &[PairPose],
+    mut focal: Focal,
+    params: &RegisterParams,
+) -> f64 {
     let edges: Vec<Edge<'_>> = pairs
         .iter()
         .filter(|p| p.pose.is_some() && component[p.i] == component[p.j])
-        .map(|p| Edge { i: p.i, j: p.j, ki: &cameras[p.i].intrinsics, kj: &cameras[p.j].intrinsics, corr: &p.inliers })
+        .map(|p| Edge {
+            i: p.i,
+            j: p.j,
+            ki: &cameras[p.i].intrinsics,
+            kj: &cameras[p.j].intrinsics,
+            corr: &p.inliers,
+        })
         .collect();
     let mut poses: Vec<Model> = cameras
         .iter()
@@ -338,7 +372,15 @@ fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose
         .collect();
     let free: Vec<bool> = component.iter().enumerate().map(|(v, c)| *c != v).collect();
     let tau = params.inlier_px as f64;
-    joint::refine(&mut poses, &free, &mut focal, &edges, JOINT_GATE * tau, 0.5 * tau, params.refine_iterations);
+    joint::refine(
+        &mut poses,
+        &free,
+        &mut focal,
+        &edges,
+        JOINT_GATE * tau,
+        0.5 * tau,
+        params.refine_iterations,
+    );
     for (cam, pose) in cameras.iter_mut().zip(&poses) {
         cam.rotation = DQuat::from_mat3(&pose.r).normalize().as_quat();
         cam.translation = pose.t.as_vec3();
@@ -347,7 +389,11 @@ fn refine_jointly(cameras: &mut [Camera], component: &[usize], pairs: &[PairPose
 }
 
 /// Pixel matches of views a and b whose pixels both have depth, lifted into each camera.
-fn lifted(a: &RegisterView<'_>, b: &RegisterView<'_>, matches: impl IntoIterator<Item = (glam::Vec2, glam::Vec2)>) -> Vec<Correspondence> {
+fn lifted(
+    a: &RegisterView<'_>,
+    b: &RegisterView<'_>,
+    matches: impl IntoIterator<Item = (glam::Vec2, glam::Vec2)>,
+) -> Vec<Correspondence> {
     let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
         let k = &v.camera.intrinsics;
         let z = *v.depth.get(p.y as usize * k.width as usize + p.x as usize)?;
@@ -355,14 +401,33 @@ fn lifted(a: &RegisterView<'_>, b: &RegisterView<'_>, matches: impl IntoIterator
     };
     matches
         .into_iter()
-        .filter_map(|(pa, pb)| Some(Correspondence { pixel_i: pa, point_i: lift(a, pa)?, pixel_j: pb, point_j: lift(b, pb)? }))
+        .filter_map(|(pa, pb)| {
+            Some(Correspondence {
+                pixel_i: pa,
+                point_i: lift(a, pa)?,
+                pixel_j: pb,
+                point_j: lift(b, pb)?,
+            })
+        })
         .collect()
 }
 
 /// The keypoint matches of views a and b, lifted.
-fn keypoint_correspondences(a: &RegisterView<'_>, b: &RegisterView<'_>, fa: &Described, fb: &Described, params: &RegisterParams) -> Vec<Correspondence> {
+fn keypoint_correspondences(
+    a: &RegisterView<'_>,
+    b: &RegisterView<'_>,
+    fa: &Described,
+    fb: &Described,
+    params: &RegisterParams,
+) -> Vec<Correspondence> {
     let (ka, kb) = (&fa.keypoints, &fb.keypoints);
-    lifted(a, b, features::match_features(ka, kb, params).into_iter().map(|(ia, ib)| (ka.points[ia], kb.points[ib])))
+    lifted(
+        a,
+        b,
+        features::match_features(ka, kb, params)
+            .into_iter()
+            .map(|(ia, ib)| (ka.points[ia], kb.points[ib])),
+    )
 }
 
 /// Gives every pair that its keypoints left without a pose one from its learned descriptors'
@@ -382,12 +447,19 @@ fn link_by_descriptors(
     let n = cameras.len();
     pairs.par_iter_mut().filter(|p| p.pose.is_none()).for_each(|p| {
         let (Some(da), Some(db)) = (&feats[p.i].dense, &feats[p.j].dense) else { return };
-        let corr: Vec<Correspondence> = lifted(&views[p.i], &views[p.j], dense::match_views(da, db, params))
-            .into_iter()
-            .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
-            .collect();
+        let corr: Vec<Correspondence> =
+            lifted(&views[p.i], &views[p.j], dense::match_views(da, db, params))
+                .into_iter()
+                .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
+                .collect();
         let mut rng = pair_rng(params, n, p.i, p.j);
-        if let Some((pose, inliers)) = relative_pose(&corr, &cameras[p.i].intrinsics, &cameras[p.j].intrinsics, &strict, &mut rng) {
+        if let Some((pose, inliers)) = relative_pose(
+            &corr,
+            &cameras[p.i].intrinsics,
+            &cameras[p.j].intrinsics,
+            &strict,
+            &mut rng,
+        ) {
             (p.pose, p.inliers, p.learned) = (Some(pose), inliers, true);
         }
     });

@@ -47,7 +47,11 @@ pub struct RelativePose {
 
 impl RelativePose {
     fn of_model(m: &Model, inliers: usize) -> Self {
-        Self { rotation: DQuat::from_mat3(&m.r).normalize().as_quat(), translation: m.t.as_vec3(), inliers }
+        Self {
+            rotation: DQuat::from_mat3(&m.r).normalize().as_quat(),
+            translation: m.t.as_vec3(),
+            inliers,
+        }
     }
 
     fn model(&self) -> Model {
@@ -80,7 +84,13 @@ impl Model {
 /// `None` when a point falls behind the other camera. `focal` multiplies both views' focal
 /// lengths: the points, lifted with the intrinsics as given, are lifted again with the scaled
 /// ones (their x and y divided by it) and projected with them.
-pub(super) fn reprojection(ki: &Intrinsics, kj: &Intrinsics, m: &Model, c: &Correspondence, focal: f64) -> Option<[f64; 4]> {
+pub(super) fn reprojection(
+    ki: &Intrinsics,
+    kj: &Intrinsics,
+    m: &Model,
+    c: &Correspondence,
+    focal: f64,
+) -> Option<[f64; 4]> {
     let lift = |p: Vec3| DVec3::new(p.x as f64 / focal, p.y as f64 / focal, p.z as f64);
     let pj = project(kj, focal, m.r * lift(c.point_i) + m.t)?;
     let pi = project(ki, focal, m.r.transpose() * (lift(c.point_j) - m.t))?;
@@ -100,7 +110,12 @@ struct Pair<'a> {
 }
 
 fn project(k: &Intrinsics, focal: f64, p: DVec3) -> Option<[f64; 2]> {
-    (p.z > 1e-6).then(|| [focal * k.fx as f64 * p.x / p.z + k.cx as f64, focal * k.fy as f64 * p.y / p.z + k.cy as f64])
+    (p.z > 1e-6).then(|| {
+        [
+            focal * k.fx as f64 * p.x / p.z + k.cx as f64,
+            focal * k.fy as f64 * p.y / p.z + k.cy as f64,
+        ]
+    })
 }
 
 impl Pair<'_> {
@@ -111,7 +126,8 @@ impl Pair<'_> {
     /// Symmetric squared error of `c` in pixels²: the larger of its two squared reprojection
     /// distances.
     fn error2(&self, m: &Model, c: &Correspondence) -> f64 {
-        self.residuals(m, c).map_or(f64::INFINITY, |r| (r[0] * r[0] + r[1] * r[1]).max(r[2] * r[2] + r[3] * r[3]))
+        self.residuals(m, c)
+            .map_or(f64::INFINITY, |r| (r[0] * r[0] + r[1] * r[1]).max(r[2] * r[2] + r[3] * r[3]))
     }
 
     /// MSAC cost and inlier count of `m` at threshold `tau`.
@@ -125,7 +141,10 @@ impl Pair<'_> {
 }
 
 /// Rotation taking the unit vectors `from` onto `to` (Kabsch; least squares).
-fn fit_rotation(from: impl Iterator<Item = DVec3>, to: impl Iterator<Item = DVec3>) -> Option<DMat3> {
+fn fit_rotation(
+    from: impl Iterator<Item = DVec3>,
+    to: impl Iterator<Item = DVec3>,
+) -> Option<DMat3> {
     let h = from.zip(to).fold(DMat3::ZERO, |h, (a, b)| h + outer(b, a));
     nearest_rotation(h)
 }
@@ -176,8 +195,11 @@ pub fn relative_pose(
         } else {
             let pick = sample(rng, corr.len(), 2);
             let ray = |p: Vec3| p.as_dvec3().normalize();
-            fit_rotation(pick.iter().map(|k| ray(corr[k].point_i)), pick.iter().map(|k| ray(corr[k].point_j)))
-                .map(|r| Model { r, t: DVec3::ZERO })
+            fit_rotation(
+                pick.iter().map(|k| ray(corr[k].point_i)),
+                pick.iter().map(|k| ray(corr[k].point_j)),
+            )
+            .map(|r| Model { r, t: DVec3::ZERO })
         };
         let Some(model) = model else { continue };
         let (cost, inliers) = pair.score(&model, tau);
@@ -189,8 +211,10 @@ pub fn relative_pose(
     let (_, model) = best?;
     let mut given = Focal::GIVEN;
     let (model, _) = refine_pair(model, corr, ki, kj, &mut given, tau, params);
-    let inliers: Vec<Correspondence> = corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
-    (inliers.len() >= params.min_inliers).then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
+    let inliers: Vec<Correspondence> =
+        corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
+    (inliers.len() >= params.min_inliers)
+        .then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
 }
 
 /// Gauss–Newton on one pair's matches from `model`, with `focal` (refined when free), on the
@@ -208,7 +232,15 @@ fn refine_pair(
     let tau = params.inlier_px as f64;
     let mut poses = [Model { r: DMat3::IDENTITY, t: DVec3::ZERO }, model];
     let edge = Edge { i: 0, j: 1, ki, kj, corr };
-    let variance = joint::refine(&mut poses, &[false, true], focal, &[edge], gate, 0.5 * tau, params.refine_iterations);
+    let variance = joint::refine(
+        &mut poses,
+        &[false, true],
+        focal,
+        &[edge],
+        gate,
+        0.5 * tau,
+        params.refine_iterations,
+    );
     (poses[1], variance)
 }
 
@@ -254,15 +286,29 @@ mod tests {
     /// `n` points of a room 2–5 m in front of camera i seen from camera j = (r, t); a share
     /// `outliers` of the matches point at random pixels; camera j's depths are scaled by
     /// `depth_scale_j` (a biased depth prediction).
-    fn matches(r: Quat, t: Vec3, n: usize, outliers: f32, depth_scale_j: f32, rng: &mut ChaCha8Rng) -> Vec<Correspondence> {
+    fn matches(
+        r: Quat,
+        t: Vec3,
+        n: usize,
+        outliers: f32,
+        depth_scale_j: f32,
+        rng: &mut ChaCha8Rng,
+    ) -> Vec<Correspondence> {
         (0..n)
             .map(|_| {
-                let pi = Vec3::new(rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5), 1.0) * rng.random_range(2.0..5.0);
+                let pi = Vec3::new(rng.random_range(-1.5..1.5), rng.random_range(-1.5..1.5), 1.0)
+                    * rng.random_range(2.0..5.0);
                 let mut pj = r * pi + t;
                 if rng.random::<f32>() < outliers {
-                    pj = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 1.0) * rng.random_range(2.0..5.0);
+                    pj = Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 1.0)
+                        * rng.random_range(2.0..5.0);
                 }
-                Correspondence { pixel_i: project(pi), point_i: pi, pixel_j: project(pj), point_j: pj * depth_scale_j }
+                Correspondence {
+                    pixel_i: project(pi),
+                    point_i: pi,
+                    pixel_j: project(pj),
+                    point_j: pj * depth_scale_j,
+                }
             })
             .collect()
     }
@@ -274,11 +320,21 @@ mod tests {
     #[test]
     fn recovers_a_general_motion_despite_outliers() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let (r, t) = (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
+        let (r, t) =
+            (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
         let corr = matches(r, t, 120, 0.4, 1.0, &mut rng);
-        let (pose, _) = relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
-        assert!(angle_deg(pose.rotation, r) < 0.05, "rotation off by {}°", angle_deg(pose.rotation, r));
-        assert!((pose.translation - t).length() < 0.005, "translation {:?} vs {t:?}", pose.translation);
+        let (pose, _) =
+            relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
+        assert!(
+            angle_deg(pose.rotation, r) < 0.05,
+            "rotation off by {}°",
+            angle_deg(pose.rotation, r)
+        );
+        assert!(
+            (pose.translation - t).length() < 0.005,
+            "translation {:?} vs {t:?}",
+            pose.translation
+        );
         assert!((65..=85).contains(&pose.inliers), "{} inliers of ~72 true", pose.inliers);
     }
 
@@ -289,8 +345,13 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let r = Quat::from_euler(glam::EulerRot::YXZ, -0.5, 0.08, 0.0);
         let corr = matches(r, Vec3::ZERO, 80, 0.3, 1.25, &mut rng);
-        let (pose, _) = relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
-        assert!(angle_deg(pose.rotation, r) < 0.1, "rotation off by {}°", angle_deg(pose.rotation, r));
+        let (pose, _) =
+            relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).expect("a pose");
+        assert!(
+            angle_deg(pose.rotation, r) < 0.1,
+            "rotation off by {}°",
+            angle_deg(pose.rotation, r)
+        );
         assert!(pose.translation.length() < 0.05, "{:?}", pose.translation);
     }
 
@@ -299,7 +360,8 @@ mod tests {
         // The intrinsics given say a focal length 0.9 of the true one, so the points lifted with
         // them spread 1/0.9 wider than the room; the pair's matches must say so.
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        let (r, t) = (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
+        let (r, t) =
+            (Quat::from_euler(glam::EulerRot::YXZ, 0.35, -0.1, 0.05), Vec3::new(0.4, -0.05, 0.2));
         let widen = |p: Vec3| Vec3::new(p.x / 0.9, p.y / 0.9, p.z);
         let corr: Vec<Correspondence> = matches(r, t, 120, 0.2, 1.0, &mut rng)
             .into_iter()
@@ -307,16 +369,26 @@ mod tests {
             .collect();
         let given = Intrinsics { fx: 0.9 * k().fx, fy: 0.9 * k().fy, ..k() };
         let params = RegisterParams::default();
-        let (pose, inliers) = relative_pose(&corr, &given, &given, &params, &mut rng).expect("a pose");
-        let (scale, variance) = pair_focal(&pose, &inliers, &given, &given, &params).expect("a focal length");
+        let (pose, inliers) =
+            relative_pose(&corr, &given, &given, &params, &mut rng).expect("a pose");
+        let (scale, variance) =
+            pair_focal(&pose, &inliers, &given, &given, &params).expect("a focal length");
         assert!((scale - 1.0 / 0.9).abs() < 0.005, "focal multiplier {scale}, true {}", 1.0 / 0.9);
         assert!(variance.sqrt() < 0.01, "log focal known to ±{}", variance.sqrt());
         // Solved again at the measured focal length, the pose is the true one.
         let k = Intrinsics { fx: given.fx * scale as f32, fy: given.fy * scale as f32, ..given };
         let relifted: Vec<Correspondence> = corr.iter().map(|c| c.with_focal(scale)).collect();
         let (fitted, _) = relative_pose(&relifted, &k, &k, &params, &mut rng).expect("a pose");
-        assert!(angle_deg(fitted.rotation, r) < 0.05, "rotation off by {}°", angle_deg(fitted.rotation, r));
-        assert!(angle_deg(pose.rotation, r) > 5.0 * angle_deg(fitted.rotation, r), "the given focal length bent the rotation by only {}°", angle_deg(pose.rotation, r));
+        assert!(
+            angle_deg(fitted.rotation, r) < 0.05,
+            "rotation off by {}°",
+            angle_deg(fitted.rotation, r)
+        );
+        assert!(
+            angle_deg(pose.rotation, r) > 5.0 * angle_deg(fitted.rotation, r),
+            "the given focal length bent the rotation by only {}°",
+            angle_deg(pose.rotation, r)
+        );
     }
 
     #[test]
@@ -324,6 +396,8 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let corr = matches(Quat::IDENTITY, Vec3::ZERO, 60, 1.0, 1.0, &mut rng);
         assert!(relative_pose(&corr, &k(), &k(), &RegisterParams::default(), &mut rng).is_none());
-        assert!(relative_pose(&corr[..5], &k(), &k(), &RegisterParams::default(), &mut rng).is_none());
+        assert!(
+            relative_pose(&corr[..5], &k(), &k(), &RegisterParams::default(), &mut rng).is_none()
+        );
     }
 }

@@ -20,7 +20,12 @@ pub trait Backend {
     /// Runs the network on `views` images, `images` planar `[views][3][res][res]` in [0, 1],
     /// and their cameras' `rays` ([`RayInput`]), which a network with the `rays` input needs
     /// and one without refuses.
-    fn run(&mut self, images: &[f32], views: usize, rays: Option<&[f32]>) -> Result<ModelOutput, RuntimeError>;
+    fn run(
+        &mut self,
+        images: &[f32],
+        views: usize,
+        rays: Option<&[f32]>,
+    ) -> Result<ModelOutput, RuntimeError>;
 }
 
 /// What a loaded network is.
@@ -90,13 +95,30 @@ pub struct RayInput {
 
 impl RayInput {
     /// Of a `rays` input of `shape` `[N, T, 6·k²]` for a square grid of T patches.
-    pub(crate) fn of_shape(path: &std::path::Path, shape: &[i64], resolution: usize) -> Result<Self, RuntimeError> {
-        let err = |problem: String| RuntimeError::Signature { path: path.to_path_buf(), tensor: signature::INPUT_RAYS.name.into(), problem };
-        let [_, t, c] = *shape else { return Err(err(format!("shape {shape:?}, expected {}", signature::INPUT_RAYS.shape))) };
+    pub(crate) fn of_shape(
+        path: &std::path::Path,
+        shape: &[i64],
+        resolution: usize,
+    ) -> Result<Self, RuntimeError> {
+        let err = |problem: String| RuntimeError::Signature {
+            path: path.to_path_buf(),
+            tensor: signature::INPUT_RAYS.name.into(),
+            problem,
+        };
+        let [_, t, c] = *shape else {
+            return Err(err(format!("shape {shape:?}, expected {}", signature::INPUT_RAYS.shape)));
+        };
         let side = (t.max(0) as f64).sqrt().round() as usize;
         let k = ((c.max(0) / 6) as f64).sqrt().round() as usize;
-        if side == 0 || side * side != t as usize || !resolution.is_multiple_of(side) || k == 0 || inssplat_proto::rays::ray_channels(k) != c as usize {
-            return Err(err(format!("shape {shape:?}: expected [N, T, 6·K²] with T a square number of patches that tile {resolution}²")));
+        if side == 0
+            || side * side != t as usize
+            || !resolution.is_multiple_of(side)
+            || k == 0
+            || inssplat_proto::rays::ray_channels(k) != c as usize
+        {
+            return Err(err(format!(
+                "shape {shape:?}: expected [N, T, 6·K²] with T a square number of patches that tile {resolution}²"
+            )));
         }
         Ok(Self { tokens: t as usize, k })
     }
@@ -116,4 +138,3 @@ impl RayInput {
 pub fn threads_or_all(threads: Option<usize>) -> usize {
     threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))
 }
-

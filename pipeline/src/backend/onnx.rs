@@ -1,4 +1,5 @@
-//! The network under ONNX Runtime, the one [`Backend`] today: finds the shared library (`ORT_DYLIB_PATH` or the setup
+//! The network under ONNX Runtime, the one [`Backend`] today: finds the shared library
+//! (`ORT_DYLIB_PATH` or the setup
 //! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
 //! `proto::signature` (an error names the file and the tensor), reads the shape classifier the
 //! file may carry, notes whether the network has the optional descriptor head (read on every
@@ -9,8 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use inssplat_proto::signature::{self, TensorSpec};
 use inssplat_proto::shape::ShapeClassifier;
+use inssplat_proto::signature::{self, TensorSpec};
 use ort::session::Session;
 
 use super::{Backend, ModelOutput, Network, RayInput, RuntimeError};
@@ -25,16 +26,26 @@ pub struct Model {
 
 /// Default place of the library unpacked by scripts/setup, relative to the workspace.
 fn default_library() -> Option<PathBuf> {
-    let roots = [std::env::current_dir().ok(), std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf))];
+    let roots = [
+        std::env::current_dir().ok(),
+        std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf)),
+    ];
     for root in roots.into_iter().flatten() {
         for dir in root.ancestors() {
             let Ok(entries) = std::fs::read_dir(dir.join(".deps")) else { continue };
             let mut found: Vec<PathBuf> = entries
                 .flatten()
                 .map(|e| e.path())
-                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("onnxruntime-")))
-                .flat_map(|d| std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path()))
-                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("libonnxruntime.so.")))
+                .filter(|p| {
+                    p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("onnxruntime-"))
+                })
+                .flat_map(|d| {
+                    std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path())
+                })
+                .filter(|p| {
+                    p.file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with("libonnxruntime.so."))
+                })
                 .collect();
             found.sort();
             if let Some(p) = found.pop() {
@@ -50,8 +61,9 @@ fn init_runtime() -> Result<&'static ort::environment::Environment, RuntimeError
     static ENV: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
     let path = match std::env::var_os("ORT_DYLIB_PATH").map(PathBuf::from).filter(|p| p.is_file()) {
         Some(p) => p,
-        None => default_library()
-            .ok_or_else(|| RuntimeError::LibraryMissing { default: ".deps/onnxruntime-*/libonnxruntime.so.*".into() })?,
+        None => default_library().ok_or_else(|| RuntimeError::LibraryMissing {
+            default: ".deps/onnxruntime-*/libonnxruntime.so.*".into(),
+        })?,
     };
     let env = ENV.get_or_init(|| {
         ort::init_from(&path)
@@ -68,7 +80,8 @@ impl Model {
             return Err(RuntimeError::ModelMissing { path: path.to_path_buf() });
         }
         let env = init_runtime()?;
-        let load_err = |e: ort::Error| RuntimeError::Load { path: path.to_path_buf(), message: e.to_string() };
+        let load_err =
+            |e: ort::Error| RuntimeError::Load { path: path.to_path_buf(), message: e.to_string() };
         let session = Session::builder(env)
             .map_err(load_err)?
             .with_intra_threads(threads.max(1))
@@ -79,14 +92,29 @@ impl Model {
             .map_err(|e| load_err(e.into()))?
             .commit_from_file(path)
             .map_err(load_err)?;
-        check_tensors(path, "input", &signature::INPUTS, session.inputs().iter().map(|o| (o.name(), o.dtype())))?;
-        check_tensors(path, "output", &signature::OUTPUTS, session.outputs().iter().map(|o| (o.name(), o.dtype())))?;
-        let has_descriptors = session.outputs().iter().any(|o| o.name() == signature::OUTPUT_DESCRIPTORS.name);
+        check_tensors(
+            path,
+            "input",
+            &signature::INPUTS,
+            session.inputs().iter().map(|o| (o.name(), o.dtype())),
+        )?;
+        check_tensors(
+            path,
+            "output",
+            &signature::OUTPUTS,
+            session.outputs().iter().map(|o| (o.name(), o.dtype())),
+        )?;
+        let has_descriptors =
+            session.outputs().iter().any(|o| o.name() == signature::OUTPUT_DESCRIPTORS.name);
         if has_descriptors {
             let outputs = session.outputs().iter().map(|o| (o.name(), o.dtype()));
             check_tensors(path, "output", &[signature::OUTPUT_DESCRIPTORS], outputs)?;
         }
-        let rays_input = session.inputs().iter().find(|o| o.name() == signature::INPUT_RAYS.name).map(|o| (o.name(), o.dtype()));
+        let rays_input = session
+            .inputs()
+            .iter()
+            .find(|o| o.name() == signature::INPUT_RAYS.name)
+            .map(|o| (o.name(), o.dtype()));
         let rays_shape = match rays_input {
             Some(input) => {
                 check_tensors(path, "input", &[signature::INPUT_RAYS], std::iter::once(input))?;
@@ -96,17 +124,28 @@ impl Model {
         };
         let meta = session.metadata().map_err(load_err)?;
         let get = |key: &'static str| {
-            meta.custom(key)
-                .ok_or_else(|| RuntimeError::Metadata { path: path.to_path_buf(), key, problem: "missing".into() })
+            meta.custom(key).ok_or_else(|| RuntimeError::Metadata {
+                path: path.to_path_buf(),
+                key,
+                problem: "missing".into(),
+            })
         };
         let io = get(signature::META_IO_VERSION)?;
         if io != signature::IO_VERSION {
             let problem = format!("`{io}`, this build speaks `{}`", signature::IO_VERSION);
-            return Err(RuntimeError::Metadata { path: path.to_path_buf(), key: signature::META_IO_VERSION, problem });
+            return Err(RuntimeError::Metadata {
+                path: path.to_path_buf(),
+                key: signature::META_IO_VERSION,
+                problem,
+            });
         }
         let number = |key: &'static str| -> Result<usize, RuntimeError> {
             let v = get(key)?;
-            v.parse().map_err(|_| RuntimeError::Metadata { path: path.to_path_buf(), key, problem: format!("`{v}` is not a number") })
+            v.parse().map_err(|_| RuntimeError::Metadata {
+                path: path.to_path_buf(),
+                key,
+                problem: format!("`{v}` is not a number"),
+            })
         };
         let resolution = {
             let key = signature::META_RESOLUTION;
@@ -114,7 +153,8 @@ impl Model {
             match v.split_once('x').map(|(h, w)| (h.parse::<usize>(), w.parse::<usize>())) {
                 Some((Ok(h), Ok(w))) if h == w && h > 0 => h,
                 _ => {
-                    let problem = format!("`{v}`: expected a square \"<H>x<W>\" size such as \"128x128\"");
+                    let problem =
+                        format!("`{v}`: expected a square \"<H>x<W>\" size such as \"128x128\"");
                     return Err(RuntimeError::Metadata { path: path.to_path_buf(), key, problem });
                 }
             }
@@ -131,7 +171,8 @@ impl Model {
                 problem: e.to_string(),
             })?;
         drop(meta);
-        let rays = rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
+        let rays =
+            rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
         let network = Network { resolution, sem_dim, model_version, shapes, has_descriptors, rays };
         let mut model = Self { session, path: path.to_path_buf(), network };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
@@ -146,31 +187,53 @@ impl Backend for Model {
         &self.network
     }
 
-    fn run(&mut self, images: &[f32], views: usize, rays: Option<&[f32]>) -> Result<ModelOutput, RuntimeError> {
+    fn run(
+        &mut self,
+        images: &[f32],
+        views: usize,
+        rays: Option<&[f32]>,
+    ) -> Result<ModelOutput, RuntimeError> {
         let r = self.network.resolution;
         assert_eq!(images.len(), views * 3 * r * r, "image batch size");
         let run_err = |e: ort::Error| RuntimeError::Run(e.to_string());
-        let mut inputs = vec![(signature::INPUT_IMAGES.name, TensorRef::from_array_view(([views, 3, r, r], images)).map_err(run_err)?)];
+        let mut inputs = vec![(
+            signature::INPUT_IMAGES.name,
+            TensorRef::from_array_view(([views, 3, r, r], images)).map_err(run_err)?,
+        )];
         match (self.network.rays, rays) {
             (None, None) => {}
             (Some(input), Some(rays)) if rays.len() == input.values(views) => {
                 let shape = [views, input.tokens, inssplat_proto::rays::ray_channels(input.k)];
-                inputs.push((signature::INPUT_RAYS.name, TensorRef::from_array_view((shape, rays)).map_err(run_err)?));
+                inputs.push((
+                    signature::INPUT_RAYS.name,
+                    TensorRef::from_array_view((shape, rays)).map_err(run_err)?,
+                ));
             }
             (Some(input), given) => {
                 let given = given.map_or("none".to_string(), |g| format!("{} values", g.len()));
-                return Err(RuntimeError::Run(format!("this network reads its cameras as rays ({} values for {views} views), given {given}", input.values(views))));
+                return Err(RuntimeError::Run(format!(
+                    "this network reads its cameras as rays ({} values for {views} views), given {given}",
+                    input.values(views)
+                )));
             }
-            (None, Some(_)) => return Err(RuntimeError::Run("this network reads no camera rays, and some were given".into())),
+            (None, Some(_)) => {
+                return Err(RuntimeError::Run(
+                    "this network reads no camera rays, and some were given".into(),
+                ));
+            }
         }
         let outputs = self.session.run(inputs).map_err(run_err)?;
         let take = |spec: &TensorSpec| -> Result<Vec<f32>, RuntimeError> {
-            let (_, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
+            let (_, data) = outputs[spec.name]
+                .try_extract_tensor::<f32>()
+                .map_err(|e| RuntimeError::Run(e.to_string()))?;
             Ok(data.to_vec())
         };
         let descriptors = if self.network.has_descriptors {
             let spec = &signature::OUTPUT_DESCRIPTORS;
-            let (shape, data) = outputs[spec.name].try_extract_tensor::<f32>().map_err(|e| RuntimeError::Run(e.to_string()))?;
+            let (shape, data) = outputs[spec.name]
+                .try_extract_tensor::<f32>()
+                .map_err(|e| RuntimeError::Run(e.to_string()))?;
             let dim = descriptor_dim(&self.path, shape, views, r)?;
             Some((data.to_vec(), dim))
         } else {
@@ -196,14 +259,22 @@ impl Backend for Model {
 
 /// D of a `descriptors` output of `shape` for `views` views at `resolution`², which must be
 /// `[views, D, resolution, resolution]` with D ≥ 1.
-fn descriptor_dim(path: &Path, shape: &[i64], views: usize, resolution: usize) -> Result<usize, RuntimeError> {
+fn descriptor_dim(
+    path: &Path,
+    shape: &[i64],
+    views: usize,
+    resolution: usize,
+) -> Result<usize, RuntimeError> {
     let (n, r) = (views as i64, resolution as i64);
     match *shape {
         [v, d, h, w] if v == n && d >= 1 && h == r && w == r => Ok(d as usize),
         _ => Err(RuntimeError::Signature {
             path: path.to_path_buf(),
             tensor: signature::OUTPUT_DESCRIPTORS.name.into(),
-            problem: format!("shape {shape:?}, expected {} = [{views}, D ≥ 1, {resolution}, {resolution}]", signature::OUTPUT_DESCRIPTORS.shape),
+            problem: format!(
+                "shape {shape:?}, expected {} = [{views}, D ≥ 1, {resolution}, {resolution}]",
+                signature::OUTPUT_DESCRIPTORS.shape
+            ),
         }),
     }
 }
@@ -217,7 +288,11 @@ fn check_tensors<'a>(
 ) -> Result<(), RuntimeError> {
     let actual: Vec<_> = actual.collect();
     for spec in expected {
-        let err = |problem: String| RuntimeError::Signature { path: path.to_path_buf(), tensor: spec.name.into(), problem };
+        let err = |problem: String| RuntimeError::Signature {
+            path: path.to_path_buf(),
+            tensor: spec.name.into(),
+            problem,
+        };
         let Some((_, ty)) = actual.iter().find(|(n, _)| *n == spec.name) else {
             let names: Vec<_> = actual.iter().map(|(n, _)| *n).collect();
             return Err(err(format!("missing {side} (the model has {names:?})")));
@@ -225,7 +300,12 @@ fn check_tensors<'a>(
         match (ty.tensor_type(), ty.tensor_shape()) {
             (Some(TensorElementType::Float32), Some(shape)) if shape.len() == spec.rank => {}
             (Some(TensorElementType::Float32), Some(shape)) => {
-                return Err(err(format!("rank {}, expected {} {}", shape.len(), spec.rank, spec.shape)));
+                return Err(err(format!(
+                    "rank {}, expected {} {}",
+                    shape.len(),
+                    spec.rank,
+                    spec.shape
+                )));
             }
             (Some(t), _) => return Err(err(format!("element type {t:?}, expected float32"))),
             (None, _) => return Err(err("not a tensor".into())),
@@ -245,8 +325,12 @@ mod tests {
     #[test]
     fn a_rays_input_is_read_from_its_shape_or_named() {
         let path = Path::new("m.onnx");
-        let input = RayInput::of_shape(path, &[-1, 256, 24], 128).expect("16×16 patches of 8 pixels, 2×2 rays");
-        assert_eq!((input.tokens, input.k, input.patch(128), input.values(3)), (256, 2, 8, 3 * 256 * 24));
+        let input = RayInput::of_shape(path, &[-1, 256, 24], 128)
+            .expect("16×16 patches of 8 pixels, 2×2 rays");
+        assert_eq!(
+            (input.tokens, input.k, input.patch(128), input.values(3)),
+            (256, 2, 8, 3 * 256 * 24)
+        );
         for bad in [&[-1, 255, 24][..], &[-1, 256, 25], &[-1, 256], &[-1, 49, 6]] {
             let err = RayInput::of_shape(path, bad, 128).expect_err("refused").to_string();
             assert!(err.contains("m.onnx") && err.contains("`rays`"), "{err}");
@@ -259,9 +343,13 @@ mod tests {
     fn a_descriptor_output_of_the_wrong_shape_is_named() {
         let path = Path::new("m.onnx");
         assert_eq!(descriptor_dim(path, &[8, 16, 128, 128], 8, 128).unwrap(), 16);
-        for shape in [&[8, 16, 64, 128][..], &[4, 16, 128, 128], &[8, 0, 128, 128], &[8, 128, 128]] {
+        for shape in [&[8, 16, 64, 128][..], &[4, 16, 128, 128], &[8, 0, 128, 128], &[8, 128, 128]]
+        {
             let message = descriptor_dim(path, shape, 8, 128).unwrap_err().to_string();
-            assert!(message.contains("`descriptors`") && message.contains("[N, D, H, W]"), "{message}");
+            assert!(
+                message.contains("`descriptors`") && message.contains("[N, D, H, W]"),
+                "{message}"
+            );
         }
     }
 }

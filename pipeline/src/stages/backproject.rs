@@ -11,7 +11,11 @@ use crate::backend::ModelOutput;
 use crate::reconstruct::PipelineError;
 
 /// Back-projects `views` (indices into the outputs) with `cameras`.
-pub fn run(out: &ModelOutput, cameras: &[Camera], views: &[usize]) -> Result<BackProjected, PipelineError> {
+pub fn run(
+    out: &ModelOutput,
+    cameras: &[Camera],
+    views: &[usize],
+) -> Result<BackProjected, PipelineError> {
     let pixels = out.height * out.width;
     let views: Vec<ViewOutputs<'_>> = views
         .iter()

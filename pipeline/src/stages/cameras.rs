@@ -4,7 +4,9 @@
 //! the predicted depth ([`inssplat_geometry::register`]).
 
 use glam::{Quat, Vec2, Vec3};
-use inssplat_geometry::register::{Descriptors, KeypointImage, RegisterParams, RegisterView, register};
+use inssplat_geometry::register::{
+    Descriptors, KeypointImage, RegisterParams, RegisterView, register,
+};
 use inssplat_proto::api::{FocalSource, Placement};
 use inssplat_proto::signature::CAMERA_CHANNELS;
 use inssplat_proto::{Camera, Intrinsics};
@@ -19,7 +21,8 @@ pub struct Cameras {
     pub cameras: Vec<Camera>,
     pub placements: Vec<Placement>,
     pub focal: FocalSource,
-    /// Registration's component root of every view ([`inssplat_geometry::register::Registration::component`]);
+    /// Registration's component root of every view
+    /// ([`inssplat_geometry::register::Registration::component`]);
     /// `None` when registration did not run.
     pub component: Option<Vec<usize>>,
 }
@@ -30,8 +33,10 @@ pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
         .chunks_exact(CAMERA_CHANNELS)
         .map(|c| {
             let q = Quat::from_xyzw(c[4], c[5], c[6], c[3]);
-            let rotation = if q.is_finite() && q.length() > 1e-8 { q.normalize() } else { Quat::IDENTITY };
-            let focal = |fov: f32, size: usize| 0.5 * size as f32 / (0.5 * fov.clamp(0.05, 3.0)).tan();
+            let rotation =
+                if q.is_finite() && q.length() > 1e-8 { q.normalize() } else { Quat::IDENTITY };
+            let focal =
+                |fov: f32, size: usize| 0.5 * size as f32 / (0.5 * fov.clamp(0.05, 3.0)).tan();
             let intrinsics = Intrinsics {
                 fx: focal(c[8], out.width),
                 fy: focal(c[7], out.height),
@@ -75,8 +80,9 @@ pub fn run(
         let details: Vec<Option<KeypointImage>> = decoded
             .iter()
             .map(|d| {
-                d.detail_in_model()
-                    .map(|(rgb, per_view, [x, y])| KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y)))
+                d.detail_in_model().map(|(rgb, per_view, [x, y])| {
+                    KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y))
+                })
             })
             .collect();
         let views: Vec<RegisterView<'_>> = (0..out.views)
@@ -85,17 +91,31 @@ pub fn run(
                 depth: &out.depth[plane(1, pixels, v)],
                 photo: decoded[v].letterbox.photo_rect(),
                 camera: &predicted[v],
-                descriptors: out
-                    .descriptors
-                    .as_ref()
-                    .map(|(data, dim)| Descriptors { data: &data[plane(*dim, pixels, v)], dim: *dim }),
+                descriptors: out.descriptors.as_ref().map(|(data, dim)| Descriptors {
+                    data: &data[plane(*dim, pixels, v)],
+                    dim: *dim,
+                }),
                 detail: details[v].as_ref(),
             })
             .collect();
         let registration = register(&views, params);
-        let placements = registration.component.iter().enumerate().map(|(v, &root)| placement(v, root)).collect();
-        let focal = if registration.focal_scale.is_some() { FocalSource::Measured } else { FocalSource::CameraHead };
-        Cameras { cameras: registration.cameras, placements, focal, component: Some(registration.component) }
+        let placements = registration
+            .component
+            .iter()
+            .enumerate()
+            .map(|(v, &root)| placement(v, root))
+            .collect();
+        let focal = if registration.focal_scale.is_some() {
+            FocalSource::Measured
+        } else {
+            FocalSource::CameraHead
+        };
+        Cameras {
+            cameras: registration.cameras,
+            placements,
+            focal,
+            component: Some(registration.component),
+        }
     }))
 }
 
@@ -112,7 +132,8 @@ fn given(poses: &[Camera], views: usize) -> Result<Cameras, PipelineError> {
 }
 
 fn camera_head(predicted: Vec<Camera>) -> Cameras {
-    let placements =
-        (0..predicted.len()).map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead }).collect();
+    let placements = (0..predicted.len())
+        .map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead })
+        .collect();
     Cameras { cameras: predicted, placements, focal: FocalSource::CameraHead, component: None }
 }

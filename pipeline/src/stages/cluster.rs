@@ -10,12 +10,21 @@ use super::stage_err;
 use crate::reconstruct::PipelineError;
 
 /// Gives every merged Gaussian its instance id (0: none).
-pub fn run(voxelized: &mut Voxelized, params: &ClusterParams, split: Option<&SplitParams>) -> Result<(), PipelineError> {
+pub fn run(
+    voxelized: &mut Voxelized,
+    params: &ClusterParams,
+    split: Option<&SplitParams>,
+) -> Result<(), PipelineError> {
     let result = (|| {
         cluster_instances(&mut voxelized.scene, params)?;
         if let Some(split) = split {
             let cell = split.cell_voxels * voxelized.report.voxel_size;
-            split_disconnected(&voxelized.scene.means, &mut voxelized.scene.instance_id, cell, split);
+            split_disconnected(
+                &voxelized.scene.means,
+                &mut voxelized.scene.instance_id,
+                cell,
+                split,
+            );
         }
         Ok::<_, ClusterError>(())
     })();

@@ -21,7 +21,9 @@ pub enum DecodeError {
     Empty { name: String },
     #[error("{name}: not a supported image (JPEG, PNG or WebP): {message}")]
     Format { name: String, message: String },
-    #[error("{name}: image is {width}×{height}; images must be non-empty and at most {MAX_PIXELS} pixels")]
+    #[error(
+        "{name}: image is {width}×{height}; images must be non-empty and at most {MAX_PIXELS} pixels"
+    )]
     Size { name: String, width: u32, height: u32 },
     #[error("{name}: corrupt image data: {message}")]
     Corrupt { name: String, message: String },
@@ -43,7 +45,10 @@ pub struct Letterbox {
 impl Letterbox {
     /// The photo's pixels inside the square, `[x0, y0, x1, y1)` in model pixels.
     pub fn photo_rect(&self) -> [u32; 4] {
-        let (x1, y1) = (self.pad_x + self.width as f32 * self.scale, self.pad_y + self.height as f32 * self.scale);
+        let (x1, y1) = (
+            self.pad_x + self.width as f32 * self.scale,
+            self.pad_y + self.height as f32 * self.scale,
+        );
         [self.pad_x.ceil() as u32, self.pad_y.ceil() as u32, x1.floor() as u32, y1.floor() as u32]
     }
 
@@ -100,8 +105,12 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<RgbImage, DecodeError> {
     if bytes.is_empty() {
         return Err(DecodeError::Empty { name: name.into() });
     }
-    let format_err = |e: &dyn std::fmt::Display| DecodeError::Format { name: name.into(), message: e.to_string() };
-    let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| format_err(&e))?;
+    let format_err = |e: &dyn std::fmt::Display| DecodeError::Format {
+        name: name.into(),
+        message: e.to_string(),
+    };
+    let reader =
+        ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| format_err(&e))?;
     if reader.format().is_none() {
         return Err(format_err(&"unrecognized file signature"));
     }
@@ -139,7 +148,8 @@ fn detail_copy(rgb: RgbImage, res: u32, detail: u32) -> Option<Detail> {
 fn resize(rgb: &RgbImage, w: u32, h: u32) -> RgbImage {
     use fast_image_resize::images::{Image, ImageRef};
     use fast_image_resize::{FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer};
-    let src = ImageRef::new(rgb.width(), rgb.height(), rgb.as_raw(), PixelType::U8x3).expect("an RGB image's buffer");
+    let src = ImageRef::new(rgb.width(), rgb.height(), rgb.as_raw(), PixelType::U8x3)
+        .expect("an RGB image's buffer");
     let mut dst = Image::new(w, h, PixelType::U8x3);
     let options = ResizeOptions::new().resize_alg(ResizeAlg::Convolution(FilterType::Bilinear));
     Resizer::new().resize(&src, &mut dst, &options).expect("RGB on both sides");
@@ -150,7 +160,10 @@ fn resize(rgb: &RgbImage, w: u32, h: u32) -> RgbImage {
 pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
     let (w, h) = rgb.dimensions();
     let scale = res as f32 / w.max(h) as f32;
-    let (nw, nh) = (((w as f32 * scale).round() as u32).clamp(1, res), ((h as f32 * scale).round() as u32).clamp(1, res));
+    let (nw, nh) = (
+        ((w as f32 * scale).round() as u32).clamp(1, res),
+        ((h as f32 * scale).round() as u32).clamp(1, res),
+    );
     let resized = if (nw, nh) == (w, h) { rgb.clone() } else { resize(rgb, nw, nh) };
     let (ox, oy) = ((res - nw) / 2, (res - nh) / 2);
     let n = (res * res) as usize;
@@ -163,7 +176,13 @@ pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
     }
     ModelImage {
         planar,
-        letterbox: Letterbox { width: w, height: h, scale: nw as f32 / w as f32, pad_x: ox as f32, pad_y: oy as f32 },
+        letterbox: Letterbox {
+            width: w,
+            height: h,
+            scale: nw as f32 / w as f32,
+            pad_x: ox as f32,
+            pad_y: oy as f32,
+        },
         detail: None,
     }
 }
@@ -182,10 +201,16 @@ mod tests {
     #[test]
     fn letterboxes_wide_image_into_the_middle() {
         let m = decode("a.png", &png(20, 10), 10, 0).unwrap();
-        assert_eq!(m.letterbox, Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 });
+        assert_eq!(
+            m.letterbox,
+            Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 }
+        );
         let n = 100;
         assert_eq!(m.planar[0], PAD, "top rows are padding");
-        assert!((m.planar[2 * n + 2 * 10 + 3] - 200.0 / 255.0).abs() < 1e-6, "blue channel of the photo");
+        assert!(
+            (m.planar[2 * n + 2 * 10 + 3] - 200.0 / 255.0).abs() < 1e-6,
+            "blue channel of the photo"
+        );
         let k = Intrinsics { fx: 10.0, fy: 10.0, cx: 5.0, cy: 5.0, width: 10, height: 10 };
         let back = m.letterbox.to_original(&k);
         assert_eq!((back.fx, back.cx, back.cy, back.width, back.height), (20.0, 10.0, 6.0, 20, 10));
@@ -199,8 +224,15 @@ mod tests {
         assert_eq!((copy.dimensions(), per_view, origin), ((16, 8), 1.6, [0.0, 2.0]));
         // Pixel (5, 0) of the 40×20 is (50, 0, 200).
         let exact = decode("a.png", &png(40, 20), 10, 40).unwrap().detail.unwrap();
-        assert_eq!((exact.scale, exact.rgb.get_pixel(5, 0).0), (1.0, [50, 0, 200]), "no larger than asked: kept as it is");
-        assert!(decode("a.png", &png(10, 5), 10, 16).unwrap().detail.is_none(), "no larger than the input");
+        assert_eq!(
+            (exact.scale, exact.rgb.get_pixel(5, 0).0),
+            (1.0, [50, 0, 200]),
+            "no larger than asked: kept as it is"
+        );
+        assert!(
+            decode("a.png", &png(10, 5), 10, 16).unwrap().detail.is_none(),
+            "no larger than the input"
+        );
         assert!(decode("a.png", &png(40, 20), 10, 10).unwrap().detail.is_none(), "no detail asked");
     }
 
@@ -208,7 +240,10 @@ mod tests {
     fn refuses_empty_garbage_and_huge_inputs_by_name() {
         assert!(matches!(decode("e.png", b"", 8, 0), Err(DecodeError::Empty { .. })));
         let err = decode("junk.jpg", b"this is not an image", 8, 0).unwrap_err();
-        assert!(matches!(err, DecodeError::Format { .. }) && err.to_string().starts_with("junk.jpg"), "{err}");
+        assert!(
+            matches!(err, DecodeError::Format { .. }) && err.to_string().starts_with("junk.jpg"),
+            "{err}"
+        );
         // A valid PNG header claiming 20000×20000: refused from the header, before decoding.
         let mut huge = png(1, 1);
         huge[16..20].copy_from_slice(&20000u32.to_be_bytes());

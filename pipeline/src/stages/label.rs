@@ -9,7 +9,9 @@ use inssplat_proto::shape::{DESCRIPTOR, ShapeClassifier, label_cosines};
 use inssplat_proto::{Camera, GaussianScene};
 use inssplat_text::LabelCache;
 use inssplat_understand::label::shape::{fuse, instance_descriptors};
-use inssplat_understand::label::{InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes};
+use inssplat_understand::label::{
+    InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes,
+};
 
 use super::stage_err;
 use crate::reconstruct::PipelineError;
@@ -51,7 +53,9 @@ pub fn run(scene: &GaussianScene, inputs: &LabelInputs<'_>) -> Result<Naming, Pi
             .iter()
             .filter_map(|(id, d)| {
                 let cosines = match classifier.semantic {
-                    true => label_cosines(&prototypes.iter().find(|p| p.id == *id)?.embedding, &texts),
+                    true => {
+                        label_cosines(&prototypes.iter().find(|p| p.id == *id)?.embedding, &texts)
+                    }
                     false => Vec::new(),
                 };
                 Some((*id, classifier.probabilities(d, &cosines)))
@@ -77,7 +81,12 @@ impl Naming {
     }
 
     /// Writes the instances' names, the model version and the up axis into the scene's metadata.
-    pub fn write_meta(&self, scene: &mut GaussianScene, vocabulary: &[String], model_version: &str) {
+    pub fn write_meta(
+        &self,
+        scene: &mut GaussianScene,
+        vocabulary: &[String],
+        model_version: &str,
+    ) {
         scene.meta.labels = self
             .prototypes
             .iter()
@@ -95,7 +104,9 @@ impl Naming {
             .zip(&self.matches)
             .map(|(p, m)| {
                 let mut bbox = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
-                for (mean, _) in scene.means.iter().zip(&scene.instance_id).filter(|(_, id)| **id == p.id) {
+                for (mean, _) in
+                    scene.means.iter().zip(&scene.instance_id).filter(|(_, id)| **id == p.id)
+                {
                     for a in 0..3 {
                         bbox[0][a] = bbox[0][a].min(mean[a]);
                         bbox[1][a] = bbox[1][a].max(mean[a]);

@@ -18,8 +18,16 @@ use crate::backend::ModelOutput;
 use crate::reconstruct::ViewResult;
 
 /// Each input view's instance id map (`pixels` a view).
-pub fn run(voxelized: &Voxelized, per_pixel: &BackProjected, segments: Option<&Segments>, pixels: usize) -> Vec<Vec<u32>> {
-    voted_maps(voxelized, per_pixel, segments, pixels).chunks_exact(pixels).map(<[u32]>::to_vec).collect()
+pub fn run(
+    voxelized: &Voxelized,
+    per_pixel: &BackProjected,
+    segments: Option<&Segments>,
+    pixels: usize,
+) -> Vec<Vec<u32>> {
+    voted_maps(voxelized, per_pixel, segments, pixels)
+        .chunks_exact(pixels)
+        .map(<[u32]>::to_vec)
+        .collect()
 }
 
 /// What each input view looks like: its camera, maps, depth and letterboxed photo.
@@ -34,7 +42,11 @@ pub struct ViewParts<'a> {
 }
 
 /// Assembles every view's result from its id map.
-pub fn views(decoded: Vec<ModelImage>, id_maps: Vec<Vec<u32>>, parts: &ViewParts<'_>) -> Vec<ViewResult> {
+pub fn views(
+    decoded: Vec<ModelImage>,
+    id_maps: Vec<Vec<u32>>,
+    parts: &ViewParts<'_>,
+) -> Vec<ViewResult> {
     let pixels = parts.out.height * parts.out.width;
     let merged_into: Vec<u32> =
         parts.voxelized.voxel_of.iter().map(|&v| if v == DROPPED { 0 } else { v + 1 }).collect();
@@ -52,7 +64,9 @@ pub fn views(decoded: Vec<ModelImage>, id_maps: Vec<Vec<u32>>, parts: &ViewParts
             instance_ids: ids,
             gaussians: gaussians.to_vec(),
             depth: parts.out.depth[plane(1, pixels, v)].to_vec(),
-            rgb: (0..pixels).flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8)).collect(),
+            rgb: (0..pixels)
+                .flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8))
+                .collect(),
         })
         .collect()
 }

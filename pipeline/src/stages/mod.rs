@@ -15,8 +15,8 @@ pub mod network;
 pub mod rays;
 pub mod refine;
 pub mod superpixels;
-pub mod voxelize;
 pub mod vote;
+pub mod voxelize;
 
 use std::ops::Range;
 use std::time::Instant;
@@ -41,7 +41,10 @@ impl<'a> Stopwatch<'a> {
         (self.on_stage)(stage);
         let start = Instant::now();
         let out = f();
-        self.timings.push(StageTiming { stage: stage.to_string(), ms: start.elapsed().as_secs_f64() * 1e3 });
+        self.timings.push(StageTiming {
+            stage: stage.to_string(),
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        });
         out
     }
 }

@@ -34,7 +34,11 @@ pub struct NetworkPass {
 }
 
 /// Runs the network on the decoded views.
-pub fn run(backend: &mut dyn Backend, decoded: &[ModelImage], known: &Known) -> Result<NetworkPass, PipelineError> {
+pub fn run(
+    backend: &mut dyn Backend,
+    decoded: &[ModelImage],
+    known: &Known,
+) -> Result<NetworkPass, PipelineError> {
     let views = decoded.len();
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
     let res = backend.network().resolution;

@@ -25,12 +25,19 @@ pub fn run(
     // The registered cameras are in the depth's units, as the true ones are in the true
     // depth's when the network learns.
     let scale = median_depth(&out.depth).unwrap_or(1.0);
-    let second = backend.run(&pass.batch, out.views, Some(&patch_rays(cameras, res, input.patch(res), input.k, scale)))?;
+    let second = backend.run(
+        &pass.batch,
+        out.views,
+        Some(&patch_rays(cameras, res, input.patch(res), input.k, scale)),
+    )?;
     out.instance = second.instance;
     out.semantic = second.semantic;
     if let Some(segments) = segments {
         let pixels = out.height * out.width;
-        out.instance.par_chunks_exact_mut(INSTANCE_DIM * pixels).zip(segments).for_each(|(map, s)| snap(map, s));
+        out.instance
+            .par_chunks_exact_mut(INSTANCE_DIM * pixels)
+            .zip(segments)
+            .for_each(|(map, s)| snap(map, s));
     }
     Ok(())
 }

@@ -18,8 +18,10 @@ pub fn run(
     steps: usize,
     move_cameras: bool,
 ) -> Result<SceneRefinement, PipelineError> {
-    let views: Vec<RefineView<'_>> =
-        decoded.iter().map(|d| RefineView { photo: &d.planar, rect: d.letterbox.photo_rect() }).collect();
+    let views: Vec<RefineView<'_>> = decoded
+        .iter()
+        .map(|d| RefineView { photo: &d.planar, rect: d.letterbox.photo_rect() })
+        .collect();
     let params = RefineParams { steps, cameras: move_cameras };
     refine_scene(scene, cameras, &views, params).map_err(|e| stage_err("refine")(&e))
 }

@@ -25,7 +25,12 @@ pub fn voted_maps(
 }
 
 /// Gives every merged Gaussian the voted id of most of its pixels (`pixels` a view).
-pub fn run(voxelized: &mut Voxelized, per_pixel: &BackProjected, segments: &Segments, pixels: usize) {
+pub fn run(
+    voxelized: &mut Voxelized,
+    per_pixel: &BackProjected,
+    segments: &Segments,
+    pixels: usize,
+) {
     let maps = voted_maps(voxelized, per_pixel, Some(segments), pixels);
     let input_ids: Vec<u32> = per_pixel.pixel.iter().map(|&p| maps[p as usize]).collect();
     voxelized.adopt_member_majority(&input_ids);

@@ -54,14 +54,18 @@ impl Frame {
     /// The image as planar `[3][H][W]` values in [0, 1] (the network's and the renderer's
     /// layout).
     pub fn planar_rgb(&self) -> Vec<f32> {
-        (0..3).flat_map(|c| self.rgb.chunks_exact(3).map(move |px| f32::from(px[c]) / 255.0)).collect()
+        (0..3)
+            .flat_map(|c| self.rgb.chunks_exact(3).map(move |px| f32::from(px[c]) / 255.0))
+            .collect()
     }
 }
 
 impl Scene {
     /// The scene's folder name (the whole path if it has none), for messages and reports.
     pub fn name(&self) -> String {
-        self.dir.file_name().map_or_else(|| self.dir.display().to_string(), |n| n.to_string_lossy().into_owned())
+        self.dir
+            .file_name()
+            .map_or_else(|| self.dir.display().to_string(), |n| n.to_string_lossy().into_owned())
     }
 
     /// Label of instance `id`, if listed.

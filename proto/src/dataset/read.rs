@@ -24,22 +24,34 @@ impl Scene {
         }
         let depth_unit_m = t.depth_unit_m.unwrap_or(DEFAULT_DEPTH_UNIT_M);
         if !(depth_unit_m.is_finite() && depth_unit_m > 0.0) {
-            return Err(err("depth_unit_m".into(), Problem::Invalid(format!("{depth_unit_m} is not a positive number"))));
+            return Err(err(
+                "depth_unit_m".into(),
+                Problem::Invalid(format!("{depth_unit_m} is not a positive number")),
+            ));
         }
-        let known = known_instance_ids(&t).map_err(|(field, msg)| err(field, Problem::Invalid(msg)))?;
+        let known =
+            known_instance_ids(&t).map_err(|(field, msg)| err(field, Problem::Invalid(msg)))?;
         if let Some(eval) = &t.eval {
-            validate_eval(eval, t.frames.len()).map_err(|(field, msg)| err(field, Problem::Invalid(msg)))?;
+            validate_eval(eval, t.frames.len())
+                .map_err(|(field, msg)| err(field, Problem::Invalid(msg)))?;
         }
         let frames = t
             .frames
             .iter()
             .enumerate()
             .map(|(i, f)| {
-                let ctx = FrameCtx { dir, json_path: &json_path, index: i, known: &known, depth_unit_m };
+                let ctx =
+                    FrameCtx { dir, json_path: &json_path, index: i, known: &known, depth_unit_m };
                 ctx.load(&t, f)
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Scene { dir: dir.to_path_buf(), instances: t.instances, frames, eval: t.eval, depth_unit_m })
+        Ok(Scene {
+            dir: dir.to_path_buf(),
+            instances: t.instances,
+            frames,
+            eval: t.eval,
+            depth_unit_m,
+        })
     }
 }
 
@@ -48,8 +60,11 @@ impl TransformsJson {
     /// without reading or checking the frames' files.
     pub fn read(path: &Path) -> Result<TransformsJson, DatasetError> {
         let text = std::fs::read_to_string(path).map_err(|e| {
-            let problem =
-                if e.kind() == std::io::ErrorKind::NotFound { Problem::Missing } else { Problem::Unreadable(e.to_string()) };
+            let problem = if e.kind() == std::io::ErrorKind::NotFound {
+                Problem::Missing
+            } else {
+                Problem::Unreadable(e.to_string())
+            };
             DatasetError::new(path, "(file)", problem)
         })?;
         let de = &mut serde_json::Deserializer::from_str(&text);
@@ -70,7 +85,9 @@ fn known_instance_ids(t: &TransformsJson) -> Result<Vec<bool>, (String, String)>
         let field = format!("instances[{k}].id");
         match inst.id {
             0 => return Err((field, "0 means `no instance` and cannot be listed".into())),
-            id if id > u32::from(u16::MAX) => return Err((field, format!("{id} does not fit a 16-bit mask"))),
+            id if id > u32::from(u16::MAX) => {
+                return Err((field, format!("{id} does not fit a 16-bit mask")));
+            }
             id if known[id as usize] => return Err((field, format!("id {id} is listed twice"))),
             id => known[id as usize] = true,
         }
@@ -84,14 +101,18 @@ fn known_instance_ids(t: &TransformsJson) -> Result<Vec<bool>, (String, String)>
 fn validate_eval(eval: &EvalSplit, n_frames: usize) -> Result<(), (String, String)> {
     let check = |field: String, idx: &[usize]| -> Result<(), (String, String)> {
         match idx.iter().position(|&i| i >= n_frames) {
-            Some(j) => Err((format!("{field}[{j}]"), format!("frame {} does not exist ({n_frames} frames)", idx[j]))),
+            Some(j) => Err((
+                format!("{field}[{j}]"),
+                format!("frame {} does not exist ({n_frames} frames)", idx[j]),
+            )),
             None => Ok(()),
         }
     };
     check("eval.target".into(), &eval.target)?;
     for (views, idx) in &eval.context {
         let field = format!("eval.context.{views}");
-        let n: usize = views.parse().map_err(|_| (field.clone(), "key must be a view count".to_string()))?;
+        let n: usize =
+            views.parse().map_err(|_| (field.clone(), "key must be a view count".to_string()))?;
         if n != idx.len() {
             return Err((field, format!("{} frames listed for {n} views", idx.len())));
         }
@@ -113,7 +134,11 @@ impl TransformsJson {
             .map(|(index, f)| {
                 let k = frame_intrinsics(self, f, json_path, index)?;
                 Camera::from_nerfstudio(k, &f.transform_matrix).map_err(|e| {
-                    DatasetError::new(json_path, format!("frames[{index}].transform_matrix"), Problem::Transform(e))
+                    DatasetError::new(
+                        json_path,
+                        format!("frames[{index}].transform_matrix"),
+                        Problem::Transform(e),
+                    )
                 })
             })
             .collect()
@@ -181,7 +206,9 @@ impl FrameCtx<'_> {
     /// Resolves `rel` inside the scene folder and decodes it.
     fn image(&self, name: &str, rel: &str) -> Result<(PathBuf, DynamicImage), DatasetError> {
         let p = Path::new(rel);
-        if rel.is_empty() || p.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir)) {
+        if rel.is_empty()
+            || p.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+        {
             return Err(self.json_err(name, Problem::PathEscapes(rel.to_string())));
         }
         let path = self.dir.join(p);
@@ -224,7 +251,10 @@ impl FrameCtx<'_> {
         match img {
             DynamicImage::ImageLuma16(buf) => Ok(buf.into_raw()),
             other => {
-                let problem = Problem::PixelFormat { expected: "16-bit grayscale", found: format!("{:?}", other.color()) };
+                let problem = Problem::PixelFormat {
+                    expected: "16-bit grayscale",
+                    found: format!("{:?}", other.color()),
+                };
                 Err(DatasetError::new(path, self.field(name), problem))
             }
         }
@@ -233,18 +263,33 @@ impl FrameCtx<'_> {
 
 /// Intrinsics of frame `index` (per-frame values, else the top-level ones), checked; errors
 /// name `json_path` and the field.
-fn frame_intrinsics(t: &TransformsJson, f: &FrameJson, json_path: &Path, index: usize) -> Result<Intrinsics, DatasetError> {
-    let json_err = |name: &str, problem: Problem| DatasetError::new(json_path, format!("frames[{index}].{name}"), problem);
+fn frame_intrinsics(
+    t: &TransformsJson,
+    f: &FrameJson,
+    json_path: &Path,
+    index: usize,
+) -> Result<Intrinsics, DatasetError> {
+    let json_err = |name: &str, problem: Problem| {
+        DatasetError::new(json_path, format!("frames[{index}].{name}"), problem)
+    };
     let float = |name: &str, frame: Option<f64>, top: Option<f64>| -> Result<f32, DatasetError> {
         match frame.or(top) {
-            None => Err(json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
-            Some(v) if !v.is_finite() => Err(json_err(name, Problem::Invalid(format!("{v} is not finite")))),
+            None => Err(json_err(
+                name,
+                Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")),
+            )),
+            Some(v) if !v.is_finite() => {
+                Err(json_err(name, Problem::Invalid(format!("{v} is not finite"))))
+            }
             Some(v) => Ok(v as f32),
         }
     };
     let size = |name: &str, frame: Option<u32>, top: Option<u32>| -> Result<u32, DatasetError> {
         match frame.or(top) {
-            None => Err(json_err(name, Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")))),
+            None => Err(json_err(
+                name,
+                Problem::Invalid(format!("missing (no per-frame or top-level `{name}`)")),
+            )),
             Some(0) => Err(json_err(name, Problem::Invalid("image size must be positive".into()))),
             Some(v) => Ok(v),
         }
@@ -259,7 +304,10 @@ fn frame_intrinsics(t: &TransformsJson, f: &FrameJson, json_path: &Path, index: 
     };
     for (name, v) in [("fl_x", k.fx), ("fl_y", k.fy)] {
         if v <= 0.0 {
-            return Err(json_err(name, Problem::Invalid(format!("focal length {v} must be positive"))));
+            return Err(json_err(
+                name,
+                Problem::Invalid(format!("focal length {v} must be positive")),
+            ));
         }
     }
     Ok(k)

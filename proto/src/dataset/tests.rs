@@ -14,13 +14,18 @@ fn sample() -> Scene {
         .map(|i| Frame {
             camera: Camera::look_at(k, Vec3::new(i as f32, 1.0, -3.0), Vec3::ZERO, Vec3::Y),
             rgb: (0..72).map(|v| (v * 3 + i) as u8).collect(),
-            depth: Some((0..24).map(|v| ((1000 + v * 7) as f64 * DEFAULT_DEPTH_UNIT_M) as f32).collect()),
+            depth: Some(
+                (0..24).map(|v| ((1000 + v * 7) as f64 * DEFAULT_DEPTH_UNIT_M) as f32).collect(),
+            ),
             instances: Some((0..24).map(|v| (v % 3) as u16).collect()),
         })
         .collect();
     Scene {
         dir: PathBuf::new(),
-        instances: vec![InstanceLabel { id: 1, label: "chair".into() }, InstanceLabel { id: 2, label: "lamp".into() }],
+        instances: vec![
+            InstanceLabel { id: 1, label: "chair".into() },
+            InstanceLabel { id: 2, label: "lamp".into() },
+        ],
         frames,
         eval: None,
         depth_unit_m: DEFAULT_DEPTH_UNIT_M,
@@ -46,7 +51,10 @@ fn rejected(dir: &Path, file: &str, field: &str) -> Problem {
     assert!(err.file.ends_with(file), "file {:?} should end with {file}: {err}", err.file);
     assert!(err.field.starts_with(field), "field {:?} should start with {field}: {err}", err.field);
     let text = err.to_string();
-    assert!(text.contains(file) && text.contains(&err.field), "message names file and field: {text}");
+    assert!(
+        text.contains(file) && text.contains(&err.field),
+        "message names file and field: {text}"
+    );
     err.problem
 }
 
@@ -74,28 +82,40 @@ fn rejects_missing_transforms() {
 fn rejects_missing_image() {
     let dir = written();
     std::fs::remove_file(dir.path().join("images/001.png")).unwrap();
-    assert!(matches!(rejected(dir.path(), "images/001.png", "frames[1].file_path"), Problem::Missing));
+    assert!(matches!(
+        rejected(dir.path(), "images/001.png", "frames[1].file_path"),
+        Problem::Missing
+    ));
 }
 
 #[test]
 fn rejects_unreadable_image() {
     let dir = written();
     std::fs::write(dir.path().join("images/000.png"), b"\x89PNG\r\n\x1a\nnot really").unwrap();
-    assert!(matches!(rejected(dir.path(), "images/000.png", "frames[0].file_path"), Problem::Unreadable(_)));
+    assert!(matches!(
+        rejected(dir.path(), "images/000.png", "frames[0].file_path"),
+        Problem::Unreadable(_)
+    ));
 }
 
 #[test]
 fn rejects_zero_byte_image() {
     let dir = written();
     std::fs::write(dir.path().join("images/000.png"), b"").unwrap();
-    assert!(matches!(rejected(dir.path(), "images/000.png", "frames[0].file_path"), Problem::Unreadable(_)));
+    assert!(matches!(
+        rejected(dir.path(), "images/000.png", "frames[0].file_path"),
+        Problem::Unreadable(_)
+    ));
 }
 
 #[test]
 fn rejects_image_size_that_differs_from_intrinsics() {
     let dir = written();
     edit_json(dir.path(), |v| v["w"] = json!(7));
-    assert!(matches!(rejected(dir.path(), "images/000.png", "frames[0].file_path"), Problem::SizeMismatch { .. }));
+    assert!(matches!(
+        rejected(dir.path(), "images/000.png", "frames[0].file_path"),
+        Problem::SizeMismatch { .. }
+    ));
 }
 
 #[test]
@@ -123,8 +143,14 @@ fn rejects_instance_mask_of_another_size() {
 #[test]
 fn rejects_8_bit_depth() {
     let dir = written();
-    image::GrayImage::from_raw(6, 4, vec![9u8; 24]).unwrap().save(dir.path().join("depth/000.png")).unwrap();
-    assert!(matches!(rejected(dir.path(), "depth/000.png", "frames[0].depth_file_path"), Problem::PixelFormat { .. }));
+    image::GrayImage::from_raw(6, 4, vec![9u8; 24])
+        .unwrap()
+        .save(dir.path().join("depth/000.png"))
+        .unwrap();
+    assert!(matches!(
+        rejected(dir.path(), "depth/000.png", "frames[0].depth_file_path"),
+        Problem::PixelFormat { .. }
+    ));
 }
 
 #[test]
@@ -142,7 +168,10 @@ fn rejects_non_finite_transform() {
 #[test]
 fn rejects_singular_transform() {
     let dir = written();
-    edit_json(dir.path(), |v| v["frames"][1]["transform_matrix"] = json!([[1, 0, 0, 0], [2, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]));
+    edit_json(dir.path(), |v| {
+        v["frames"][1]["transform_matrix"] =
+            json!([[1, 0, 0, 0], [2, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    });
     let p = rejected(dir.path(), "transforms.json", "frames[1].transform_matrix");
     assert!(matches!(p, Problem::Transform(CameraError::Singular(_))), "{p}");
 }
@@ -167,14 +196,20 @@ fn rejects_unknown_instance_id() {
 fn rejects_parent_dir_path() {
     let dir = written();
     edit_json(dir.path(), |v| v["frames"][0]["file_path"] = json!("../outside.png"));
-    assert!(matches!(rejected(dir.path(), "transforms.json", "frames[0].file_path"), Problem::PathEscapes(_)));
+    assert!(matches!(
+        rejected(dir.path(), "transforms.json", "frames[0].file_path"),
+        Problem::PathEscapes(_)
+    ));
 }
 
 #[test]
 fn rejects_absolute_path() {
     let dir = written();
     edit_json(dir.path(), |v| v["frames"][1]["depth_file_path"] = json!("/etc/passwd"));
-    assert!(matches!(rejected(dir.path(), "transforms.json", "frames[1].depth_file_path"), Problem::PathEscapes(_)));
+    assert!(matches!(
+        rejected(dir.path(), "transforms.json", "frames[1].depth_file_path"),
+        Problem::PathEscapes(_)
+    ));
 }
 
 #[test]
@@ -188,7 +223,10 @@ fn rejects_bad_json() {
 fn rejects_wrong_types() {
     let dir = written();
     edit_json(dir.path(), |v| v["frames"][1]["file_path"] = json!(3));
-    assert!(matches!(rejected(dir.path(), "transforms.json", "frames[1].file_path"), Problem::Json(_)));
+    assert!(matches!(
+        rejected(dir.path(), "transforms.json", "frames[1].file_path"),
+        Problem::Json(_)
+    ));
     // The intrinsics too, at either level: the error names the field, not its object.
     let dir = written();
     edit_json(dir.path(), |v| v["frames"][1]["fl_y"] = json!("x"));
@@ -222,14 +260,22 @@ fn frame_intrinsics_override_the_top_level_and_integers_read_as_floats() {
 fn rejects_missing_intrinsics() {
     let dir = written();
     edit_json(dir.path(), |v| v.as_object_mut().unwrap().remove("fl_x").map(drop).unwrap_or(()));
-    assert!(matches!(rejected(dir.path(), "transforms.json", "frames[0].fl_x"), Problem::Invalid(_)));
+    assert!(matches!(
+        rejected(dir.path(), "transforms.json", "frames[0].fl_x"),
+        Problem::Invalid(_)
+    ));
 }
 
 #[test]
 fn rejects_duplicate_instance_id() {
     let dir = written();
-    edit_json(dir.path(), |v| v["instances"] = json!([{"id": 1, "label": "a"}, {"id": 1, "label": "b"}]));
-    assert!(matches!(rejected(dir.path(), "transforms.json", "instances[1].id"), Problem::Invalid(_)));
+    edit_json(dir.path(), |v| {
+        v["instances"] = json!([{"id": 1, "label": "a"}, {"id": 1, "label": "b"}])
+    });
+    assert!(matches!(
+        rejected(dir.path(), "transforms.json", "instances[1].id"),
+        Problem::Invalid(_)
+    ));
 }
 
 #[test]
@@ -242,28 +288,61 @@ fn rejects_eval_frames_out_of_range_or_overlapping() {
 }
 
 fn arb_scene() -> impl Strategy<Value = Scene> {
-    let frame = (1u32..6, 1u32..5, prop::array::uniform4(-1.0f32..1.0), prop::array::uniform3(-5.0f32..5.0), any::<bool>(), any::<u64>());
+    let frame = (
+        1u32..6,
+        1u32..5,
+        prop::array::uniform4(-1.0f32..1.0),
+        prop::array::uniform3(-5.0f32..5.0),
+        any::<bool>(),
+        any::<u64>(),
+    );
     (prop::collection::vec(frame, 1..4), 0usize..4).prop_map(|(frames, n_inst)| {
         let (w, h) = (frames[0].0, frames[0].1);
-        let instances = (1..=n_inst as u32).map(|id| InstanceLabel { id: id * 7, label: format!("thing {id}") }).collect::<Vec<_>>();
+        let instances = (1..=n_inst as u32)
+            .map(|id| InstanceLabel { id: id * 7, label: format!("thing {id}") })
+            .collect::<Vec<_>>();
         let frames = frames
             .into_iter()
             .enumerate()
             .map(|(i, (_, _, q, t, gt, seed))| {
-                let k = Intrinsics { fx: 3.0 + i as f32, fy: 3.5, cx: w as f32 / 2.0, cy: h as f32 / 2.0, width: w, height: h };
+                let k = Intrinsics {
+                    fx: 3.0 + i as f32,
+                    fy: 3.5,
+                    cx: w as f32 / 2.0,
+                    cy: h as f32 / 2.0,
+                    width: w,
+                    height: h,
+                };
                 let q = Quat::from_xyzw(q[1], q[2], q[3], q[0]);
-                let rotation = if q.is_finite() && q.length() > 1e-3 { q.normalize() } else { Quat::IDENTITY };
+                let rotation =
+                    if q.is_finite() && q.length() > 1e-3 { q.normalize() } else { Quat::IDENTITY };
                 let n = (w * h) as usize;
-                let mix = |j: usize| seed.wrapping_mul(6364136223846793005).wrapping_add((j as u64).wrapping_mul(1442695040888963407)) >> 33;
+                let mix = |j: usize| {
+                    seed.wrapping_mul(6364136223846793005)
+                        .wrapping_add((j as u64).wrapping_mul(1442695040888963407))
+                        >> 33
+                };
                 Frame {
                     camera: Camera { intrinsics: k, rotation, translation: Vec3::from(t) },
                     rgb: (0..3 * n).map(|j| mix(j) as u8).collect(),
-                    depth: gt.then(|| (0..n).map(|j| ((mix(j) % 60000) as f64 * DEFAULT_DEPTH_UNIT_M) as f32).collect()),
-                    instances: (gt && n_inst > 0).then(|| (0..n).map(|j| ((mix(j) % (n_inst as u64 + 1)) * 7) as u16).collect()),
+                    depth: gt.then(|| {
+                        (0..n)
+                            .map(|j| ((mix(j) % 60000) as f64 * DEFAULT_DEPTH_UNIT_M) as f32)
+                            .collect()
+                    }),
+                    instances: (gt && n_inst > 0).then(|| {
+                        (0..n).map(|j| ((mix(j) % (n_inst as u64 + 1)) * 7) as u16).collect()
+                    }),
                 }
             })
             .collect();
-        Scene { dir: PathBuf::new(), instances, frames, eval: None, depth_unit_m: DEFAULT_DEPTH_UNIT_M }
+        Scene {
+            dir: PathBuf::new(),
+            instances,
+            frames,
+            eval: None,
+            depth_unit_m: DEFAULT_DEPTH_UNIT_M,
+        }
     })
 }
 

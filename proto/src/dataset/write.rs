@@ -26,7 +26,10 @@ impl Scene {
                 FrameJson {
                     file_path: format!("images/{i:03}.png"),
                     depth_file_path: f.depth.as_ref().map(|_| format!("depth/{i:03}.png")),
-                    instance_file_path: f.instances.as_ref().map(|_| format!("instances/{i:03}.png")),
+                    instance_file_path: f
+                        .instances
+                        .as_ref()
+                        .map(|_| format!("instances/{i:03}.png")),
                     transform_matrix: f.camera.to_nerfstudio(),
                     fl_x: pick(k.fx),
                     fl_y: pick(k.fy),
@@ -77,11 +80,13 @@ impl Scene {
         if let Some(depth) = &f.depth {
             let path = dir.join(format!("depth/{i:03}.png"));
             let q: Vec<u16> = depth.iter().map(|&d| quantize(d, self.depth_unit_m)).collect();
-            save_l16(&path, w, h, q).ok_or_else(|| size_err(&path, i, "depth", depth.len(), w * h))??;
+            save_l16(&path, w, h, q)
+                .ok_or_else(|| size_err(&path, i, "depth", depth.len(), w * h))??;
         }
         if let Some(ids) = &f.instances {
             let path = dir.join(format!("instances/{i:03}.png"));
-            save_l16(&path, w, h, ids.clone()).ok_or_else(|| size_err(&path, i, "instances", ids.len(), w * h))??;
+            save_l16(&path, w, h, ids.clone())
+                .ok_or_else(|| size_err(&path, i, "instances", ids.len(), w * h))??;
         }
         Ok(())
     }
@@ -89,7 +94,11 @@ impl Scene {
 
 /// Metres → depth quantum, 0 (no hit) for non-finite or non-positive depth.
 fn quantize(d: f32, unit: f64) -> u16 {
-    if d.is_finite() && d > 0.0 { (f64::from(d) / unit).round().clamp(1.0, f64::from(u16::MAX)) as u16 } else { 0 }
+    if d.is_finite() && d > 0.0 {
+        (f64::from(d) / unit).round().clamp(1.0, f64::from(u16::MAX)) as u16
+    } else {
+        0
+    }
 }
 
 fn save_l16(path: &Path, w: u32, h: u32, data: Vec<u16>) -> Option<Result<(), DatasetError>> {

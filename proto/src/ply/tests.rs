@@ -54,8 +54,18 @@ fn header_lists_standard_properties_first_then_extras() {
     assert_eq!(
         props[17..],
         [
-            "float confidence", "uint instance_id", "float ins_0", "float ins_1", "float ins_2", "float ins_3",
-            "float ins_4", "float ins_5", "float ins_6", "float ins_7", "float sem_0", "float sem_1"
+            "float confidence",
+            "uint instance_id",
+            "float ins_0",
+            "float ins_1",
+            "float ins_2",
+            "float ins_3",
+            "float ins_4",
+            "float ins_5",
+            "float ins_6",
+            "float ins_7",
+            "float sem_0",
+            "float sem_1"
         ]
     );
     assert!(text.starts_with("ply\nformat binary_little_endian 1.0\n"), "{text}");
@@ -83,9 +93,13 @@ fn empty_scene_round_trips() {
 /// A file as written by the INRIA 3DGS code: normals, 45 f_rest, no extras.
 fn inria_file(n: usize) -> Vec<u8> {
     let mut text = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
-    let mut names: Vec<String> = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"].map(String::from).to_vec();
+    let mut names: Vec<String> =
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"].map(String::from).to_vec();
     names.extend((0..45).map(|i| format!("f_rest_{i}")));
-    names.extend(["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"].map(String::from));
+    names.extend(
+        ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+            .map(String::from),
+    );
     for p in &names {
         text.push_str(&format!("property float {p}\n"));
     }
@@ -132,7 +146,10 @@ fn truncated_file_names_element_record_and_property() {
     let err = read_ply(&mut &bytes[..cut]).unwrap_err();
     match &err {
         PlyError::Truncated { element, index, count, property } => {
-            assert_eq!((element.as_str(), *index, *count, property.as_str()), ("vertex", 6, 10, "scale_0"));
+            assert_eq!(
+                (element.as_str(), *index, *count, property.as_str()),
+                ("vertex", 6, 10, "scale_0")
+            );
         }
         other => panic!("expected Truncated, got {other:?}"),
     }
@@ -148,7 +165,8 @@ fn missing_required_property_is_named() {
 
 #[test]
 fn list_typed_required_property_is_rejected() {
-    let mut text = String::from("ply\nformat ascii 1.0\nelement vertex 0\nproperty list uchar float x\n");
+    let mut text =
+        String::from("ply\nformat ascii 1.0\nelement vertex 0\nproperty list uchar float x\n");
     for p in REQUIRED.iter().skip(1) {
         text.push_str(&format!("property float {p}\n"));
     }

@@ -50,11 +50,21 @@ const GEOM: usize = 7;
 
 /// Gathers a tile's incoming gradients and folds expected depth D = S / max(A, 1e-10) into
 /// gradients on S and on A.
-fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[f32], d_alpha: &[f32]) -> TileGrads {
+fn tile_grads(
+    state: &ForwardState,
+    tile: usize,
+    d_features: &[f32],
+    d_depth: &[f32],
+    d_alpha: &[f32],
+) -> TileGrads {
     let c = state.channels;
     let (w, h) = (state.width as usize, state.height as usize);
     let (tx, ty) = (tile % state.bins.tiles_x as usize, tile / state.bins.tiles_x as usize);
-    let mut g = TileGrads { features: vec![0.0; c * PADDED], depth_sum: [0.0; PADDED], alpha: [0.0; PADDED] };
+    let mut g = TileGrads {
+        features: vec![0.0; c * PADDED],
+        depth_sum: [0.0; PADDED],
+        alpha: [0.0; PADDED],
+    };
     for ly in 0..TILE as usize {
         let y = ty * TILE as usize + ly;
         if y >= h {
@@ -72,7 +82,8 @@ fn tile_grads(state: &ForwardState, tile: usize, d_features: &[f32], d_depth: &[
             let alpha = 1.0 - state.transmittance[pix];
             let denom = alpha.max(1e-10);
             g.depth_sum[p] = d_depth[pix] / denom;
-            let through_norm = if alpha > 1e-10 { d_depth[pix] * state.depth[pix] / alpha } else { 0.0 };
+            let through_norm =
+                if alpha > 1e-10 { d_depth[pix] * state.depth[pix] / alpha } else { 0.0 };
             g.alpha[p] = d_alpha[pix] - through_norm;
         }
     }
@@ -85,8 +96,10 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
     let c = state.channels;
     let stride = GEOM + c;
     let (w, h) = (state.width as usize, state.height as usize);
-    let origin =
-        [(tile % state.bins.tiles_x as usize) as u32 * TILE, (tile / state.bins.tiles_x as usize) as u32 * TILE];
+    let origin = [
+        (tile % state.bins.tiles_x as usize) as u32 * TILE,
+        (tile / state.bins.tiles_x as usize) as u32 * TILE,
+    ];
     let ranks = state.bins.isects(tile);
     let mut t = [0.0f32; PADDED];
     let mut t_final = [0.0f32; PADDED];
@@ -97,19 +110,22 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
     let mut buf_dot = [0.0f32; PADDED];
     let mut buf_depth = [0.0f32; PADDED];
     for p in 0..TILE_PIXELS {
-        let (x, y) = (origin[0] as usize + p % TILE as usize, origin[1] as usize + p / TILE as usize);
+        let (x, y) =
+            (origin[0] as usize + p % TILE as usize, origin[1] as usize + p / TILE as usize);
         if x < w && y < h {
             let pix = y * w + x;
             t[p] = state.transmittance[pix];
             t_final[p] = t[p];
             last[p] = state.last[pix];
-            let bg_dot: f32 = (0..c).map(|ch| grads.features[ch * PADDED + p] * state.background[ch]).sum();
+            let bg_dot: f32 =
+                (0..c).map(|ch| grads.features[ch * PADDED + p] * state.background[ch]).sum();
             buf_dot[p] = t[p] * bg_dot;
         }
     }
     // Per channel, the feature gradient the current Gaussian collects, one lane per column.
     let mut g_features = vec![f32x4::ZERO; c];
-    let row_last: Vec<u32> = last.chunks(TILE as usize).map(|row| row.iter().copied().max().unwrap_or(0)).collect();
+    let row_last: Vec<u32> =
+        last.chunks(TILE as usize).map(|row| row.iter().copied().max().unwrap_or(0)).collect();
     let end = row_last.iter().copied().max().unwrap_or(0) as usize;
     for k in (0..end).rev() {
         let rank = ranks[k] as usize;
@@ -135,7 +151,8 @@ fn backward_tile(state: &ForwardState, tile: usize, grads: &TileGrads, slots: &m
                 let (alpha, slope) = state.cutoff.alpha_and_slope_lanes(v);
                 // Lanes of this row's span, not past the pixel's last contributor, with α > 0.
                 let live = u32x4::new(last[p..p + LANES].try_into().unwrap()).simd_gt(stamp);
-                let on = f32x4::from_bits(span_mask(base, x0, x1) & live) & alpha.simd_gt(f32x4::ZERO);
+                let on =
+                    f32x4::from_bits(span_mask(base, x0, x1) & live) & alpha.simd_gt(f32x4::ZERO);
                 if on.to_bitmask() == 0 {
                     continue;
                 }
@@ -275,8 +292,10 @@ pub(crate) fn backward(
     let q = camera.rotation;
     let norm = q.length();
     let unit = [q.w / norm, q.x / norm, q.y / norm, q.z / norm];
-    let camera =
-        CameraGrad { rotation: quaternion_vjp(unit, norm, Mat3::from_cols_array(&g_rot)), translation: g_trans };
+    let camera = CameraGrad {
+        rotation: quaternion_vjp(unit, norm, Mat3::from_cols_array(&g_rot)),
+        translation: g_trans,
+    };
     SplatGrads {
         camera,
         means: params.iter().map(|p| p.mean).collect(),

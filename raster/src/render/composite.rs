@@ -6,7 +6,8 @@
 //! [`TileSink`], which accumulates whatever the caller renders (feature channels and depth,
 //! or instance ids). Pixels stop when the next Gaussian would take their transmittance below
 //! [`T_MIN`] (that Gaussian is not composited, as in gsplat), or when the sink says their
-//! result is settled; the tile stops when all its pixels have. Per pixel it keeps what the backward needs: the final transmittance and the
+//! result is settled; the tile stops when all its pixels have. Per pixel it keeps what the backward
+//! needs: the final transmittance and the
 //! number of list entries up to the last one that contributed.
 
 use wide::{f32x4, u32x4};
@@ -60,7 +61,13 @@ impl Ellipse {
     pub fn new(g: &Projected) -> Self {
         let [a, b, c] = g.conic;
         let inv_a = 1.0 / a;
-        Self { centre_x: g.xy[0], k2: g.k2, inv_a, b_over_a: b * inv_a, det_over_a: (a * c - b * b) * inv_a }
+        Self {
+            centre_x: g.xy[0],
+            k2: g.k2,
+            inv_a,
+            b_over_a: b * inv_a,
+            det_over_a: (a * c - b * b) * inv_a,
+        }
     }
 
     /// Tile-relative columns of the row at vertical offset `dy` from the centre, in the tile
@@ -105,7 +112,12 @@ pub(crate) struct FeatureSink<'a> {
 
 impl<'a> FeatureSink<'a> {
     pub fn new(sorted_features: &'a [f32], channels: usize) -> Self {
-        Self { sorted_features, channels, features: vec![0.0; channels * TILE_PIXELS], depth_sum: [0.0; TILE_PIXELS] }
+        Self {
+            sorted_features,
+            channels,
+            features: vec![0.0; channels * TILE_PIXELS],
+            depth_sum: [0.0; TILE_PIXELS],
+        }
     }
 }
 
@@ -124,7 +136,11 @@ impl TileSink for FeatureSink<'_> {
 
 impl FeatureSink<'_> {
     /// The tile's feature planes over `background` (`[channel][pixel]`) and its expected depth.
-    pub fn into_planes(self, cov: &TileCoverage, background: &[f32]) -> (Vec<f32>, [f32; TILE_PIXELS]) {
+    pub fn into_planes(
+        self,
+        cov: &TileCoverage,
+        background: &[f32],
+    ) -> (Vec<f32>, [f32; TILE_PIXELS]) {
         let c = self.channels;
         let mut planes = vec![0.0; c * TILE_PIXELS];
         for (p, sums) in self.features.chunks_exact(c.max(1)).enumerate().take(TILE_PIXELS) {
@@ -133,7 +149,8 @@ impl FeatureSink<'_> {
                 planes[ch * TILE_PIXELS + p] = sum + t * bg;
             }
         }
-        let depth = std::array::from_fn(|p| self.depth_sum[p] / (1.0 - cov.transmittance[p]).max(1e-10));
+        let depth =
+            std::array::from_fn(|p| self.depth_sum[p] / (1.0 - cov.transmittance[p]).max(1e-10));
         (planes, depth)
     }
 }
@@ -230,7 +247,8 @@ fn composite<const SMOOTH: bool, S: TileSink>(
             let dy = pixel_offset(origin[1], y, g.xy[1]);
             let Some((x0, x1)) = ellipse.row_span(dy, origin[0]) else { continue };
             for base in chunk_starts(x0, x1) {
-                lane_groups[groups] = LaneGroup { at: y * tile + base, base, dy, span: span_mask(base, x0, x1) };
+                lane_groups[groups] =
+                    LaneGroup { at: y * tile + base, base, dy, span: span_mask(base, x0, x1) };
                 groups += 1;
             }
         }

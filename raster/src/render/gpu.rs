@@ -55,7 +55,12 @@ impl GpuRenderer {
             ..Default::default()
         }))
         .map_err(gpu_err)?;
-        Ok(Self { device, queue, adapter: adapter.get_info(), pipelines: Mutex::new(HashMap::new()) })
+        Ok(Self {
+            device,
+            queue,
+            adapter: adapter.get_info(),
+            pipelines: Mutex::new(HashMap::new()),
+        })
     }
 
     /// Name and backend of the adapter in use (e.g. "llvmpipe (LLVM 19.1.7, 256 bits)", Vulkan).
@@ -94,7 +99,12 @@ impl GpuRenderer {
     }
 
     /// Renders like [`super::render`] (hard alpha cutoff), without the backward state.
-    pub fn render(&self, splats: &Splats, camera: &Camera, background: &[f32]) -> Result<Image, RenderError> {
+    pub fn render(
+        &self,
+        splats: &Splats,
+        camera: &Camera,
+        background: &[f32],
+    ) -> Result<Image, RenderError> {
         let background = validate(splats, camera, background)?;
         let (width, height) = (camera.intrinsics.width, camera.intrinsics.height);
         let c = splats.channels;
@@ -114,12 +124,13 @@ impl GpuRenderer {
         let out_bytes = ((c + 2) * pixels * 4) as u64;
         // Too large for one binding on this adapter: an error, so callers fall back to the CPU.
         let limit = self.device.limits().max_storage_buffer_binding_size;
-        let largest = [gauss.len() * 16, bins.sorted_features.len() * 4, bins.rank_from_isect.len() * 4]
-            .into_iter()
-            .map(|b| b as u64)
-            .chain([out_bytes])
-            .max()
-            .unwrap_or(0);
+        let largest =
+            [gauss.len() * 16, bins.sorted_features.len() * 4, bins.rank_from_isect.len() * 4]
+                .into_iter()
+                .map(|b| b as u64)
+                .chain([out_bytes])
+                .max()
+                .unwrap_or(0);
         if largest > limit {
             return Err(RenderError::Gpu(format!(
                 "a {largest}-byte buffer exceeds the adapter's {limit}-byte binding limit"
@@ -140,9 +151,11 @@ impl GpuRenderer {
             usage: wgpu::BufferUsages::UNIFORM,
         });
         let gauss_buf = storage("gauss", bytemuck::cast_slice(&padded(&gauss)));
-        let features_buf = storage("features", bytemuck::cast_slice(&padded(&bins.sorted_features)));
+        let features_buf =
+            storage("features", bytemuck::cast_slice(&padded(&bins.sorted_features)));
         let offsets_buf = storage("tile_offsets", bytemuck::cast_slice(&bins.tile_offsets));
-        let isect_buf = storage("rank_from_isect", bytemuck::cast_slice(&padded(&bins.rank_from_isect)));
+        let isect_buf =
+            storage("rank_from_isect", bytemuck::cast_slice(&padded(&bins.rank_from_isect)));
         let background_buf = storage("background", bytemuck::cast_slice(&padded(&background)));
         let out_buf = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("output"),
@@ -159,21 +172,36 @@ impl GpuRenderer {
 
         let pipeline = self.pipeline(c);
         let layout = pipeline.get_bind_group_layout(0);
-        let buffers = [&params_buf, &gauss_buf, &features_buf, &offsets_buf, &isect_buf, &background_buf, &out_buf];
+        let buffers = [
+            &params_buf,
+            &gauss_buf,
+            &features_buf,
+            &offsets_buf,
+            &isect_buf,
+            &background_buf,
+            &out_buf,
+        ];
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("composite"),
             layout: &layout,
             entries: &entries,
         });
-        let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render") });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("render") });
         {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("composite"), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("composite"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &bind_group, &[]);
             pass.dispatch_workgroups(bins.tiles_x, bins.tiles_y, 1);

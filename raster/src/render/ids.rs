@@ -17,7 +17,10 @@ use rayon::prelude::*;
 
 use super::composite::{TILE_PIXELS, TileCoverage, TileSink};
 use super::project::{Projected, View};
-use super::{AlphaCutoff, Backend, GpuRenderer, Image, RenderError, Splats, composite_tiles, prepare, tiles, validate};
+use super::{
+    AlphaCutoff, Backend, GpuRenderer, Image, RenderError, Splats, composite_tiles, prepare, tiles,
+    validate,
+};
 
 /// Relative margin by which a pixel's leading weight must beat the runner-up plus the
 /// transmittance left before the pixel is settled: float sums of up to ~10⁴ weights stay
@@ -97,7 +100,9 @@ impl<'a> IdSink<'a> {
 
     /// The tile's ids: the leading id where alpha passed the threshold (settled pixels have).
     fn into_ids(self, cov: &TileCoverage) -> [u32; TILE_PIXELS] {
-        std::array::from_fn(|p| if 1.0 - cov.transmittance[p] > self.min_alpha { self.best[p] } else { 0 })
+        std::array::from_fn(|p| {
+            if 1.0 - cov.transmittance[p] > self.min_alpha { self.best[p] } else { 0 }
+        })
     }
 }
 
@@ -136,11 +141,20 @@ impl TileSink for IdSink<'_> {
 /// Renders the id map of `splats` (geometry only: features are not read and may be empty)
 /// whose Gaussian `i` has id `ids[i]`, seen by `camera`, on the CPU: per pixel the id of
 /// largest weight where the accumulated alpha exceeds `min_alpha`, else 0.
-pub fn render_ids(splats: &Splats, ids: &[u32], camera: &Camera, min_alpha: f32) -> Result<IdImage, RenderError> {
+pub fn render_ids(
+    splats: &Splats,
+    ids: &[u32],
+    camera: &Camera,
+    min_alpha: f32,
+) -> Result<IdImage, RenderError> {
     let geometry = Splats { features: &[], channels: 0, ..*splats };
     validate(&geometry, camera, &[])?;
     if ids.len() != splats.means.len() {
-        return Err(RenderError::Length { field: "ids", expected: splats.means.len(), got: ids.len() });
+        return Err(RenderError::Length {
+            field: "ids",
+            expected: splats.means.len(),
+            got: ids.len(),
+        });
     }
     let (width, height) = (camera.intrinsics.width, camera.intrinsics.height);
     let (_, bins) = prepare(&geometry, &View::new(camera), AlphaCutoff::Hard, width, height);

@@ -57,7 +57,8 @@ pub(crate) fn column_offsets(origin_x: u32, base: usize, centre: f32) -> f32x4 {
 #[inline(always)]
 pub(crate) fn span_mask(base: usize, x0: usize, x1: usize) -> u32x4 {
     let columns = i32x4::splat(base as i32) + LANE_INDEX;
-    let outside = columns.simd_lt(i32x4::splat(x0 as i32)) | columns.simd_gt(i32x4::splat(x1 as i32));
+    let outside =
+        columns.simd_lt(i32x4::splat(x0 as i32)) | columns.simd_gt(i32x4::splat(x1 as i32));
     (!outside).cast_unsigned()
 }
 
@@ -86,7 +87,8 @@ impl AlphaCutoff {
                 (v & on, f32x4::ONE & on)
             }
             AlphaCutoff::Smooth => {
-                let t = ((v - 0.5 * ALPHA_MIN) / ALPHA_MIN).fast_max(f32x4::ZERO).fast_min(f32x4::ONE);
+                let t =
+                    ((v - 0.5 * ALPHA_MIN) / ALPHA_MIN).fast_max(f32x4::ZERO).fast_min(f32x4::ONE);
                 let s = t * t * (f32x4::splat(3.0) - t * 2.0);
                 (v * s, s + v * t * (f32x4::ONE - t) * (6.0 / ALPHA_MIN))
             }

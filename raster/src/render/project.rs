@@ -69,7 +69,8 @@ pub(crate) struct Projected {
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct ProjectedGrad {
     pub xy: [f32; 2],
-    /// W.r.t. the scalars (a, b, c) of the conic, b counted once (power = −½(a dx² + 2b dx dy + c dy²)).
+    /// W.r.t. the scalars (a, b, c) of the conic, b counted once (power = −½(a dx² + 2b dx dy + c
+    /// dy²)).
     pub conic: [f32; 3],
     pub opacity: f32,
     pub depth: f32,
@@ -127,7 +128,12 @@ fn rotation_matrix([w, x, y, z]: [f32; 4]) -> Mat3 {
 /// is skipped (this covers zero and denormal quaternions).
 const MIN_QUAT_NORM: f32 = 1e-12;
 
-fn geometry(view: &View, mean: [f32; 3], log_scale: [f32; 3], rotation: [f32; 4]) -> Option<Geometry> {
+fn geometry(
+    view: &View,
+    mean: [f32; 3],
+    log_scale: [f32; 3],
+    rotation: [f32; 4],
+) -> Option<Geometry> {
     let p_cam = view.rot * Vec3::from(mean) + view.trans;
     if p_cam.z.is_nan() || p_cam.z < NEAR_PLANE {
         return None;
@@ -156,7 +162,10 @@ fn geometry(view: &View, mean: [f32; 3], log_scale: [f32; 3], rotation: [f32; 4]
     let vj0 = v * j[0];
     let vj1 = v * j[1];
     let b = j[0].dot(vj1);
-    let cov2d = Mat2::from_cols(Vec2::new(j[0].dot(vj0) + LOW_PASS, b), Vec2::new(b, j[1].dot(vj1) + LOW_PASS));
+    let cov2d = Mat2::from_cols(
+        Vec2::new(j[0].dot(vj0) + LOW_PASS, b),
+        Vec2::new(b, j[1].dot(vj1) + LOW_PASS),
+    );
     Some(Geometry { p_cam, t_clamped, clamped, q, q_norm, r, scale, m, v, j, cov2d })
 }
 
@@ -213,12 +222,26 @@ pub(crate) fn quaternion_vjp(unit: [f32; 4], norm: f32, g_r: Mat3) -> [f32; 4] {
 fn rotation_vjp([w, x, y, z]: [f32; 4], g_r: Mat3) -> [f32; 4] {
     // Element (row, col) of a matrix given as rows.
     let at = |row: usize, col: usize| g_r.col(col)[row];
-    let contract = |d: [[f32; 3]; 3]| -> f32 { (0..3).map(|r| (0..3).map(|c| d[r][c] * at(r, c)).sum::<f32>()).sum() };
+    let contract = |d: [[f32; 3]; 3]| -> f32 {
+        (0..3).map(|r| (0..3).map(|c| d[r][c] * at(r, c)).sum::<f32>()).sum()
+    };
     [
         contract([[0.0, -2.0 * z, 2.0 * y], [2.0 * z, 0.0, -2.0 * x], [-2.0 * y, 2.0 * x, 0.0]]),
-        contract([[0.0, 2.0 * y, 2.0 * z], [2.0 * y, -4.0 * x, -2.0 * w], [2.0 * z, 2.0 * w, -4.0 * x]]),
-        contract([[-4.0 * y, 2.0 * x, 2.0 * w], [2.0 * x, 0.0, 2.0 * z], [-2.0 * w, 2.0 * z, -4.0 * y]]),
-        contract([[-4.0 * z, -2.0 * w, 2.0 * x], [2.0 * w, -4.0 * z, 2.0 * y], [2.0 * x, 2.0 * y, 0.0]]),
+        contract([
+            [0.0, 2.0 * y, 2.0 * z],
+            [2.0 * y, -4.0 * x, -2.0 * w],
+            [2.0 * z, 2.0 * w, -4.0 * x],
+        ]),
+        contract([
+            [-4.0 * y, 2.0 * x, 2.0 * w],
+            [2.0 * x, 0.0, 2.0 * z],
+            [-2.0 * w, 2.0 * z, -4.0 * y],
+        ]),
+        contract([
+            [-4.0 * z, -2.0 * w, 2.0 * x],
+            [2.0 * w, -4.0 * z, 2.0 * y],
+            [2.0 * x, 2.0 * y, 0.0],
+        ]),
     ]
 }
 
@@ -255,7 +278,8 @@ pub(crate) fn project_backward(
 
     // Σ = M Mᵀ, M = R diag(s): dL/dM = 2 G_Σ M (G_Σ symmetric).
     let g_m = 2.0 * (g_sigma * g.m);
-    let g_r = Mat3::from_cols(g_m.x_axis * g.scale.x, g_m.y_axis * g.scale.y, g_m.z_axis * g.scale.z);
+    let g_r =
+        Mat3::from_cols(g_m.x_axis * g.scale.x, g_m.y_axis * g.scale.y, g_m.z_axis * g.scale.z);
     let log_scale = [
         g_m.x_axis.dot(g.r.x_axis) * g.scale.x,
         g_m.y_axis.dot(g.r.y_axis) * g.scale.y,
@@ -271,8 +295,9 @@ pub(crate) fn project_backward(
     let g_tx = -fx * rz2 * g_j[0].z;
     let g_ty = -fy * rz2 * g_j[1].z;
     let mut g_p = Vec3::new(0.0, 0.0, grad.depth);
-    g_p.z +=
-        -fx * rz2 * g_j[0].x - fy * rz2 * g_j[1].y + 2.0 * fx * tx * rz3 * g_j[0].z + 2.0 * fy * ty * rz3 * g_j[1].z;
+    g_p.z += -fx * rz2 * g_j[0].x - fy * rz2 * g_j[1].y
+        + 2.0 * fx * tx * rz3 * g_j[0].z
+        + 2.0 * fy * ty * rz3 * g_j[1].z;
     // Unclamped: t = p; clamped: t = z·lim, so only z moves it.
     if g.clamped[0] {
         g_p.z += g_tx * tx / z;

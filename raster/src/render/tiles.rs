@@ -34,12 +34,19 @@ impl TileBins {
     }
 
     pub fn isects(&self, tile: usize) -> &[u32] {
-        &self.rank_from_isect[self.tile_offsets[tile] as usize..self.tile_offsets[tile + 1] as usize]
+        &self.rank_from_isect
+            [self.tile_offsets[tile] as usize..self.tile_offsets[tile + 1] as usize]
     }
 }
 
 /// Inclusive tile rectangle `[x0, x1] × [y0, y1]` a projected Gaussian touches, if any.
-fn tile_rect(p: &Projected, tiles_x: u32, tiles_y: u32, width: u32, height: u32) -> Option<[u32; 4]> {
+fn tile_rect(
+    p: &Projected,
+    tiles_x: u32,
+    tiles_y: u32,
+    width: u32,
+    height: u32,
+) -> Option<[u32; 4]> {
     let [u, v] = p.xy;
     let [ex, ey] = p.extent;
     let (lo_x, hi_x, lo_y, hi_y) = (u - ex, u + ex, v - ey, v + ey);
@@ -81,10 +88,12 @@ pub(crate) fn bin(
         .collect();
     keyed.par_sort_unstable_by_key(|&(key, _)| key);
     let gid_from_rank: Vec<u32> = keyed.iter().map(|&(key, _)| key as u32).collect();
-    let sorted: Vec<Projected> = gid_from_rank.iter().filter_map(|&gid| projected[gid as usize]).collect();
+    let sorted: Vec<Projected> =
+        gid_from_rank.iter().filter_map(|&gid| projected[gid as usize]).collect();
     let mut sorted_features = Vec::with_capacity(gid_from_rank.len() * channels);
     for &gid in &gid_from_rank {
-        sorted_features.extend_from_slice(&features[gid as usize * channels..(gid as usize + 1) * channels]);
+        sorted_features
+            .extend_from_slice(&features[gid as usize * channels..(gid as usize + 1) * channels]);
     }
 
     let mut counts = vec![0u32; tile_count + 1];
@@ -110,7 +119,15 @@ pub(crate) fn bin(
             }
         }
     }
-    TileBins { tiles_x, tiles_y, tile_offsets, rank_from_isect, gid_from_rank, sorted, sorted_features }
+    TileBins {
+        tiles_x,
+        tiles_y,
+        tile_offsets,
+        rank_from_isect,
+        gid_from_rank,
+        sorted,
+        sorted_features,
+    }
 }
 
 /// Copies tile-local results (`tile_plane(t)`: tile `t`'s 16×16 values, row-major) into the

@@ -102,8 +102,12 @@ impl IntoResponse for ApiError {
         let status = self.status();
         let body = Json(ErrorBody { error: self.to_string(), error_type: self.kind().to_string() });
         match &self {
-            Self::Overloaded { retry_after_s, .. } => (status, [(header::RETRY_AFTER, retry_after_s.to_string())], body).into_response(),
-            Self::Unauthorized => (status, [(header::WWW_AUTHENTICATE, "Bearer".to_string())], body).into_response(),
+            Self::Overloaded { retry_after_s, .. } => {
+                (status, [(header::RETRY_AFTER, retry_after_s.to_string())], body).into_response()
+            }
+            Self::Unauthorized => {
+                (status, [(header::WWW_AUTHENTICATE, "Bearer".to_string())], body).into_response()
+            }
             _ => (status, body).into_response(),
         }
     }
@@ -118,9 +122,9 @@ impl From<JsonRejection> for ApiError {
 impl From<MultipartRejection> for ApiError {
     fn from(r: MultipartRejection) -> Self {
         match r {
-            MultipartRejection::InvalidBoundary(_) => {
-                Self::UnsupportedMediaType("expected a `multipart/form-data` body with a boundary".into())
-            }
+            MultipartRejection::InvalidBoundary(_) => Self::UnsupportedMediaType(
+                "expected a `multipart/form-data` body with a boundary".into(),
+            ),
             other => Self::from_status(other.status(), other.body_text()),
         }
     }
@@ -147,7 +151,9 @@ impl From<PathRejection> for ApiError {
 impl From<SubmitError> for ApiError {
     fn from(e: SubmitError) -> Self {
         match e {
-            SubmitError::Overloaded { retry_after_s, .. } => Self::Overloaded { message: e.to_string(), retry_after_s },
+            SubmitError::Overloaded { retry_after_s, .. } => {
+                Self::Overloaded { message: e.to_string(), retry_after_s }
+            }
             SubmitError::NotReady | SubmitError::Stopped => Self::NotReady(e.to_string()),
         }
     }

@@ -61,7 +61,14 @@ struct Options {
 
 fn job_id(id: Result<Path<String>, PathRejection>) -> Result<String, ApiError> {
     let id = id?.0;
-    if is_id(&id) { Ok(id) } else { Err(ApiError::BadRequest(format!("`{}` is not a job id (32 lower-case hex digits)", id.escape_debug()))) }
+    if is_id(&id) {
+        Ok(id)
+    } else {
+        Err(ApiError::BadRequest(format!(
+            "`{}` is not a job id (32 lower-case hex digits)",
+            id.escape_debug()
+        )))
+    }
 }
 
 /// Runs a job-store call off the async threads.
@@ -70,7 +77,10 @@ async fn with_store<T: Send + 'static>(
     f: impl FnOnce(&dyn JobStore) -> anyhow::Result<T> + Send + 'static,
 ) -> Result<T, ApiError> {
     let store = state.shared.jobs.clone();
-    tokio::task::spawn_blocking(move || f(store.as_ref())).await.map_err(ApiError::internal)?.map_err(|e| ApiError::internal(format!("job store: {e:#}")))
+    tokio::task::spawn_blocking(move || f(store.as_ref()))
+        .await
+        .map_err(ApiError::internal)?
+        .map_err(|e| ApiError::internal(format!("job store: {e:#}")))
 }
 
 fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Options), ApiError> {
@@ -83,7 +93,10 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Options), ApiError> {
             "refine_steps" => options.refine_steps = Some(refine_steps(&part)?),
             "archive" => archive = Some(part.bytes),
             name if intake::valid_scene_name(name) => {
-                let photo = Photo { file_name: part.file_name.unwrap_or_else(|| name.to_string()), bytes: part.bytes.to_vec() };
+                let photo = Photo {
+                    file_name: part.file_name.unwrap_or_else(|| name.to_string()),
+                    bytes: part.bytes.to_vec(),
+                };
                 match sets.iter_mut().find(|(n, _)| n == name) {
                     Some((_, photos)) => photos.push(photo),
                     None => sets.push((name.to_string(), vec![photo])),
@@ -98,7 +111,9 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Options), ApiError> {
         }
     }
     match archive {
-        Some(_) if !sets.is_empty() => Err(ApiError::Validation("send either photo sets or an `archive`, not both".into())),
+        Some(_) if !sets.is_empty() => {
+            Err(ApiError::Validation("send either photo sets or an `archive`, not both".into()))
+        }
         Some(bytes) => Ok((Upload::Archive(bytes), options)),
         None => Ok((Upload::Sets(sets), options)),
     }
@@ -115,12 +130,28 @@ fn sets_from_parts(parts: Vec<Part>) -> Result<(Upload, Options), ApiError> {
         (status = 400, description = "Unreadable body", body = ErrorBody), (status = 401, description = "Missing or wrong API key", body = ErrorBody),
         (status = 413, description = "Body over the size limit", body = ErrorBody), (status = 415, description = "Unsupported content type", body = ErrorBody),
         (status = 422, description = "No scenes, a bad scene, or a bad archive", body = ErrorBody)))]
-pub async fn submit(State(state): State<Arc<AppState>>, req: Request) -> Result<Response, ApiError> {
-    let content_type = req.headers().get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).unwrap_or("").to_ascii_lowercase();
+pub async fn submit(
+    State(state): State<Arc<AppState>>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let content_type = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     let (upload, options) = if content_type.starts_with("multipart/form-data") {
         let multipart = Multipart::from_request(req, &()).await?;
         sets_from_parts(read_parts(multipart, MAX_PARTS).await?)?
-    } else if ["application/x-tar", "application/tar", "application/zip", "application/octet-stream"].iter().any(|t| content_type.starts_with(t)) {
+    } else if [
+        "application/x-tar",
+        "application/tar",
+        "application/zip",
+        "application/octet-stream",
+    ]
+    .iter()
+    .any(|t| content_type.starts_with(t))
+    {
         (Upload::Archive(Bytes::from_request(req, &()).await?), Options::default())
     } else {
         return Err(ApiError::UnsupportedMediaType(format!(
@@ -137,12 +168,18 @@ pub async fn submit(State(state): State<Arc<AppState>>, req: Request) -> Result<
             let scenes = match upload {
                 Upload::Sets(sets) => intake::write_photo_sets(sets, &dest)?,
                 Upload::Archive(bytes) => {
-                    let kind = ArchiveKind::sniff(&bytes)
-                        .ok_or_else(|| IntakeError::Invalid("the archive is neither a tar nor a zip file".into()))?;
+                    let kind = ArchiveKind::sniff(&bytes).ok_or_else(|| {
+                        IntakeError::Invalid("the archive is neither a tar nor a zip file".into())
+                    })?;
                     intake::unpack_archive(&bytes, kind, &dest, max_unpacked)?
                 }
             };
-            Ok(NewJob { id, scenes, vocabulary: options.vocabulary, refine_steps: options.refine_steps })
+            Ok(NewJob {
+                id,
+                scenes,
+                vocabulary: options.vocabulary,
+                refine_steps: options.refine_steps,
+            })
         })
         .await
         .map_err(ApiError::internal)?
@@ -157,13 +194,17 @@ pub async fn submit(State(state): State<Arc<AppState>>, req: Request) -> Result<
             });
         }
     };
-    let accepted = JobAccepted { job_id: id.clone(), scenes: job.scenes.iter().map(|(n, _)| n.clone()).collect() };
+    let accepted = JobAccepted {
+        job_id: id.clone(),
+        scenes: job.scenes.iter().map(|(n, _)| n.clone()).collect(),
+    };
     if let Err(e) = with_store(&state, move |s| s.create(&job)).await {
         remove_upload(dest).await;
         return Err(e);
     }
     tracing::info!("job {id}: {} scene(s) queued", accepted.scenes.len());
-    Ok((StatusCode::ACCEPTED, [(header::LOCATION, format!("/v1/jobs/{id}"))], Json(accepted)).into_response())
+    Ok((StatusCode::ACCEPTED, [(header::LOCATION, format!("/v1/jobs/{id}"))], Json(accepted))
+        .into_response())
 }
 
 async fn remove_upload(dest: PathBuf) {
@@ -184,7 +225,10 @@ async fn current(state: &AppState, id: String) -> Result<JobStatus, ApiError> {
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "Status", body = JobStatus),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such job", body = ErrorBody)))]
-pub async fn status(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Json<JobStatus>, ApiError> {
+pub async fn status(
+    State(state): State<Arc<AppState>>,
+    id: Result<Path<String>, PathRejection>,
+) -> Result<Json<JobStatus>, ApiError> {
     Ok(Json(current(&state, job_id(id)?).await?))
 }
 
@@ -193,10 +237,14 @@ pub async fn status(State(state): State<Arc<AppState>>, id: Result<Path<String>,
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "Status after cancelling", body = JobStatus),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such job", body = ErrorBody)))]
-pub async fn cancel(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Json<JobStatus>, ApiError> {
+pub async fn cancel(
+    State(state): State<Arc<AppState>>,
+    id: Result<Path<String>, PathRejection>,
+) -> Result<Json<JobStatus>, ApiError> {
     let id = job_id(id)?;
     let missing = format!("no job {id}");
-    let status = with_store(&state, move |s| s.cancel(&id)).await?.ok_or(ApiError::NotFound(missing))?;
+    let status =
+        with_store(&state, move |s| s.cancel(&id)).await?.ok_or(ApiError::NotFound(missing))?;
     let _ = state.shared.job_events.send(status.job_id.clone());
     Ok(Json(status))
 }
@@ -261,7 +309,10 @@ pub async fn events(
     let watch = Watch { state, id, events, last: None, pending: Some(first) };
     let stream = futures_util::stream::unfold(watch, |mut w| async move {
         let status = w.next().await?;
-        let event = Event::default().event("status").json_data(&status).unwrap_or_else(|_| Event::default().event("status"));
+        let event = Event::default()
+            .event("status")
+            .json_data(&status)
+            .unwrap_or_else(|_| Event::default().event("status"));
         w.last = Some(status);
         Some((Ok(event), w))
     });

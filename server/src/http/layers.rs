@@ -16,7 +16,11 @@ use super::{ApiError, AppState};
 /// Refuses /v1 requests without the configured API key.
 pub async fn auth(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
     if let Some(key) = &state.api_key {
-        let sent = req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer "));
+        let sent = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
         let ok = sent.is_some_and(|s| bool::from(s.as_bytes().ct_eq(key.as_bytes())));
         if !ok {
             return ApiError::Unauthorized.into_response();
@@ -31,7 +35,8 @@ pub async fn timeout(State(state): State<Arc<AppState>>, req: Request, next: Nex
     let limit = state.request_timeout;
     match tokio::time::timeout(limit, next.run(req)).await {
         Ok(response) => response,
-        Err(_) => ApiError::Timeout(format!("the request took longer than {} s", limit.as_secs())).into_response(),
+        Err(_) => ApiError::Timeout(format!("the request took longer than {} s", limit.as_secs()))
+            .into_response(),
     }
 }
 
@@ -39,7 +44,8 @@ pub async fn timeout(State(state): State<Arc<AppState>>, req: Request, next: Nex
 pub async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
     let start = Instant::now();
     let method = req.method().clone();
-    let route = req.extensions().get::<MatchedPath>().map_or("unmatched", MatchedPath::as_str).to_string();
+    let route =
+        req.extensions().get::<MatchedPath>().map_or("unmatched", MatchedPath::as_str).to_string();
     let response = next.run(req).await;
     record(&state, &method, &route, &response, start);
     response
@@ -55,7 +61,8 @@ fn record(state: &AppState, method: &Method, route: &str, response: &Response, s
 pub async fn not_found(State(state): State<Arc<AppState>>, method: Method, uri: Uri) -> Response {
     let start = Instant::now();
     let path: String = uri.path().chars().take(200).collect();
-    let response = ApiError::NotFound(format!("no route {method} {}", path.escape_debug())).into_response();
+    let response =
+        ApiError::NotFound(format!("no route {method} {}", path.escape_debug())).into_response();
     record(&state, &method, "unmatched", &response, start);
     response
 }

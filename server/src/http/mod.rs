@@ -33,10 +33,10 @@ pub use error::ApiError;
 use crate::jobs::JobStore;
 use crate::jobs::sqlite::SqliteStore;
 use crate::metrics::Metrics;
-use inssplat_pipeline::reconstruct::PipelineConfig;
-use inssplat_pipeline::switches::PipelineSwitches;
 use crate::scene_store::SceneStore;
 use crate::worker::{Pool, Shared, WorkerConfig};
+use inssplat_pipeline::reconstruct::PipelineConfig;
+use inssplat_pipeline::switches::PipelineSwitches;
 
 /// Settings of `inssplat serve`; every flag can also be set by its environment variable.
 #[derive(clap::Args)]
@@ -114,9 +114,11 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
 async fn run(args: ServeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.workers >= 1, "--workers must be at least 1");
     anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
-    std::fs::create_dir_all(&args.data_dir).with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
+    std::fs::create_dir_all(&args.data_dir)
+        .with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
     let expiry = (args.scene_ttl_h > 0).then(|| Duration::from_secs(args.scene_ttl_h * 3600));
-    let scenes = SceneStore::open(&args.data_dir.join("scenes"), args.scene_quota_mb << 20, expiry)?;
+    let scenes =
+        SceneStore::open(&args.data_dir.join("scenes"), args.scene_quota_mb << 20, expiry)?;
     let jobs: Arc<dyn JobStore> = Arc::new(SqliteStore::open(&args.data_dir.join("jobs.sqlite"))?);
     let requeued = jobs.requeue_interrupted()?;
     if requeued > 0 {
@@ -124,11 +126,18 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     }
     let default_vocab = inssplat_pipeline::vocab::vocabulary(args.vocab.as_deref())?;
     let (job_events, _) = broadcast::channel(256);
-    let shared = Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
+    let shared =
+        Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let threads = args.threads.unwrap_or((cores / args.workers).max(1));
     let pipeline = args.pipeline.apply(PipelineConfig::default());
-    let config = WorkerConfig { model: args.model.clone(), threads, workers: args.workers, queue: args.queue, pipeline };
+    let config = WorkerConfig {
+        model: args.model.clone(),
+        threads,
+        workers: args.workers,
+        queue: args.queue,
+        pipeline,
+    };
     let (pool, startup) = Pool::start(config, shared.clone());
     let (stop_tx, shutdown) = watch::channel(false);
     let state = Arc::new(AppState {
@@ -147,7 +156,9 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
         tracing::warn!("the web page will not work: {missing}");
     }
 
-    let listener = tokio::net::TcpListener::bind(args.listen).await.with_context(|| format!("--listen {}: cannot bind", args.listen))?;
+    let listener = tokio::net::TcpListener::bind(args.listen)
+        .await
+        .with_context(|| format!("--listen {}: cannot bind", args.listen))?;
     let addr = listener.local_addr()?;
     println!("listening on http://{addr}");
     std::io::stdout().flush()?;
@@ -174,7 +185,8 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
                     stop.notify_one();
                 }
                 Err(_) => {
-                    *failed.lock().await = Some(anyhow::anyhow!("the model loader stopped without a result"));
+                    *failed.lock().await =
+                        Some(anyhow::anyhow!("the model loader stopped without a result"));
                     stop.notify_one();
                 }
             }

@@ -19,7 +19,10 @@ use crate::metrics::Gauges;
 #[utoipa::path(get, path = "/health", tag = "service", responses((status = 200, description = "Up", body = ServiceStatus)))]
 pub async fn health(State(state): State<Arc<AppState>>) -> Json<ServiceStatus> {
     let status = if state.pool.model_version().is_some() { "ok" } else { "warming_up" };
-    Json(ServiceStatus { status: status.into(), model_version: state.pool.model_version().map(str::to_string) })
+    Json(ServiceStatus {
+        status: status.into(),
+        model_version: state.pool.model_version().map(str::to_string),
+    })
 }
 
 /// The model is loaded and warmed up: requests will be served.
@@ -27,7 +30,9 @@ pub async fn health(State(state): State<Arc<AppState>>) -> Json<ServiceStatus> {
     responses((status = 200, description = "Ready", body = ServiceStatus), (status = 503, description = "Still loading", body = ErrorBody)))]
 pub async fn ready(State(state): State<Arc<AppState>>) -> Result<Json<ServiceStatus>, ApiError> {
     match state.pool.model_version() {
-        Some(v) => Ok(Json(ServiceStatus { status: "ready".into(), model_version: Some(v.to_string()) })),
+        Some(v) => {
+            Ok(Json(ServiceStatus { status: "ready".into(), model_version: Some(v.to_string()) }))
+        }
         None => Err(ApiError::NotReady("the model is still loading".into())),
     }
 }
@@ -38,13 +43,16 @@ pub async fn ready(State(state): State<Arc<AppState>>) -> Result<Json<ServiceSta
     responses((status = 200, description = "Prometheus text format", content_type = "text/plain")))]
 pub async fn metrics(State(state): State<Arc<AppState>>) -> Result<Response, ApiError> {
     let shared = state.shared.clone();
-    let (jobs_by_state, scene_bytes) = tokio::task::spawn_blocking(move || (shared.jobs.count_by_state(), shared.scenes.total_bytes()))
-        .await
-        .map_err(ApiError::internal)?;
+    let (jobs_by_state, scene_bytes) = tokio::task::spawn_blocking(move || {
+        (shared.jobs.count_by_state(), shared.scenes.total_bytes())
+    })
+    .await
+    .map_err(ApiError::internal)?;
     let gauges = Gauges {
         queue_depth: state.pool.queue_depth(),
         queue_capacity: state.pool.queue_capacity(),
-        jobs_by_state: jobs_by_state.map_err(|e| ApiError::internal(format!("job store: {e:#}")))?,
+        jobs_by_state: jobs_by_state
+            .map_err(|e| ApiError::internal(format!("job store: {e:#}")))?,
         scene_bytes,
         ready: state.pool.model_version().is_some(),
     };

@@ -34,8 +34,11 @@ const EXAMPLES: &[(&str, &[u8])] = &[
 ];
 
 /// What the pages import from `--web-dir`; the pages say which one is missing.
-const VENDOR_ENTRIES: &[&str] =
-    &["three/build/three.module.js", "@sparkjsdev/spark/dist/spark.module.js", "redoc/bundles/redoc.standalone.js"];
+const VENDOR_ENTRIES: &[&str] = &[
+    "three/build/three.module.js",
+    "@sparkjsdev/spark/dist/spark.module.js",
+    "redoc/bundles/redoc.standalone.js",
+];
 
 /// Where in a page the warning about missing packages goes.
 const NOTICE_SLOT: &str = "<!--vendor-notice-->";
@@ -48,7 +51,8 @@ const CONTENT_SECURITY_POLICY: &str = "default-src 'self' data: blob:; \
 
 /// The packages of `--web-dir` that are missing, as one sentence (None when all are there).
 pub fn missing_vendor(web_dir: &FsPath) -> Option<String> {
-    let missing: Vec<&str> = VENDOR_ENTRIES.iter().copied().filter(|e| !web_dir.join(e).is_file()).collect();
+    let missing: Vec<&str> =
+        VENDOR_ENTRIES.iter().copied().filter(|e| !web_dir.join(e).is_file()).collect();
     (!missing.is_empty()).then(|| {
         format!(
             "the page's npm packages are missing from --web-dir {} ({}): run scripts/setup, or point --web-dir / INSSPLAT_WEB_DIR at the node_modules it installs",
@@ -60,8 +64,13 @@ pub fn missing_vendor(web_dir: &FsPath) -> Option<String> {
 
 /// `html` with the missing-package warning (if any) in its notice slot.
 fn page(state: &AppState, html: &str) -> Response {
-    let notice = missing_vendor(&state.web_dir).map(|m| format!(r#"<p class="notice error">This page cannot work: {}.</p>"#, escape(&m)));
-    ([(header::CONTENT_SECURITY_POLICY, CONTENT_SECURITY_POLICY)], Html(html.replace(NOTICE_SLOT, &notice.unwrap_or_default()))).into_response()
+    let notice = missing_vendor(&state.web_dir)
+        .map(|m| format!(r#"<p class="notice error">This page cannot work: {}.</p>"#, escape(&m)));
+    (
+        [(header::CONTENT_SECURITY_POLICY, CONTENT_SECURITY_POLICY)],
+        Html(html.replace(NOTICE_SLOT, &notice.unwrap_or_default())),
+    )
+        .into_response()
 }
 
 fn escape(s: &str) -> String {
@@ -85,26 +94,41 @@ pub async fn docs(State(state): State<Arc<AppState>>) -> Response {
 
 /// One of the page's own files.
 pub async fn asset(Path(name): Path<String>) -> Result<Response, ApiError> {
-    let (_, content_type, text) =
-        PAGE_FILES.iter().find(|(n, _, _)| *n == name).ok_or_else(|| ApiError::NotFound(format!("no page file `{}`", name.escape_debug())))?;
+    let (_, content_type, text) = PAGE_FILES
+        .iter()
+        .find(|(n, _, _)| *n == name)
+        .ok_or_else(|| ApiError::NotFound(format!("no page file `{}`", name.escape_debug())))?;
     Ok(([(header::CONTENT_TYPE, *content_type)], *text).into_response())
 }
 
 /// One of the bundled example photos.
 pub async fn example(Path(name): Path<String>) -> Result<Response, ApiError> {
-    let (_, bytes) =
-        EXAMPLES.iter().find(|(n, _)| *n == name).ok_or_else(|| ApiError::NotFound(format!("no example photo `{}`", name.escape_debug())))?;
+    let (_, bytes) = EXAMPLES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .ok_or_else(|| ApiError::NotFound(format!("no example photo `{}`", name.escape_debug())))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], *bytes).into_response())
 }
 
 /// A file of an npm package in `--web-dir`; the path may not leave that folder.
-pub async fn vendor(State(state): State<Arc<AppState>>, Path(rel): Path<String>) -> Result<Response, ApiError> {
+pub async fn vendor(
+    State(state): State<Arc<AppState>>,
+    Path(rel): Path<String>,
+) -> Result<Response, ApiError> {
     let path = vendor_path(&state.web_dir, &rel)?;
     match tokio::fs::read(&path).await {
         Ok(bytes) => Ok(([(header::CONTENT_TYPE, content_type(&path))], bytes).into_response()),
-        Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::IsADirectory) => Err(ApiError::NotFound(
-            missing_vendor(&state.web_dir).unwrap_or_else(|| format!("no file `{}` in --web-dir", rel.escape_debug())),
-        )),
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::NotFound | std::io::ErrorKind::IsADirectory
+            ) =>
+        {
+            Err(ApiError::NotFound(
+                missing_vendor(&state.web_dir)
+                    .unwrap_or_else(|| format!("no file `{}` in --web-dir", rel.escape_debug())),
+            ))
+        }
         Err(e) => Err(ApiError::internal(format!("reading {}: {e}", path.display()))),
     }
 }
@@ -113,7 +137,10 @@ pub async fn vendor(State(state): State<Arc<AppState>>, Path(rel): Path<String>)
 fn vendor_path(dir: &FsPath, rel: &str) -> Result<PathBuf, ApiError> {
     let rel = FsPath::new(rel);
     if rel.as_os_str().is_empty() || !rel.components().all(|c| matches!(c, Component::Normal(_))) {
-        return Err(ApiError::BadRequest(format!("`{}` is not a file path inside --web-dir", rel.display())));
+        return Err(ApiError::BadRequest(format!(
+            "`{}` is not a file path inside --web-dir",
+            rel.display()
+        )));
     }
     Ok(dir.join(rel))
 }
@@ -136,7 +163,10 @@ mod tests {
     #[test]
     fn vendor_paths_stay_inside() {
         let dir = FsPath::new("/w");
-        assert_eq!(vendor_path(dir, "three/build/three.module.js").unwrap(), FsPath::new("/w/three/build/three.module.js"));
+        assert_eq!(
+            vendor_path(dir, "three/build/three.module.js").unwrap(),
+            FsPath::new("/w/three/build/three.module.js")
+        );
         for bad in ["", "../etc/passwd", "three/../../x", "/etc/passwd", "./three"] {
             assert!(vendor_path(dir, bad).is_err(), "{bad}");
         }
@@ -147,6 +177,10 @@ mod tests {
     fn missing_packages_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let message = missing_vendor(dir.path()).unwrap();
-        assert!(message.contains("@sparkjsdev/spark/dist/spark.module.js") && message.contains("scripts/setup"), "{message}");
+        assert!(
+            message.contains("@sparkjsdev/spark/dist/spark.module.js")
+                && message.contains("scripts/setup"),
+            "{message}"
+        );
     }
 }

@@ -14,8 +14,8 @@ use utoipa::ToSchema;
 
 use super::upload::{read_parts, refine_steps, vocabulary};
 use super::{ApiError, AppState};
-use inssplat_pipeline::reconstruct::InputImage;
 use crate::worker::Task;
+use inssplat_pipeline::reconstruct::InputImage;
 
 /// The multipart form of `POST /v1/reconstruct` (it describes the form in the OpenAPI
 /// document; the handler reads the parts as they stream in).
@@ -36,9 +36,15 @@ pub struct ReconstructForm {
 }
 
 /// Sends `task` to the model workers and waits for its answer.
-pub async fn run_task<T>(state: &AppState, task: Task, reply: oneshot::Receiver<Result<T, crate::worker::TaskError>>) -> Result<T, ApiError> {
+pub async fn run_task<T>(
+    state: &AppState,
+    task: Task,
+    reply: oneshot::Receiver<Result<T, crate::worker::TaskError>>,
+) -> Result<T, ApiError> {
     state.pool.submit(task)?;
-    let answer = reply.await.map_err(|_| ApiError::NotReady("the service stopped before the request ran".into()))?;
+    let answer = reply
+        .await
+        .map_err(|_| ApiError::NotReady("the service stopped before the request ran".into()))?;
     Ok(answer?)
 }
 
@@ -71,7 +77,11 @@ pub async fn reconstruct(
     for part in parts {
         match part.name.as_str() {
             "images" => {
-                let name = part.file_name.clone().filter(|n| !n.is_empty()).unwrap_or_else(|| format!("image {}", images.len()));
+                let name = part
+                    .file_name
+                    .clone()
+                    .filter(|n| !n.is_empty())
+                    .unwrap_or_else(|| format!("image {}", images.len()));
                 images.push(InputImage { name, bytes: part.bytes.to_vec() });
             }
             "vocab" => vocab = Some(vocabulary(&part)?),
@@ -92,6 +102,11 @@ pub async fn reconstruct(
     }
     let vocabulary = vocab.unwrap_or_else(|| state.default_vocab.clone());
     let (reply, answer) = oneshot::channel();
-    let response = run_task(&state, Task::Reconstruct { images, vocabulary, refine_steps: steps, reply }, answer).await?;
+    let response = run_task(
+        &state,
+        Task::Reconstruct { images, vocabulary, refine_steps: steps, reply },
+        answer,
+    )
+    .await?;
     Ok(Json(response))
 }

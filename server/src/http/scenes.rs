@@ -25,16 +25,27 @@ const MAX_QUERY_CHARS: usize = 500;
 /// The folder of the stored scene `id`.
 fn scene_dir(state: &AppState, id: &str) -> Result<(SceneId, PathBuf), ApiError> {
     let id: SceneId = id.parse().map_err(ApiError::BadRequest)?;
-    let dir = state.shared.scenes.open_scene(&id).ok_or_else(|| ApiError::NotFound(format!("no scene {id} (unknown, or expired)")))?;
+    let dir = state
+        .shared
+        .scenes
+        .open_scene(&id)
+        .ok_or_else(|| ApiError::NotFound(format!("no scene {id} (unknown, or expired)")))?;
     Ok((id, dir))
 }
 
 /// The file `rel` of scene `id`, with `content_type`.
-async fn file(state: &AppState, id: &str, rel: &str, content_type: &'static str) -> Result<Response, ApiError> {
+async fn file(
+    state: &AppState,
+    id: &str,
+    rel: &str,
+    content_type: &'static str,
+) -> Result<Response, ApiError> {
     let (id, dir) = scene_dir(state, id)?;
     match tokio::fs::read(dir.join(rel)).await {
         Ok(bytes) => Ok(([(header::CONTENT_TYPE, content_type)], bytes).into_response()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::NotFound(format!("scene {id} has no {rel}"))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(ApiError::NotFound(format!("scene {id} has no {rel}")))
+        }
         Err(e) => Err(ApiError::internal(format!("reading {rel} of scene {id}: {e}"))),
     }
 }
@@ -44,7 +55,10 @@ async fn file(state: &AppState, id: &str, rel: &str, content_type: &'static str)
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id (32 hex digits)")),
     responses((status = 200, description = "PLY file", content_type = "application/octet-stream"),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such scene", body = ErrorBody)))]
-pub async fn ply(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Response, ApiError> {
+pub async fn ply(
+    State(state): State<Arc<AppState>>,
+    id: Result<Path<String>, PathRejection>,
+) -> Result<Response, ApiError> {
     file(&state, &id?.0, "scene.ply", "application/octet-stream").await
 }
 
@@ -53,15 +67,23 @@ pub async fn ply(State(state): State<Arc<AppState>>, id: Result<Path<String>, Pa
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id (32 hex digits)")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id", body = ErrorBody), (status = 404, description = "No such scene", body = ErrorBody)))]
-pub async fn preview(State(state): State<Arc<AppState>>, id: Result<Path<String>, PathRejection>) -> Result<Response, ApiError> {
+pub async fn preview(
+    State(state): State<Arc<AppState>>,
+    id: Result<Path<String>, PathRejection>,
+) -> Result<Response, ApiError> {
     file(&state, &id?.0, "preview.png", "image/png").await
 }
 
 /// A view's image from `folder` (`instances` or `labels`).
-async fn view_png(state: &AppState, params: Result<Path<(String, String)>, PathRejection>, folder: &str) -> Result<Response, ApiError> {
+async fn view_png(
+    state: &AppState,
+    params: Result<Path<(String, String)>, PathRejection>,
+    folder: &str,
+) -> Result<Response, ApiError> {
     let Path((id, view)) = params?;
-    let view: usize =
-        view.parse().map_err(|_| ApiError::BadRequest(format!("view `{}` is not a view number", view.escape_debug())))?;
+    let view: usize = view.parse().map_err(|_| {
+        ApiError::BadRequest(format!("view `{}` is not a view number", view.escape_debug()))
+    })?;
     file(state, &id, &format!("{folder}/{view:03}.png"), "image/png").await
 }
 
@@ -70,7 +92,10 @@ async fn view_png(state: &AppState, params: Result<Path<(String, String)>, PathR
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
-pub async fn instances_png(State(state): State<Arc<AppState>>, params: Result<Path<(String, String)>, PathRejection>) -> Result<Response, ApiError> {
+pub async fn instances_png(
+    State(state): State<Arc<AppState>>,
+    params: Result<Path<(String, String)>, PathRejection>,
+) -> Result<Response, ApiError> {
     view_png(&state, params, "instances").await
 }
 
@@ -79,7 +104,10 @@ pub async fn instances_png(State(state): State<Arc<AppState>>, params: Result<Pa
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
     responses((status = 200, description = "PNG image", content_type = "image/png"),
         (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
-pub async fn labels_png(State(state): State<Arc<AppState>>, params: Result<Path<(String, String)>, PathRejection>) -> Result<Response, ApiError> {
+pub async fn labels_png(
+    State(state): State<Arc<AppState>>,
+    params: Result<Path<(String, String)>, PathRejection>,
+) -> Result<Response, ApiError> {
     view_png(&state, params, "labels").await
 }
 
@@ -100,10 +128,13 @@ pub async fn query(
     let (id, dir) = scene_dir(&state, &id?.0)?;
     let text = body?.0.text;
     if text.trim().is_empty() || text.chars().count() > MAX_QUERY_CHARS {
-        return Err(ApiError::Validation(format!("`text` must name something, in 1-{MAX_QUERY_CHARS} characters")));
+        return Err(ApiError::Validation(format!(
+            "`text` must name something, in 1-{MAX_QUERY_CHARS} characters"
+        )));
     }
     let (reply, answer) = oneshot::channel();
-    let mut response = run_task(&state, Task::Query { dir: dir.clone(), text, reply }, answer).await?;
+    let mut response =
+        run_task(&state, Task::Query { dir: dir.clone(), text, reply }, answer).await?;
     for mask in response.matches.iter_mut().flat_map(|m| m.masks.iter_mut()) {
         mask.png_url = mask_url(&id, &dir, FsPath::new(&mask.png_url));
     }
@@ -119,13 +150,21 @@ fn mask_url(id: &SceneId, dir: &FsPath, path: &FsPath) -> String {
 
 fn percent_encode(s: &str) -> String {
     s.bytes()
-        .map(|b| if b.is_ascii_alphanumeric() || b"_-.".contains(&b) { char::from(b).to_string() } else { format!("%{b:02X}") })
+        .map(|b| {
+            if b.is_ascii_alphanumeric() || b"_-.".contains(&b) {
+                char::from(b).to_string()
+            } else {
+                format!("%{b:02X}")
+            }
+        })
         .collect()
 }
 
 /// Whether `file` is a mask name `query` writes: `id<N>_view<NNN>.png`.
 fn is_mask_name(file: &str) -> bool {
-    let Some(rest) = file.strip_prefix("id").and_then(|r| r.strip_suffix(".png")) else { return false };
+    let Some(rest) = file.strip_prefix("id").and_then(|r| r.strip_suffix(".png")) else {
+        return false;
+    };
     let Some((id, view)) = rest.split_once("_view") else { return false };
     !id.is_empty() && !view.is_empty() && id.bytes().chain(view.bytes()).all(|b| b.is_ascii_digit())
 }
@@ -142,10 +181,16 @@ pub async fn query_mask(
 ) -> Result<Response, ApiError> {
     let Path((id, slug, file_name)) = params?;
     if slug.is_empty() || !slug.chars().all(|c| c.is_alphanumeric() || c == '_') {
-        return Err(ApiError::BadRequest(format!("`{}` is not a query folder", slug.escape_debug())));
+        return Err(ApiError::BadRequest(format!(
+            "`{}` is not a query folder",
+            slug.escape_debug()
+        )));
     }
     if !is_mask_name(&file_name) {
-        return Err(ApiError::BadRequest(format!("`{}` is not a mask name (id<N>_view<NNN>.png)", file_name.escape_debug())));
+        return Err(ApiError::BadRequest(format!(
+            "`{}` is not a mask name (id<N>_view<NNN>.png)",
+            file_name.escape_debug()
+        )));
     }
     file(&state, &id, &format!("query/{slug}/{file_name}"), "image/png").await
 }
@@ -157,11 +202,21 @@ mod tests {
     #[test]
     fn mask_names_and_urls() {
         assert!(is_mask_name("id3_view007.png"));
-        for bad in ["id_view1.png", "id3_view.png", "../id3_view1.png", "id3_view1.png.exe", "idx_view1.png"] {
+        for bad in [
+            "id_view1.png",
+            "id3_view.png",
+            "../id3_view1.png",
+            "id3_view1.png.exe",
+            "idx_view1.png",
+        ] {
             assert!(!is_mask_name(bad), "{bad}");
         }
         let id: SceneId = "0123456789abcdef0123456789abcdef".parse().unwrap();
-        let url = mask_url(&id, FsPath::new("/d/s"), FsPath::new("/d/s/query/lampe_à/id1_view000.png"));
-        assert_eq!(url, "/v1/scenes/0123456789abcdef0123456789abcdef/query/lampe_%C3%A0/id1_view000.png");
+        let url =
+            mask_url(&id, FsPath::new("/d/s"), FsPath::new("/d/s/query/lampe_à/id1_view000.png"));
+        assert_eq!(
+            url,
+            "/v1/scenes/0123456789abcdef0123456789abcdef/query/lampe_%C3%A0/id1_view000.png"
+        );
     }
 }

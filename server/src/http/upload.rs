@@ -37,13 +37,18 @@ pub async fn read_parts(mut multipart: Multipart, max_parts: usize) -> Result<Ve
 
 /// The labels of a `vocab` part (comma- or line-separated).
 pub fn vocabulary(part: &Part) -> Result<Vec<String>, ApiError> {
-    let text = std::str::from_utf8(&part.bytes).map_err(|_| ApiError::Validation("`vocab` is not UTF-8 text".into()))?;
+    let text = std::str::from_utf8(&part.bytes)
+        .map_err(|_| ApiError::Validation("`vocab` is not UTF-8 text".into()))?;
     let labels = inssplat_pipeline::vocab::from_list(text);
     if labels.is_empty() {
-        return Err(ApiError::Validation("`vocab` names no label (send labels separated by commas or new lines)".into()));
+        return Err(ApiError::Validation(
+            "`vocab` names no label (send labels separated by commas or new lines)".into(),
+        ));
     }
     if labels.len() > MAX_LABELS || labels.iter().any(|l| l.chars().count() > MAX_LABEL_CHARS) {
-        return Err(ApiError::Validation(format!("`vocab`: at most {MAX_LABELS} labels of at most {MAX_LABEL_CHARS} characters")));
+        return Err(ApiError::Validation(format!(
+            "`vocab`: at most {MAX_LABELS} labels of at most {MAX_LABEL_CHARS} characters"
+        )));
     }
     Ok(labels)
 }

@@ -64,7 +64,8 @@ pub trait JobStore: Send + Sync {
 /// A job's state from its scenes': cancelled if asked, queued until one starts, running until
 /// none is left to run, then done (failed if no scene succeeded).
 pub fn job_state(cancelled: bool, scenes: &[JobState]) -> JobState {
-    let finished = |s: &JobState| matches!(s, JobState::Done | JobState::Failed | JobState::Cancelled);
+    let finished =
+        |s: &JobState| matches!(s, JobState::Done | JobState::Failed | JobState::Cancelled);
     if cancelled {
         JobState::Cancelled
     } else if scenes.iter().all(|s| *s == JobState::Queued) {

@@ -15,9 +15,9 @@ use inssplat_text::LabelCache;
 use super::SceneTask;
 use inssplat_eval::ClusterMode;
 use inssplat_eval::scene::{Settings, evaluate_scene_keeping};
+use inssplat_pipeline::backend::Model;
 use inssplat_pipeline::output::write_reconstruction;
 use inssplat_pipeline::reconstruct::{PipelineConfig, reconstruct};
-use inssplat_pipeline::backend::Model;
 use inssplat_pipeline::{inputs, vocab};
 
 /// Runs `task` (with the job's refinement steps where it set them, else `config`'s), writing
@@ -31,7 +31,12 @@ pub fn run_scene(
     out: &Path,
 ) -> anyhow::Result<(Vec<StageTiming>, Option<serde_json::Value>)> {
     let config = &config.with_refine_steps(task.refine_steps);
-    let split = task.input.join("transforms.json").is_file().then(|| Scene::load(&task.input)).transpose()?;
+    let split = task
+        .input
+        .join("transforms.json")
+        .is_file()
+        .then(|| Scene::load(&task.input))
+        .transpose()?;
     let (rec, names, metrics) = match split.filter(|s| s.eval.is_some()) {
         Some(scene) => {
             let views = (MIN_VIEWS..=MAX_VIEWS)
@@ -42,8 +47,17 @@ pub fn run_scene(
             vocabulary.extend(task.vocabulary.iter().flatten().cloned());
             vocabulary.sort();
             vocabulary.dedup();
-            let settings = Settings { vocabulary: &vocabulary, pipeline: config, cluster: ClusterMode::ThreeD, perturbation: None, switches: Default::default(), query_rules: &[], photos: None };
-            let (scores, rec, names) = evaluate_scene_keeping(model, labels, &scene, views, &settings)?;
+            let settings = Settings {
+                vocabulary: &vocabulary,
+                pipeline: config,
+                cluster: ClusterMode::ThreeD,
+                perturbation: None,
+                switches: Default::default(),
+                query_rules: &[],
+                photos: None,
+            };
+            let (scores, rec, names) =
+                evaluate_scene_keeping(model, labels, &scene, views, &settings)?;
             (rec, names, Some(serde_json::to_value(&scores)?))
         }
         None => {
@@ -54,7 +68,10 @@ pub fn run_scene(
                 None => vocab::vocabulary(None)?,
             };
             let rec = reconstruct(model, labels, &photos, &vocabulary, config)?;
-            let names = paths.iter().map(|p| p.strip_prefix(&task.input).unwrap_or(p).display().to_string()).collect();
+            let names = paths
+                .iter()
+                .map(|p| p.strip_prefix(&task.input).unwrap_or(p).display().to_string())
+                .collect();
             (rec, names, None)
         }
     };

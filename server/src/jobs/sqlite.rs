@@ -58,25 +58,38 @@ fn parse_state(s: &str) -> rusqlite::Result<JobState> {
         "done" => JobState::Done,
         "failed" => JobState::Failed,
         "cancelled" => JobState::Cancelled,
-        other => return Err(rusqlite::Error::InvalidColumnType(0, format!("job state `{other}`"), rusqlite::types::Type::Text)),
+        other => {
+            return Err(rusqlite::Error::InvalidColumnType(
+                0,
+                format!("job state `{other}`"),
+                rusqlite::types::Type::Text,
+            ));
+        }
     })
 }
 
 impl SqliteStore {
     /// Opens (creating) the store at `path`.
     pub fn open(path: &Path) -> anyhow::Result<Self> {
-        let conn = Connection::open(path).with_context(|| format!("cannot open the job store {}", path.display()))?;
+        let conn = Connection::open(path)
+            .with_context(|| format!("cannot open the job store {}", path.display()))?;
         conn.pragma_update(None, "journal_mode", "WAL")?;
         conn.pragma_update(None, "synchronous", "FULL")?;
         conn.pragma_update(None, "foreign_keys", true)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
-        conn.execute_batch(SCHEMA).with_context(|| format!("{}: cannot create the job tables", path.display()))?;
-        add_missing_columns(&conn).with_context(|| format!("{}: cannot add the job tables' new columns", path.display()))?;
+        conn.execute_batch(SCHEMA)
+            .with_context(|| format!("{}: cannot create the job tables", path.display()))?;
+        add_missing_columns(&conn).with_context(|| {
+            format!("{}: cannot add the job tables' new columns", path.display())
+        })?;
         Ok(Self { conn: Mutex::new(conn) })
     }
 
     /// Runs `f` in an immediate transaction and commits.
-    fn write<T>(&self, f: impl FnOnce(&Transaction<'_>) -> rusqlite::Result<T>) -> anyhow::Result<T> {
+    fn write<T>(
+        &self,
+        f: impl FnOnce(&Transaction<'_>) -> rusqlite::Result<T>,
+    ) -> anyhow::Result<T> {
         let mut conn = self.conn.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
         let out = f(&tx)?;
@@ -89,7 +102,8 @@ impl SqliteStore {
 /// (its jobs keep the server's setting).
 fn add_missing_columns(conn: &Connection) -> rusqlite::Result<()> {
     let mut stmt = conn.prepare("SELECT name FROM pragma_table_info('jobs')")?;
-    let columns = stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
+    let columns =
+        stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
     if !columns.iter().any(|c| c == "refine_steps") {
         conn.execute_batch("ALTER TABLE jobs ADD COLUMN refine_steps INTEGER")?;
     }
@@ -97,8 +111,9 @@ fn add_missing_columns(conn: &Connection) -> rusqlite::Result<()> {
 }
 
 fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobStatus>> {
-    let Some(cancelled) =
-        conn.query_row("SELECT cancelled FROM jobs WHERE id = ?1", [job_id], |r| r.get::<_, bool>(0)).optional()?
+    let Some(cancelled) = conn
+        .query_row("SELECT cancelled FROM jobs WHERE id = ?1", [job_id], |r| r.get::<_, bool>(0))
+        .optional()?
     else {
         return Ok(None);
     };
@@ -120,7 +135,10 @@ fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobSt
     Ok(Some(JobStatus {
         job_id: job_id.to_string(),
         state: job_state(cancelled, &states),
-        done: scenes.iter().filter(|s| matches!(s.state, JobState::Done | JobState::Failed)).count(),
+        done: scenes
+            .iter()
+            .filter(|s| matches!(s.state, JobState::Done | JobState::Failed))
+            .count(),
         total: scenes.len(),
         scenes,
     }))
@@ -130,7 +148,9 @@ impl JobStore for SqliteStore {
     fn create(&self, job: &NewJob) -> anyhow::Result<()> {
         let vocabulary = job.vocabulary.as_ref().map(serde_json::to_string).transpose()?;
         let refine_steps = job.refine_steps.map(|n| n as i64);
-        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs() as i64);
         self.write(|tx| {
             tx.execute(
                 "INSERT INTO jobs (id, vocabulary, refine_steps, created_at) VALUES (?1, ?2, ?3, ?4)",
@@ -191,7 +211,9 @@ impl JobStore for SqliteStore {
 
     fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()> {
         let (state, error, metrics) = match outcome {
-            SceneOutcome::Done { metrics } => (JobState::Done, None, metrics.as_ref().map(serde_json::Value::to_string)),
+            SceneOutcome::Done { metrics } => {
+                (JobState::Done, None, metrics.as_ref().map(serde_json::Value::to_string))
+            }
             SceneOutcome::Failed { error } => (JobState::Failed, Some(error.as_str()), None),
         };
         self.write(|tx| {
@@ -208,21 +230,34 @@ impl JobStore for SqliteStore {
             if tx.execute("UPDATE jobs SET cancelled = 1 WHERE id = ?1", [job_id])? == 0 {
                 return Ok(None);
             }
-            tx.execute("UPDATE job_scenes SET state = 'cancelled' WHERE job_id = ?1 AND state = 'queued'", [job_id])?;
+            tx.execute(
+                "UPDATE job_scenes SET state = 'cancelled' WHERE job_id = ?1 AND state = 'queued'",
+                [job_id],
+            )?;
             read_status(tx, job_id)
         })
     }
 
     fn requeue_interrupted(&self) -> anyhow::Result<usize> {
-        self.write(|tx| tx.execute("UPDATE job_scenes SET state = 'queued' WHERE state = 'running'", []))
+        self.write(|tx| {
+            tx.execute("UPDATE job_scenes SET state = 'queued' WHERE state = 'running'", [])
+        })
     }
 
     fn count_by_state(&self) -> anyhow::Result<Vec<(JobState, usize)>> {
         let conn = self.conn.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         let mut stmt = conn.prepare("SELECT id FROM jobs")?;
-        let ids = stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
-        let mut counts: Vec<(JobState, usize)> =
-            [JobState::Queued, JobState::Running, JobState::Done, JobState::Failed, JobState::Cancelled].map(|s| (s, 0)).to_vec();
+        let ids =
+            stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
+        let mut counts: Vec<(JobState, usize)> = [
+            JobState::Queued,
+            JobState::Running,
+            JobState::Done,
+            JobState::Failed,
+            JobState::Cancelled,
+        ]
+        .map(|s| (s, 0))
+        .to_vec();
         for id in ids {
             if let Some(status) = read_status(&conn, &id)? {
                 counts.iter_mut().filter(|(s, _)| *s == status.state).for_each(|(_, n)| *n += 1);
@@ -237,7 +272,14 @@ mod tests {
     use super::*;
 
     fn job(id: &str, scenes: usize) -> NewJob {
-        NewJob { id: id.into(), scenes: (0..scenes).map(|i| (format!("s{i}"), PathBuf::from(format!("/in/{i}")))).collect(), vocabulary: None, refine_steps: None }
+        NewJob {
+            id: id.into(),
+            scenes: (0..scenes)
+                .map(|i| (format!("s{i}"), PathBuf::from(format!("/in/{i}"))))
+                .collect(),
+            vocabulary: None,
+            refine_steps: None,
+        }
     }
 
     #[test]
@@ -248,7 +290,12 @@ mod tests {
         store.create(&job("a", 2)).unwrap();
         let first = store.claim().unwrap().unwrap();
         assert_eq!((first.job_id.as_str(), first.index), ("a", 0));
-        store.finish(&first, &SceneOutcome::Done { metrics: Some(serde_json::json!({"psnr": 20.0})) }).unwrap();
+        store
+            .finish(
+                &first,
+                &SceneOutcome::Done { metrics: Some(serde_json::json!({"psnr": 20.0})) },
+            )
+            .unwrap();
         let second = store.claim().unwrap().unwrap();
         assert_eq!(store.status("a").unwrap().unwrap().state, JobState::Running);
         drop(store); // the process dies with scene 1 running
@@ -273,7 +320,8 @@ mod tests {
         assert_ne!(old_schema, SCHEMA);
         let old = Connection::open(&db).unwrap();
         old.execute_batch(&old_schema).unwrap();
-        old.execute("INSERT INTO jobs (id, vocabulary, created_at) VALUES ('old', NULL, 0)", []).unwrap();
+        old.execute("INSERT INTO jobs (id, vocabulary, created_at) VALUES ('old', NULL, 0)", [])
+            .unwrap();
         old.execute("INSERT INTO job_scenes (job_id, idx, name, input, state) VALUES ('old', 0, 's0', '/in/0', 'queued')", []).unwrap();
         drop(old);
 
@@ -296,7 +344,10 @@ mod tests {
         let running = store.claim().unwrap().unwrap();
         let s = store.cancel("a").unwrap().unwrap();
         assert_eq!(s.state, JobState::Cancelled);
-        assert_eq!(s.scenes.iter().map(|s| s.state).collect::<Vec<_>>(), [JobState::Running, JobState::Cancelled, JobState::Cancelled]);
+        assert_eq!(
+            s.scenes.iter().map(|s| s.state).collect::<Vec<_>>(),
+            [JobState::Running, JobState::Cancelled, JobState::Cancelled]
+        );
         assert!(store.claim().unwrap().is_none());
         store.finish(&running, &SceneOutcome::Done { metrics: None }).unwrap();
         assert!(store.cancel("nope").unwrap().is_none() && store.status("nope").unwrap().is_none());

@@ -29,9 +29,20 @@ impl Server {
     /// Starts the service without waiting for readiness.
     pub fn spawn(model: &Path, data: &Path, args: &[&str]) -> Server {
         std::fs::create_dir_all(data).unwrap();
-        let log = data.join(format!("serve-{}.log", std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos()));
+        let log = data.join(format!(
+            "serve-{}.log",
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos()
+        ));
         let mut child = Command::new(inssplat_e2e::inssplat_bin())
-            .args(["serve", "--listen", "127.0.0.1:0", "--model", model.to_str().unwrap(), "--data-dir", data.to_str().unwrap()])
+            .args([
+                "serve",
+                "--listen",
+                "127.0.0.1:0",
+                "--model",
+                model.to_str().unwrap(),
+                "--data-dir",
+                data.to_str().unwrap(),
+            ])
             .args(["--threads", "2"])
             .args(args)
             .env_remove("INSSPLAT_API_KEY")
@@ -40,8 +51,14 @@ impl Server {
             .spawn()
             .expect("start inssplat serve");
         let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        let first = lines.next().and_then(Result::ok).unwrap_or_else(|| panic!("serve printed no address; log:\n{}", std::fs::read_to_string(&log).unwrap()));
-        let addr = first.strip_prefix("listening on http://").unwrap_or_else(|| panic!("unexpected first line {first:?}")).parse().unwrap();
+        let first = lines.next().and_then(Result::ok).unwrap_or_else(|| {
+            panic!("serve printed no address; log:\n{}", std::fs::read_to_string(&log).unwrap())
+        });
+        let addr = first
+            .strip_prefix("listening on http://")
+            .unwrap_or_else(|| panic!("unexpected first line {first:?}"))
+            .parse()
+            .unwrap();
         // Keep draining stdout so the server never blocks on it.
         std::thread::spawn(move || for _ in lines {});
         Server { child, addr, log }
@@ -55,7 +72,11 @@ impl Server {
             {
                 return;
             }
-            assert!(start.elapsed() < limit, "not ready after {limit:?}; log:\n{}", self.log_text());
+            assert!(
+                start.elapsed() < limit,
+                "not ready after {limit:?}; log:\n{}",
+                self.log_text()
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
     }
@@ -87,7 +108,11 @@ impl Server {
             if let Some(status) = self.child.try_wait().unwrap() {
                 return status;
             }
-            assert!(start.elapsed() < limit, "still running {limit:?} after SIGTERM; log:\n{}", self.log_text());
+            assert!(
+                start.elapsed() < limit,
+                "still running {limit:?} after SIGTERM; log:\n{}",
+                self.log_text()
+            );
             std::thread::sleep(Duration::from_millis(20));
         }
     }
@@ -99,8 +124,18 @@ impl Server {
         line.split_whitespace().nth(1).unwrap().parse().unwrap()
     }
 
-    pub fn try_send(&self, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> std::io::Result<Response> {
-        let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\nContent-Length: {}\r\n", self.addr, body.len());
+    pub fn try_send(
+        &self,
+        method: &str,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: &[u8],
+    ) -> std::io::Result<Response> {
+        let mut head = format!(
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\nContent-Length: {}\r\n",
+            self.addr,
+            body.len()
+        );
         for (k, v) in headers {
             head.push_str(&format!("{k}: {v}\r\n"));
         }
@@ -111,8 +146,15 @@ impl Server {
     }
 
     /// Sends a request with `Content-Length` and `Connection: close` added.
-    pub fn send(&self, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> Response {
-        self.try_send(method, path, headers, body).unwrap_or_else(|e| panic!("{method} {path}: {e}; log:\n{}", self.log_text()))
+    pub fn send(
+        &self,
+        method: &str,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: &[u8],
+    ) -> Response {
+        self.try_send(method, path, headers, body)
+            .unwrap_or_else(|e| panic!("{method} {path}: {e}; log:\n{}", self.log_text()))
     }
 
     /// Sends `raw` bytes as they are and reads the answer until the server closes.
@@ -134,7 +176,8 @@ impl Server {
     pub fn events(&self, path: &str, headers: &[(&str, &str)]) -> Events {
         let mut stream = TcpStream::connect(self.addr).unwrap();
         stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-        let mut head = format!("GET {path} HTTP/1.1\r\nHost: {}\r\nAccept: text/event-stream\r\n", self.addr);
+        let mut head =
+            format!("GET {path} HTTP/1.1\r\nHost: {}\r\nAccept: text/event-stream\r\n", self.addr);
         for (k, v) in headers {
             head.push_str(&format!("{k}: {v}\r\n"));
         }
@@ -175,12 +218,21 @@ pub struct Response {
 impl Response {
     fn parse(bytes: &[u8]) -> std::io::Result<Response> {
         let bad = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
-        let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").ok_or_else(|| bad("no end of headers"))?;
+        let end = bytes
+            .windows(4)
+            .position(|w| w == b"\r\n\r\n")
+            .ok_or_else(|| bad("no end of headers"))?;
         let head = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("headers not UTF-8"))?;
         let mut lines = head.split("\r\n");
-        let status = lines.next().and_then(|l| l.split(' ').nth(1)).and_then(|s| s.parse().ok()).ok_or_else(|| bad("no status"))?;
-        let headers: Vec<(String, String)> =
-            lines.filter_map(|l| l.split_once(':')).map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string())).collect();
+        let status = lines
+            .next()
+            .and_then(|l| l.split(' ').nth(1))
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| bad("no status"))?;
+        let headers: Vec<(String, String)> = lines
+            .filter_map(|l| l.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+            .collect();
         let mut body = bytes[end + 4..].to_vec();
         if headers.iter().any(|(k, v)| k == "transfer-encoding" && v.contains("chunked")) {
             body = dechunk(&body);
@@ -197,12 +249,20 @@ impl Response {
     }
 
     pub fn json<T: serde::de::DeserializeOwned>(&self) -> T {
-        serde_json::from_slice(&self.body).unwrap_or_else(|e| panic!("status {}: body is not the expected JSON ({e}): {}", self.status, self.text()))
+        serde_json::from_slice(&self.body).unwrap_or_else(|e| {
+            panic!("status {}: body is not the expected JSON ({e}): {}", self.status, self.text())
+        })
     }
 
     /// The body as the one error shape, checking it is JSON with a non-empty message.
     pub fn error(&self) -> ErrorBody {
-        assert_eq!(self.header("content-type"), Some("application/json"), "status {}: {}", self.status, self.text());
+        assert_eq!(
+            self.header("content-type"),
+            Some("application/json"),
+            "status {}: {}",
+            self.status,
+            self.text()
+        );
         let e: ErrorBody = self.json();
         assert!(!e.error.is_empty() && !e.error_type.is_empty(), "{e:?}");
         e
@@ -212,7 +272,8 @@ impl Response {
 fn dechunk(mut body: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     while let Some(eol) = body.windows(2).position(|w| w == b"\r\n") {
-        let size = usize::from_str_radix(std::str::from_utf8(&body[..eol]).unwrap().trim(), 16).unwrap();
+        let size =
+            usize::from_str_radix(std::str::from_utf8(&body[..eol]).unwrap().trim(), 16).unwrap();
         if size == 0 {
             break;
         }
@@ -279,9 +340,13 @@ pub fn multipart(parts: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
     let boundary = "inssplat-test-boundary-7d3f";
     let mut body = Vec::new();
     for (name, file, bytes) in parts {
-        body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"").as_bytes());
+        body.extend_from_slice(
+            format!("--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"").as_bytes(),
+        );
         if let Some(f) = file {
-            body.extend_from_slice(format!("; filename=\"{f}\"\r\nContent-Type: application/octet-stream").as_bytes());
+            body.extend_from_slice(
+                format!("; filename=\"{f}\"\r\nContent-Type: application/octet-stream").as_bytes(),
+            );
         }
         body.extend_from_slice(b"\r\n\r\n");
         body.extend_from_slice(bytes);
@@ -293,7 +358,9 @@ pub fn multipart(parts: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
 
 /// A `w`×`h` PNG with a pattern that depends on `seed`.
 pub fn png(w: u32, h: u32, seed: u32) -> Vec<u8> {
-    let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 7 + seed * 31) as u8, (y * 5 + seed * 17) as u8, ((x ^ y) + seed) as u8]));
+    let img = image::RgbImage::from_fn(w, h, |x, y| {
+        image::Rgb([(x * 7 + seed * 31) as u8, (y * 5 + seed * 17) as u8, ((x ^ y) + seed) as u8])
+    });
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Png).unwrap();
     out.into_inner()
@@ -301,7 +368,8 @@ pub fn png(w: u32, h: u32, seed: u32) -> Vec<u8> {
 
 /// The photos of a dataset scene's frames, PNG-encoded.
 pub fn scene_photos(scene: &Path) -> Vec<Vec<u8>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(scene.join("images")).unwrap().map(|e| e.unwrap().path()).collect();
+    let mut files: Vec<PathBuf> =
+        std::fs::read_dir(scene.join("images")).unwrap().map(|e| e.unwrap().path()).collect();
     files.sort();
     files.iter().map(|f| std::fs::read(f).unwrap()).collect()
 }

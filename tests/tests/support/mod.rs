@@ -24,12 +24,23 @@ pub fn tiny_rays_model(dir: &Path) -> PathBuf {
 }
 
 fn tiny_config() -> ModelConfig {
-    ModelConfig::new().with_image_size(32).with_dim(32).with_depth(2).with_heads(2).with_decoder_dim(32).with_decoder_min_dim(16)
+    ModelConfig::new()
+        .with_image_size(32)
+        .with_dim(32)
+        .with_depth(2)
+        .with_heads(2)
+        .with_decoder_dim(32)
+        .with_decoder_min_dim(16)
 }
 
 fn export_tiny(config: ModelConfig, model: &Path) -> PathBuf {
     let net = seeded_init(&config, 7, &Device::flex()).unwrap();
-    export_onnx(&net, model, &ExportMeta { model_version: "e2e-random".into(), train_steps: 0, weights: Weights::F32 }).unwrap();
+    export_onnx(
+        &net,
+        model,
+        &ExportMeta { model_version: "e2e-random".into(), train_steps: 0, weights: Weights::F32 },
+    )
+    .unwrap();
     model.to_path_buf()
 }
 

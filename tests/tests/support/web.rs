@@ -13,7 +13,9 @@ pub fn program(name: &str) -> Result<PathBuf, String> {
 
 /// The npm packages' node_modules folder, checked to hold `package` (e.g. `playwright-core`).
 pub fn npm_package(package: &str) -> Result<PathBuf, String> {
-    let dir = std::env::var_os("INSSPLAT_WEB_DIR").map(PathBuf::from).ok_or("INSSPLAT_WEB_DIR is not set (source .deps/env)")?;
+    let dir = std::env::var_os("INSSPLAT_WEB_DIR")
+        .map(PathBuf::from)
+        .ok_or("INSSPLAT_WEB_DIR is not set (source .deps/env)")?;
     if dir.join(package).join("package.json").is_file() {
         Ok(dir)
     } else {

@@ -38,7 +38,10 @@ fn parameters(net: &InsSplatNet) -> Result<HashMap<String, Parameter>, String> {
             if dtype != DType::F32 {
                 return Err(format!("{name} is {dtype:?}, not f32"));
             }
-            let values = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+            let values = bytes
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
             Ok((name, (shape.as_slice().to_vec(), values)))
         })
         .collect()
@@ -46,19 +49,29 @@ fn parameters(net: &InsSplatNet) -> Result<HashMap<String, Parameter>, String> {
 
 /// `base` with every parameter replaced by the mean of that parameter over `nets` (named
 /// `names`, for errors), which must all have `base`'s configuration.
-pub fn average_networks(mut base: InsSplatNet, nets: &[InsSplatNet], names: &[String]) -> Result<InsSplatNet, AverageError> {
+pub fn average_networks(
+    mut base: InsSplatNet,
+    nets: &[InsSplatNet],
+    names: &[String],
+) -> Result<InsSplatNet, AverageError> {
     let first = nets.first().ok_or(AverageError::Empty)?;
-    let shape_err = |index: usize, problem: String| AverageError::Shape { name: names[index].clone(), problem };
+    let shape_err =
+        |index: usize, problem: String| AverageError::Shape { name: names[index].clone(), problem };
     let mut sum = parameters(first).map_err(|p| shape_err(0, p))?;
     for (index, net) in nets.iter().enumerate() {
         if net.config() != base.config() {
-            return Err(shape_err(index, format!("{:?} against {:?}", net.config(), base.config())));
+            return Err(shape_err(
+                index,
+                format!("{:?} against {:?}", net.config(), base.config()),
+            ));
         }
         if index == 0 {
             continue;
         }
         for (name, (shape, values)) in parameters(net).map_err(|p| shape_err(index, p))? {
-            let (s, acc) = sum.get_mut(&name).ok_or_else(|| shape_err(index, format!("a parameter {name} the first lacks")))?;
+            let (s, acc) = sum
+                .get_mut(&name)
+                .ok_or_else(|| shape_err(index, format!("a parameter {name} the first lacks")))?;
             if *s != shape {
                 return Err(shape_err(index, format!("{name}: shape {shape:?} against {s:?}")));
             }
@@ -75,7 +88,10 @@ pub fn average_networks(mut base: InsSplatNet, nets: &[InsSplatNet], names: &[St
         .collect();
     let result = base.apply(tensors, None, None, false);
     if !result.errors.is_empty() || !result.missing.is_empty() {
-        return Err(shape_err(0, format!("parameters missing {:?}, refused {:?}", result.missing, result.errors)));
+        return Err(shape_err(
+            0,
+            format!("parameters missing {:?}, refused {:?}", result.missing, result.errors),
+        ));
     }
     Ok(base)
 }

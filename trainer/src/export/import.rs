@@ -14,8 +14,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
-use burn::store::burn_pack::Tensor as PackTensor;
 use burn::store::ModuleSnapshot;
+use burn::store::burn_pack::Tensor as PackTensor;
 use burn::tensor::{Bytes, DType};
 use inssplat_proto::signature as sig;
 use prost::Message;
@@ -46,13 +46,20 @@ pub fn import_onnx(path: &Path, device: &Device) -> Result<(InsSplatNet, ExportM
 
 /// The ONNX file at `path`, decoded.
 pub(super) fn read_model(path: &Path) -> Result<ModelProto, ImportError> {
-    let bytes = std::fs::read(path).map_err(|e| ImportError::Read { path: path.to_path_buf(), problem: e.to_string() })?;
-    ModelProto::decode(bytes.as_slice())
-        .map_err(|e| ImportError::Foreign { path: path.to_path_buf(), problem: format!("not an ONNX model: {e}") })
+    let bytes = std::fs::read(path)
+        .map_err(|e| ImportError::Read { path: path.to_path_buf(), problem: e.to_string() })?;
+    ModelProto::decode(bytes.as_slice()).map_err(|e| ImportError::Foreign {
+        path: path.to_path_buf(),
+        problem: format!("not an ONNX model: {e}"),
+    })
 }
 
 /// [`import_onnx`] of a file already read from `path` (which errors name).
-pub(super) fn import_model(path: &Path, model: &ModelProto, device: &Device) -> Result<(InsSplatNet, ExportMeta), ImportError> {
+pub(super) fn import_model(
+    path: &Path,
+    model: &ModelProto,
+    device: &Device,
+) -> Result<(InsSplatNet, ExportMeta), ImportError> {
     let foreign = |problem: String| ImportError::Foreign { path: path.to_path_buf(), problem };
     let props: Props<'_> = model
         .metadata_props
@@ -63,14 +70,20 @@ pub(super) fn import_model(path: &Path, model: &ModelProto, device: &Device) -> 
     let graph = model.graph.as_ref().ok_or_else(|| foreign("the model has no graph".into()))?;
     let weights = weights(graph).map_err(foreign)?;
     let config = config(&props, &weights).map_err(foreign)?;
-    let mut net = crate::train::seeded_init(&config, 0, device).map_err(|e| foreign(format!("model shape {config:?}: {e}")))?;
+    let mut net = crate::train::seeded_init(&config, 0, device)
+        .map_err(|e| foreign(format!("model shape {config:?}: {e}")))?;
     let tensors = parameters(&net, &weights).map_err(foreign)?;
     let result = net.apply(tensors, None, None, false);
     if !result.errors.is_empty() || !result.missing.is_empty() {
-        return Err(foreign(format!("weights missing {:?}, refused {:?}", result.missing, result.errors)));
+        return Err(foreign(format!(
+            "weights missing {:?}, refused {:?}",
+            result.missing, result.errors
+        )));
     }
     let again = to_model_proto(&net, &meta).map_err(|e| foreign(e.to_string()))?;
-    if let Some(difference) = first_difference(graph, again.graph.as_ref().expect("the exporter writes a graph")) {
+    if let Some(difference) =
+        first_difference(graph, again.graph.as_ref().expect("the exporter writes a graph"))
+    {
         return Err(foreign(format!(
             "its graph is not the one this trainer exports for {config:?} (first difference: {difference})"
         )));
@@ -85,16 +98,23 @@ fn metadata(props: &Props<'_>) -> Result<ExportMeta, String> {
     let get = |key: &str| props.get(key).copied().ok_or_else(|| format!("metadata has no {key}"));
     let io = get(sig::META_IO_VERSION)?;
     if io != sig::IO_VERSION {
-        return Err(format!("{} is {io}, this trainer writes {}", sig::META_IO_VERSION, sig::IO_VERSION));
+        return Err(format!(
+            "{} is {io}, this trainer writes {}",
+            sig::META_IO_VERSION,
+            sig::IO_VERSION
+        ));
     }
     let steps = get(sig::META_TRAIN_STEPS)?;
     let weights = match props.get(META_WEIGHTS) {
         None => Weights::F32,
-        Some(w) => Weights::parse(w).ok_or_else(|| format!("{META_WEIGHTS} {w:?} is neither \"f32\" nor \"int8\""))?,
+        Some(w) => Weights::parse(w)
+            .ok_or_else(|| format!("{META_WEIGHTS} {w:?} is neither \"f32\" nor \"int8\""))?,
     };
     Ok(ExportMeta {
         model_version: get(sig::META_MODEL_VERSION)?.to_string(),
-        train_steps: steps.parse().map_err(|_| format!("{} {steps:?} is not a step count", sig::META_TRAIN_STEPS))?,
+        train_steps: steps
+            .parse()
+            .map_err(|_| format!("{} {steps:?} is not a step count", sig::META_TRAIN_STEPS))?,
         weights,
     })
 }
@@ -120,7 +140,8 @@ fn weights(graph: &GraphProto) -> Result<HashMap<String, Weight>, String> {
             _ => return Err(err(t)(format!("an int8 weight without one float {hint}.scale"))),
         };
         let dims = dims(t, 1).map_err(err(t))?;
-        let q: Vec<i8> = t.raw_data.as_deref().unwrap_or_default().iter().map(|&b| b as i8).collect();
+        let q: Vec<i8> =
+            t.raw_data.as_deref().unwrap_or_default().iter().map(|&b| b as i8).collect();
         out.insert(hint, Weight { dims, values: super::int8::dequantize(&q, scale) });
     }
     Ok(out)
@@ -129,7 +150,11 @@ fn weights(graph: &GraphProto) -> Result<HashMap<String, Weight>, String> {
 /// An initializer's shape, checked against its raw data of `bytes` a value.
 fn dims(t: &TensorProto, bytes: usize) -> Result<Vec<usize>, String> {
     let raw = t.raw_data.as_deref().ok_or("no raw_data")?;
-    let dims: Vec<usize> = t.dims.iter().map(|&d| usize::try_from(d).map_err(|_| format!("dimension {d}"))).collect::<Result<_, _>>()?;
+    let dims: Vec<usize> = t
+        .dims
+        .iter()
+        .map(|&d| usize::try_from(d).map_err(|_| format!("dimension {d}")))
+        .collect::<Result<_, _>>()?;
     if raw.len() != bytes * dims.iter().product::<usize>() {
         return Err(format!("{} bytes for shape {dims:?}", raw.len()));
     }
@@ -139,7 +164,8 @@ fn dims(t: &TensorProto, bytes: usize) -> Result<Vec<usize>, String> {
 fn weight(t: &TensorProto) -> Result<Weight, String> {
     let dims = dims(t, 4)?;
     let raw = t.raw_data.as_deref().unwrap_or_default();
-    let values = raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let values =
+        raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     Ok(Weight { dims, values })
 }
 
@@ -148,10 +174,14 @@ fn weight(t: &TensorProto) -> Result<Weight, String> {
 fn config(props: &Props<'_>, weights: &HashMap<String, Weight>) -> Result<ModelConfig, String> {
     let prop = |key: &str| props.get(key).copied();
     if let Some(json) = prop(super::META_MODEL_CONFIG) {
-        return serde_json::from_str(json).map_err(|e| format!("metadata {}: {e}", super::META_MODEL_CONFIG));
+        return serde_json::from_str(json)
+            .map_err(|e| format!("metadata {}: {e}", super::META_MODEL_CONFIG));
     }
-    let dims = |name: &str| weights.get(name).map(|w| w.dims.clone()).ok_or_else(|| format!("no weight {name}"));
-    let resolution = prop(sig::META_RESOLUTION).ok_or_else(|| format!("metadata has no {}", sig::META_RESOLUTION))?;
+    let dims = |name: &str| {
+        weights.get(name).map(|w| w.dims.clone()).ok_or_else(|| format!("no weight {name}"))
+    };
+    let resolution = prop(sig::META_RESOLUTION)
+        .ok_or_else(|| format!("metadata has no {}", sig::META_RESOLUTION))?;
     let image_size = resolution
         .split_once('x')
         .and_then(|(h, w)| (h == w).then(|| h.parse::<usize>().ok()).flatten())
@@ -159,10 +189,15 @@ fn config(props: &Props<'_>, weights: &HashMap<String, Weight>) -> Result<ModelC
     let sem_dim = prop(sig::META_SEM_DIM)
         .and_then(|v| v.parse::<usize>().ok())
         .ok_or_else(|| format!("metadata has no numeric {}", sig::META_SEM_DIM))?;
-    let [patch_in, dim] = dims("patch_embed.weight")?[..] else { return Err("patch_embed.weight is not a matrix".into()) };
+    let [patch_in, dim] = dims("patch_embed.weight")?[..] else {
+        return Err("patch_embed.weight is not a matrix".into());
+    };
     let patch = ((patch_in / 3) as f64).sqrt().round() as usize;
-    let [_, decoder_dim] = dims("decoder.fuse.weight")?[..] else { return Err("decoder.fuse.weight is not a matrix".into()) };
-    let depth = (0..).take_while(|i| weights.contains_key(&format!("blocks.{i}.qkv.weight"))).count();
+    let [_, decoder_dim] = dims("decoder.fuse.weight")?[..] else {
+        return Err("decoder.fuse.weight is not a matrix".into());
+    };
+    let depth =
+        (0..).take_while(|i| weights.contains_key(&format!("blocks.{i}.qkv.weight"))).count();
     Ok(ModelConfig::new()
         .with_image_size(image_size)
         .with_patch(patch)
@@ -174,22 +209,35 @@ fn config(props: &Props<'_>, weights: &HashMap<String, Weight>) -> Result<ModelC
 
 /// One tensor per parameter of `net`, by its module path, read from the file's weights. Two
 /// parameters are stored differently: the camera tokens as two rows, and Φ_sem transposed.
-fn parameters(net: &InsSplatNet, weights: &HashMap<String, Weight>) -> Result<Vec<PackTensor>, String> {
+fn parameters(
+    net: &InsSplatNet,
+    weights: &HashMap<String, Weight>,
+) -> Result<Vec<PackTensor>, String> {
     let get = |name: &str| weights.get(name).ok_or_else(|| format!("no weight {name}"));
     net.collect(None, None, false)
         .into_iter()
         .map(|p| {
             let values = match p.name.as_str() {
-                "camera_tokens" => [get("camera_token.reference")?.values.as_slice(), &get("camera_token.other")?.values].concat(),
+                "camera_tokens" => [
+                    get("camera_token.reference")?.values.as_slice(),
+                    &get("camera_token.other")?.values,
+                ]
+                .concat(),
                 "sem_proj.weight" => {
                     let w = get("sem_proj.weight")?;
-                    let [rows, cols] = w.dims[..] else { return Err("sem_proj.weight is not a matrix".into()) };
+                    let [rows, cols] = w.dims[..] else {
+                        return Err("sem_proj.weight is not a matrix".into());
+                    };
                     (0..cols).flat_map(|c| (0..rows).map(move |r| w.values[r * cols + c])).collect()
                 }
                 name => {
                     let w = get(name)?;
                     if w.dims != p.shape.as_slice() {
-                        return Err(format!("{name}: shape {:?} in the file, {:?} in the network", w.dims, p.shape.as_slice()));
+                        return Err(format!(
+                            "{name}: shape {:?} in the file, {:?} in the network",
+                            w.dims,
+                            p.shape.as_slice()
+                        ));
                     }
                     w.values.clone()
                 }
@@ -197,7 +245,13 @@ fn parameters(net: &InsSplatNet, weights: &HashMap<String, Weight>) -> Result<Ve
             if values.len() != p.shape.num_elements() {
                 return Err(format!("{}: {} values for shape {:?}", p.name, values.len(), p.shape));
             }
-            Ok(PackTensor::new(p.name.clone(), DType::F32, p.shape.clone(), None, Bytes::from_elems(values)))
+            Ok(PackTensor::new(
+                p.name.clone(),
+                DType::F32,
+                p.shape.clone(),
+                None,
+                Bytes::from_elems(values),
+            ))
         })
         .collect()
 }
@@ -205,12 +259,21 @@ fn parameters(net: &InsSplatNet, weights: &HashMap<String, Weight>) -> Result<Ve
 /// Where graph `a` first differs from `b`, if it does.
 fn first_difference(a: &GraphProto, b: &GraphProto) -> Option<String> {
     if let Some((i, (x, y))) = a.node.iter().zip(&b.node).enumerate().find(|(_, (x, y))| x != y) {
-        return Some(format!("node {i}: {:?} {:?} against {:?} {:?}", x.op_type, x.input, y.op_type, y.input));
+        return Some(format!(
+            "node {i}: {:?} {:?} against {:?} {:?}",
+            x.op_type, x.input, y.op_type, y.input
+        ));
     }
     if let Some((x, _)) = a.initializer.iter().zip(&b.initializer).find(|(x, y)| x != y) {
         return Some(format!("initializer {}", x.name.as_deref().unwrap_or_default()));
     }
     (a.node.len() != b.node.len() || a.initializer.len() != b.initializer.len()).then(|| {
-        format!("{} nodes and {} initializers against {} and {}", a.node.len(), a.initializer.len(), b.node.len(), b.initializer.len())
+        format!(
+            "{} nodes and {} initializers against {} and {}",
+            a.node.len(),
+            a.initializer.len(),
+            b.node.len(),
+            b.initializer.len()
+        )
     })
 }

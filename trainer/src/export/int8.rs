@@ -26,9 +26,14 @@ use super::{ExportError, ExportMeta, Weights};
 /// every metadata entry of `input` the exporter does not write itself (the shape classifier),
 /// and `version` as its model version (by default the input's with `+int8`, so that reports
 /// tell the two apart). Returns what `output` says about itself.
-pub fn quantize_file(input: &Path, output: &Path, version: Option<&str>) -> Result<ExportMeta, RewriteError> {
+pub fn quantize_file(
+    input: &Path,
+    output: &Path,
+    version: Option<&str>,
+) -> Result<ExportMeta, RewriteError> {
     rewrite_file(input, output, |net, meta| {
-        let model_version = version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
+        let model_version =
+            version.map_or_else(|| format!("{}+int8", meta.model_version), str::to_string);
         Ok((net, ExportMeta { weights: Weights::Int8, model_version, ..meta }))
     })
 }
@@ -65,9 +70,17 @@ pub fn dequantize(q: &[i8], scale: f32) -> Vec<f32> {
 impl Graph {
     /// `x · W` with `weight` (`[inputs, outputs]`) stored as int8 (hint `{hint}`, its scale
     /// as `{hint}.scale`), in the pattern ONNX Runtime fuses.
-    pub fn int8_matmul<const D: usize>(&mut self, hint: &str, weight: Tensor<D>, x: &str) -> Result<String, ExportError> {
+    pub fn int8_matmul<const D: usize>(
+        &mut self,
+        hint: &str,
+        weight: Tensor<D>,
+        x: &str,
+    ) -> Result<String, ExportError> {
         let dims = weight.dims();
-        let values = weight.into_data().try_into_vec_as::<f32>().map_err(|e| ExportError::Tensor(format!("{hint}: {e:?}")))?;
+        let values = weight
+            .into_data()
+            .try_into_vec_as::<f32>()
+            .map_err(|e| ExportError::Tensor(format!("{hint}: {e:?}")))?;
         let s = scale(&values);
         let name = self.fresh(hint);
         self.initializers.push(TensorProto {
@@ -77,9 +90,12 @@ impl Graph {
             raw_data: Some(quantize(&values, s).into_iter().map(|q| q as u8).collect()),
         });
         let w_scale = self.f32s(&format!("{hint}.scale"), &[], &[s]);
-        let [xq, x_scale, x_zero] = <[String; 3]>::try_from(self.op_n("DynamicQuantizeLinear", &[x], 3, vec![])).expect("three outputs");
+        let [xq, x_scale, x_zero] =
+            <[String; 3]>::try_from(self.op_n("DynamicQuantizeLinear", &[x], 3, vec![]))
+                .expect("three outputs");
         let product = self.op("MatMulInteger", &[&xq, &name, &x_zero], vec![]);
-        let product = self.op("Cast", &[&product], vec![attr_int("to", i64::from(DATA_TYPE_FLOAT))]);
+        let product =
+            self.op("Cast", &[&product], vec![attr_int("to", i64::from(DATA_TYPE_FLOAT))]);
         let scales = self.op("Mul", &[&x_scale, &w_scale], vec![]);
         Ok(self.op("Mul", &[&product, &scales], vec![]))
     }
@@ -96,12 +112,19 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         for trial in 0..2000 {
             let magnitude = 10f32.powf(rng.random_range(-4.0..2.0));
-            let values: Vec<f32> = (0..64).map(|_| rng.random_range(-1.0..1.0) * magnitude).collect();
+            let values: Vec<f32> =
+                (0..64).map(|_| rng.random_range(-1.0..1.0) * magnitude).collect();
             let s = scale(&values);
             let q = quantize(&values, s);
-            assert!(q.iter().any(|&v| f32::from(v.unsigned_abs()) == LEVELS), "trial {trial}: the largest weight uses the whole range");
+            assert!(
+                q.iter().any(|&v| f32::from(v.unsigned_abs()) == LEVELS),
+                "trial {trial}: the largest weight uses the whole range"
+            );
             for (v, &k) in values.iter().zip(&q) {
-                assert!((v - f32::from(k) * s).abs() <= 0.5 * s * 1.0001, "trial {trial}: {v} → {k} at scale {s}");
+                assert!(
+                    (v - f32::from(k) * s).abs() <= 0.5 * s * 1.0001,
+                    "trial {trial}: {v} → {k} at scale {s}"
+                );
             }
             let back = dequantize(&q, s);
             assert_eq!(scale(&back), s, "trial {trial}: the scale moved");

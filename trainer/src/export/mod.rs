@@ -27,16 +27,16 @@ use inssplat_proto::signature as sig;
 use prost::Message;
 
 use crate::model::InsSplatNet;
-use graph::Graph;
 pub use average::{AverageError, average_file, average_networks};
+use graph::Graph;
 pub use import::{ImportError, import_onnx};
 pub use int8::quantize_file;
-pub use rewrite::{RewriteError, export_keeping_metadata, pool_keys_file};
 use onnx_pb::{
     DATA_TYPE_FLOAT, GraphProto, ModelProto, OperatorSetIdProto, StringStringEntryProto,
     TensorShapeProto, TypeProto, ValueInfoProto, tensor_shape_proto::Dimension,
     tensor_shape_proto::dimension, type_proto,
 };
+pub use rewrite::{RewriteError, export_keeping_metadata, pool_keys_file};
 
 /// ONNX opset the graph is written against.
 pub const OPSET: i64 = 17;
@@ -91,10 +91,7 @@ pub enum ExportError {
     #[error("the exporter does not support {0}")]
     Unsupported(&'static str),
     #[error("writing {path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    Io { path: String, source: std::io::Error },
 }
 
 /// Builds the ONNX model of `net` in memory.
@@ -107,35 +104,28 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
     let n = || Dim::Sym(VIEWS_DIM);
     use Dim::Fixed as F;
     let outputs = [
-        (
-            sig::OUTPUT_CAMERA.name,
-            vec![n(), F(sig::CAMERA_CHANNELS as i64)],
-        ),
+        (sig::OUTPUT_CAMERA.name, vec![n(), F(sig::CAMERA_CHANNELS as i64)]),
         (sig::OUTPUT_DEPTH.name, vec![n(), F(1), F(hw), F(hw)]),
         (sig::OUTPUT_DEPTH_CONF.name, vec![n(), F(1), F(hw), F(hw)]),
-        (
-            sig::OUTPUT_GAUSSIANS.name,
-            vec![n(), F(sig::GAUSSIAN_CHANNELS as i64), F(hw), F(hw)],
-        ),
-        (
-            sig::OUTPUT_INSTANCE.name,
-            vec![n(), F(crate::model::OUT_INSTANCE as i64), F(hw), F(hw)],
-        ),
+        (sig::OUTPUT_GAUSSIANS.name, vec![n(), F(sig::GAUSSIAN_CHANNELS as i64), F(hw), F(hw)]),
+        (sig::OUTPUT_INSTANCE.name, vec![n(), F(crate::model::OUT_INSTANCE as i64), F(hw), F(hw)]),
         (sig::OUTPUT_SEMANTIC.name, vec![n(), F(ds), F(hw), F(hw)]),
-        (
-            sig::OUTPUT_SEM_PROJ_WEIGHT.name,
-            vec![F(sig::TEXT_DIM as i64), F(ds)],
-        ),
-        (
-            sig::OUTPUT_SEM_PROJ_BIAS.name,
-            vec![F(sig::TEXT_DIM as i64)],
-        ),
+        (sig::OUTPUT_SEM_PROJ_WEIGHT.name, vec![F(sig::TEXT_DIM as i64), F(ds)]),
+        (sig::OUTPUT_SEM_PROJ_BIAS.name, vec![F(sig::TEXT_DIM as i64)]),
     ];
     debug_assert_eq!(outputs.len(), sig::OUTPUTS.len());
     let tokens = (c.grid() * c.grid()) as i64;
-    let rays = c.camera_rays.map(|k| (sig::INPUT_RAYS.name, vec![n(), F(tokens), F(inssplat_proto::rays::ray_channels(k) as i64)]));
-    let point_map = c.point_head.map(|_| (sig::OUTPUT_POINT_MAP.name, vec![n(), F(3), F(hw), F(hw)]));
-    let descriptors = c.descriptor_head.map(|d| (sig::OUTPUT_DESCRIPTORS.name, vec![n(), F(d as i64), F(hw), F(hw)]));
+    let rays = c.camera_rays.map(|k| {
+        (
+            sig::INPUT_RAYS.name,
+            vec![n(), F(tokens), F(inssplat_proto::rays::ray_channels(k) as i64)],
+        )
+    });
+    let point_map =
+        c.point_head.map(|_| (sig::OUTPUT_POINT_MAP.name, vec![n(), F(3), F(hw), F(hw)]));
+    let descriptors = c
+        .descriptor_head
+        .map(|d| (sig::OUTPUT_DESCRIPTORS.name, vec![n(), F(d as i64), F(hw), F(hw)]));
     let graph = GraphProto {
         node: g.nodes,
         name: Some("inssplat".into()),
@@ -157,7 +147,10 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         (sig::META_RESOLUTION, resolution),
         (sig::META_SEM_DIM, c.sem_dim.to_string()),
         (sig::META_TRAIN_STEPS, meta.train_steps.to_string()),
-        (META_MODEL_CONFIG, serde_json::to_string(c).expect("a ModelConfig (numbers only) serializes")),
+        (
+            META_MODEL_CONFIG,
+            serde_json::to_string(c).expect("a ModelConfig (numbers only) serializes"),
+        ),
         (META_WEIGHTS, meta.weights.as_str().to_string()),
     ];
     Ok(ModelProto {
@@ -172,10 +165,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         graph: Some(graph),
         metadata_props: props
             .into_iter()
-            .map(|(k, v)| StringStringEntryProto {
-                key: Some(k.into()),
-                value: Some(v),
-            })
+            .map(|(k, v)| StringStringEntryProto { key: Some(k.into()), value: Some(v) })
             .collect(),
     })
 }
@@ -188,10 +178,8 @@ pub fn to_onnx_bytes(net: &InsSplatNet, meta: &ExportMeta) -> Result<Vec<u8>, Ex
 /// Writes `net` as an ONNX file at `path` (resolution "HxW" in pixels, e.g. "128x128").
 pub fn export_onnx(net: &InsSplatNet, path: &Path, meta: &ExportMeta) -> Result<(), ExportError> {
     let bytes = to_onnx_bytes(net, meta)?;
-    std::fs::write(path, bytes).map_err(|source| ExportError::Io {
-        path: path.display().to_string(),
-        source,
-    })
+    std::fs::write(path, bytes)
+        .map_err(|source| ExportError::Io { path: path.display().to_string(), source })
 }
 
 enum Dim {

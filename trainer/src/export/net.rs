@@ -54,10 +54,7 @@ fn conv(g: &mut Graph, hint: &str, m: &Conv2d, x: &str) -> Result<String, Export
     let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
     let b = g.param(
         &format!("{hint}.bias"),
-        m.bias
-            .as_ref()
-            .ok_or(ExportError::Unsupported("conv without bias"))?
-            .val(),
+        m.bias.as_ref().ok_or(ExportError::Unsupported("conv without bias"))?.val(),
     )?;
     let [kh, kw] = m.kernel_size;
     let (ph, pw) = ((kh / 2) as i64, (kw / 2) as i64);
@@ -85,10 +82,7 @@ fn conv_transpose(
     let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
     let b = g.param(
         &format!("{hint}.bias"),
-        m.bias
-            .as_ref()
-            .ok_or(ExportError::Unsupported("deconv without bias"))?
-            .val(),
+        m.bias.as_ref().ok_or(ExportError::Unsupported("deconv without bias"))?.val(),
     )?;
     let [kh, kw] = m.kernel_size;
     let attrs = vec![
@@ -106,7 +100,8 @@ fn pool_keys(g: &mut Graph, t: &str, heads: i64, hd: i64, grid: i64, pool: i64) 
     let camera = g.slice(&t, &[0], &[1], &[2]);
     let patches = g.slice(&t, &[1], &[END], &[2]);
     let patches = g.reshape(&patches, &[heads, -1, q, pool, q, pool, hd]);
-    let pooled = g.op("ReduceMean", &[&patches], vec![attr_ints("axes", &[3, 5]), attr_int("keepdims", 0)]);
+    let pooled =
+        g.op("ReduceMean", &[&patches], vec![attr_ints("axes", &[3, 5]), attr_int("keepdims", 0)]);
     let pooled = g.reshape(&pooled, &[heads, -1, q * q, hd]);
     let joined = g.op("Concat", &[&camera, &pooled], vec![attr_int("axis", 2)]);
     g.reshape(&joined, &[1, heads, -1, hd])
@@ -114,7 +109,14 @@ fn pool_keys(g: &mut Graph, t: &str, heads: i64, hd: i64, grid: i64, pool: i64) 
 
 /// One transformer layer on `x`: `[batch, seq, dim]` (batch and seq may be symbolic); a
 /// global layer of a network with [`ModelConfig::global_kv_pool`] passes `(grid, pool)`.
-fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize, pooling: Option<(usize, usize)>) -> Result<String, ExportError> {
+fn block(
+    g: &mut Graph,
+    hint: &str,
+    m: &Block,
+    x: &str,
+    dim: usize,
+    pooling: Option<(usize, usize)>,
+) -> Result<String, ExportError> {
     let heads = m.heads as i64;
     let hd = (dim / m.heads) as i64;
     let h = layer_norm(g, &format!("{hint}.norm1"), &m.norm1, x)?;
@@ -128,7 +130,8 @@ fn block(g: &mut Graph, hint: &str, m: &Block, x: &str, dim: usize, pooling: Opt
     let v = g.op("Squeeze", &[&parts[2], &axis0], vec![]);
     let (k, v) = match pooling {
         Some((grid, pool)) => {
-            let pool = |g: &mut Graph, t: &str| pool_keys(g, t, heads, hd, grid as i64, pool as i64);
+            let pool =
+                |g: &mut Graph, t: &str| pool_keys(g, t, heads, hd, grid as i64, pool as i64);
             (pool(g, &k), pool(g, &v))
         }
         None => (k, v),
@@ -170,22 +173,14 @@ fn embed(
         x = g.op("Add", &[&x, &rays], vec![]);
     }
     let cams = net.camera_tokens.val();
-    let cam0 = g.weight(
-        "camera_token.reference",
-        cams.clone().narrow(0, 0, 1),
-        &[1, 1, d],
-    )?;
+    let cam0 = g.weight("camera_token.reference", cams.clone().narrow(0, 0, 1), &[1, 1, d])?;
     let cam1 = g.weight("camera_token.other", cams.narrow(0, 1, 1), &[1, 1, d])?;
     let reference = g.param("reference_embed", net.reference_embed.val())?;
     let first = g.slice(&x, &[0], &[1], &[0]);
     let first = g.op("Add", &[&first, &reference], vec![]);
     let first = g.op("Concat", &[&cam0, &first], vec![attr_int("axis", 1)]);
     let rest = g.slice(&x, &[1], &[END], &[0]);
-    let others = g.op(
-        "Shape",
-        &[&rest],
-        vec![attr_int("start", 0), attr_int("end", 1)],
-    );
+    let others = g.op("Shape", &[&rest], vec![attr_int("start", 0), attr_int("end", 1)]);
     let tail = g.i64s(&[1, d as i64]);
     let target = g.op("Concat", &[&others, &tail], vec![attr_int("axis", 0)]);
     let rest_cam = g.op("Expand", &[&cam1, &target], vec![]);
@@ -208,20 +203,11 @@ fn camera_head(
     let fov = g.op("Sigmoid", &[&fov], vec![]);
     let fov_scale = g.scalar((2.0 * c.fov_base) as f32);
     let fov = g.op("Mul", &[&fov, &fov_scale], vec![]);
-    let identity = g.f32s(
-        "identity_pose",
-        &[1, 7],
-        &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
-    );
+    let identity = g.f32s("identity_pose", &[1, 7], &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
     let rest = g.slice(&raw, &[1, 0], &[END, 7], &[0, 1]);
     let rest = g.op("Add", &[&rest, &identity], vec![]);
     let pose = g.op("Concat", &[&identity, &rest], vec![attr_int("axis", 0)]);
-    g.op_into(
-        "Concat",
-        &[&pose, &fov],
-        &[sig::OUTPUT_CAMERA.name],
-        vec![attr_int("axis", 1)],
-    );
+    g.op_into("Concat", &[&pose, &fov], &[sig::OUTPUT_CAMERA.name], vec![attr_int("axis", 1)]);
     Ok(())
 }
 
@@ -269,31 +255,15 @@ fn decoder(
         g.op_into("Identity", &[&d], &[sig::OUTPUT_DESCRIPTORS.name], vec![]);
     }
     let raw = conv(g, "decoder.out", &m.out, &x)?;
-    let split = g.i64s(&[
-        1,
-        1,
-        GAUSSIAN_AFFINE_CHANNELS as i64,
-        3,
-        c.sem_dim as i64,
-        OUT_INSTANCE as i64,
-    ]);
+    let split =
+        g.i64s(&[1, 1, GAUSSIAN_AFFINE_CHANNELS as i64, 3, c.sem_dim as i64, OUT_INSTANCE as i64]);
     let parts = g.op_n("Split", &[&raw, &split], 6, vec![attr_int("axis", 1)]);
     let depth = g.op("Softplus", &[&parts[0]], vec![]);
     let depth_scale = g.scalar(c.depth_scale as f32);
-    g.op_into(
-        "Mul",
-        &[&depth, &depth_scale],
-        &[sig::OUTPUT_DEPTH.name],
-        vec![],
-    );
+    g.op_into("Mul", &[&depth, &depth_scale], &[sig::OUTPUT_DEPTH.name], vec![]);
     let conf = g.op("Exp", &[&parts[1]], vec![]);
     let one = g.scalar(1.0);
-    g.op_into(
-        "Add",
-        &[&conf, &one],
-        &[sig::OUTPUT_DEPTH_CONF.name],
-        vec![],
-    );
+    g.op_into("Add", &[&conf, &one], &[sig::OUTPUT_DEPTH_CONF.name], vec![]);
     let (mul, add) = gaussian_affine(c);
     let n_aff = GAUSSIAN_AFFINE_CHANNELS;
     let mul = g.f32s("gaussian_mul", &[1, n_aff, 1, 1], &mul);
@@ -309,18 +279,8 @@ fn decoder(
         &[sig::OUTPUT_GAUSSIANS.name],
         vec![attr_int("axis", 1)],
     );
-    g.op_into(
-        "Identity",
-        &[&parts[4]],
-        &[sig::OUTPUT_SEMANTIC.name],
-        vec![],
-    );
-    g.op_into(
-        "Identity",
-        &[&parts[5]],
-        &[sig::OUTPUT_INSTANCE.name],
-        vec![],
-    );
+    g.op_into("Identity", &[&parts[4]], &[sig::OUTPUT_SEMANTIC.name], vec![]);
+    g.op_into("Identity", &[&parts[5]], &[sig::OUTPUT_INSTANCE.name], vec![]);
     Ok(())
 }
 
@@ -350,12 +310,7 @@ pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     let (w, b) = net.sem_proj();
     let w = g.param("sem_proj.weight", w)?;
     let b = g.param("sem_proj.bias", b)?;
-    g.op_into(
-        "Identity",
-        &[&w],
-        &[sig::OUTPUT_SEM_PROJ_WEIGHT.name],
-        vec![],
-    );
+    g.op_into("Identity", &[&w], &[sig::OUTPUT_SEM_PROJ_WEIGHT.name], vec![]);
     g.op_into("Identity", &[&b], &[sig::OUTPUT_SEM_PROJ_BIAS.name], vec![]);
     Ok(())
 }

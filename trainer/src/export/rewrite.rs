@@ -44,15 +44,28 @@ pub(super) fn rewrite_file(
 
 /// Writes `net` to `output` as the exporter does, with every metadata entry of the ONNX file
 /// `from` that the exporter does not write itself (its shape classifier).
-pub fn export_keeping_metadata(net: &InsSplatNet, meta: &ExportMeta, from: &Path, output: &Path) -> Result<(), RewriteError> {
+pub fn export_keeping_metadata(
+    net: &InsSplatNet,
+    meta: &ExportMeta,
+    from: &Path,
+    output: &Path,
+) -> Result<(), RewriteError> {
     write_keeping(net, meta, read_model(from)?, output)
 }
 
-fn write_keeping(net: &InsSplatNet, meta: &ExportMeta, original: onnx_pb::ModelProto, output: &Path) -> Result<(), RewriteError> {
+fn write_keeping(
+    net: &InsSplatNet,
+    meta: &ExportMeta,
+    original: onnx_pb::ModelProto,
+    output: &Path,
+) -> Result<(), RewriteError> {
     let mut model = to_model_proto(net, meta)?;
     let written: Vec<Option<String>> = model.metadata_props.iter().map(|p| p.key.clone()).collect();
-    model.metadata_props.extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
-    std::fs::write(output, model.encode_to_vec()).map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
+    model
+        .metadata_props
+        .extend(original.metadata_props.into_iter().filter(|p| !written.contains(&p.key)));
+    std::fs::write(output, model.encode_to_vec())
+        .map_err(|source| ExportError::Io { path: output.display().to_string(), source })?;
     Ok(())
 }
 
@@ -60,10 +73,16 @@ fn write_keeping(net: &InsSplatNet, meta: &ExportMeta, original: onnx_pb::ModelP
 /// pooled `pool` × `pool` (`crate::model::ModelConfig::global_kv_pool`; `None`: every
 /// token), the same weights, and `version` as its model version (by default the input's with
 /// `+kvP`).
-pub fn pool_keys_file(input: &Path, output: &Path, pool: Option<usize>, version: Option<&str>) -> Result<ExportMeta, RewriteError> {
+pub fn pool_keys_file(
+    input: &Path,
+    output: &Path,
+    pool: Option<usize>,
+    version: Option<&str>,
+) -> Result<ExportMeta, RewriteError> {
     rewrite_file(input, output, |net, meta| {
         let suffix = pool.map_or_else(|| "+kv1".to_string(), |p| format!("+kv{p}"));
-        let model_version = version.map_or_else(|| format!("{}{suffix}", meta.model_version), str::to_string);
+        let model_version =
+            version.map_or_else(|| format!("{}{suffix}", meta.model_version), str::to_string);
         Ok((net.with_global_kv_pool(pool)?, ExportMeta { model_version, ..meta }))
     })
 }

@@ -21,11 +21,17 @@ const VISIBLE: f32 = 0.03;
 /// For every patch token of views 1.. (view-major, `[V − 1][grid²]`), the index of the patch
 /// token of view 0 that sees its centre pixel's true point, or −1 for none; `patch` pixels a
 /// token side, `depth` the true depth `[V][H][W]` (square views of `size`).
-pub fn match_targets(cameras: &[Camera], depth: &[f32], size: usize, patch: usize) -> Result<Vec<i64>, LossError> {
+pub fn match_targets(
+    cameras: &[Camera],
+    depth: &[f32],
+    size: usize,
+    patch: usize,
+) -> Result<Vec<i64>, LossError> {
     let (hw, grid) = (size * size, size / patch);
     let points = point_map_targets(cameras, depth, size, size, false)?;
     let Some(first) = cameras.first() else { return Ok(Vec::new()) };
-    let view0 = Camera { intrinsics: first.intrinsics.scaled_to(size as u32, size as u32), ..*first };
+    let view0 =
+        Camera { intrinsics: first.intrinsics.scaled_to(size as u32, size as u32), ..*first };
     let mut targets = Vec::with_capacity(cameras.len().saturating_sub(1) * grid * grid);
     for v in 1..cameras.len() {
         for token in 0..grid * grid {
@@ -49,15 +55,24 @@ pub fn match_targets(cameras: &[Camera], depth: &[f32], size: usize, patch: usiz
 /// L_match of `queries` and `keys` `[V, tokens, head_dim]` (the network's
 /// `global_queries`/`global_keys`) against `targets` (from [`match_targets`]); zero when no
 /// token has a target.
-pub fn attention_match_loss(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<Tensor<1>, LossError> {
+pub fn attention_match_loss(
+    queries: Tensor<3>,
+    keys: Tensor<3>,
+    targets: &[i64],
+) -> Result<Tensor<1>, LossError> {
     let device = queries.device();
-    Ok(view_zero_logits(queries, keys, targets)?.map_or_else(|| zero(&device), |logits| cross_entropy(logits, targets)))
+    Ok(view_zero_logits(queries, keys, targets)?
+        .map_or_else(|| zero(&device), |logits| cross_entropy(logits, targets)))
 }
 
 /// The attention logits q·k/√d of every patch token of views 1.. over view 0's patch tokens,
 /// `[V − 1, tokens, tokens]`, after checking the shapes against `targets`; `None` when no
 /// token has a target.
-fn view_zero_logits(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<Option<Tensor<3>>, LossError> {
+fn view_zero_logits(
+    queries: Tensor<3>,
+    keys: Tensor<3>,
+    targets: &[i64],
+) -> Result<Option<Tensor<3>>, LossError> {
     let [v, t, d] = queries.dims();
     check_dims("attention keys", &[v, t, d], &keys.dims())?;
     check_len("attention match targets", v.saturating_sub(1) * t, targets.len())?;
@@ -99,7 +114,9 @@ impl MatchScores {
     /// The scores of both token sets together.
     pub fn merge(self, o: MatchScores) -> MatchScores {
         let n = self.tokens + o.tokens;
-        let mean = |a: f64, b: f64| if n == 0 { 0.0 } else { (a * self.tokens as f64 + b * o.tokens as f64) / n as f64 };
+        let mean = |a: f64, b: f64| {
+            if n == 0 { 0.0 } else { (a * self.tokens as f64 + b * o.tokens as f64) / n as f64 }
+        };
         MatchScores {
             tokens: n,
             cross_entropy: mean(self.cross_entropy, o.cross_entropy),
@@ -111,20 +128,31 @@ impl MatchScores {
 
 /// [`MatchScores`] of `queries` and `keys` `[V, tokens, head_dim]` against `targets` (from
 /// [`match_targets`]), the tokens on a square grid.
-pub fn match_scores(queries: Tensor<3>, keys: Tensor<3>, targets: &[i64]) -> Result<MatchScores, LossError> {
+pub fn match_scores(
+    queries: Tensor<3>,
+    keys: Tensor<3>,
+    targets: &[i64],
+) -> Result<MatchScores, LossError> {
     let grid = (queries.dims()[1] as f64).sqrt().round() as i64;
-    let Some(logits) = view_zero_logits(queries, keys, targets)? else { return Ok(MatchScores::default()) };
+    let Some(logits) = view_zero_logits(queries, keys, targets)? else {
+        return Ok(MatchScores::default());
+    };
     let tokens = targets.iter().filter(|&&i| i >= 0).count();
     let cross_entropy = f64::from(cross_entropy(logits.clone(), targets).into_scalar::<f32>());
-    let best: Vec<i64> = logits
-        .argmax(2)
-        .into_data()
-        .try_into_vec_as::<i64>()
-        .map_err(|e| LossError::Read { what: "the most-attended tokens", message: format!("{e:?}") })?;
+    let best: Vec<i64> = logits.argmax(2).into_data().try_into_vec_as::<i64>().map_err(|e| {
+        LossError::Read { what: "the most-attended tokens", message: format!("{e:?}") }
+    })?;
     let (mut top1, mut within_one) = (0usize, 0usize);
     for (&b, &target) in best.iter().zip(targets).filter(|(_, t)| **t >= 0) {
         top1 += usize::from(b == target);
-        within_one += usize::from((b / grid - target / grid).abs() <= 1 && (b % grid - target % grid).abs() <= 1);
+        within_one += usize::from(
+            (b / grid - target / grid).abs() <= 1 && (b % grid - target % grid).abs() <= 1,
+        );
     }
-    Ok(MatchScores { tokens, cross_entropy, top1: top1 as f64 / tokens as f64, within_one: within_one as f64 / tokens as f64 })
+    Ok(MatchScores {
+        tokens,
+        cross_entropy,
+        top1: top1 as f64 / tokens as f64,
+        within_one: within_one as f64 / tokens as f64,
+    })
 }

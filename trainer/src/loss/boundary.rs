@@ -10,14 +10,22 @@
 
 use burn::prelude::*;
 
-use super::{BoundaryTerm, LossConfig, LossError, check_dims, constant, host, unit_pixel_vectors, zero};
+use super::{
+    BoundaryTerm, LossConfig, LossError, check_dims, constant, host, unit_pixel_vectors, zero,
+};
 
 /// Half the side of the max filter (5×5).
 const DILATE: usize = 2;
 
 /// The boundary weights b `[V][H][W]` of an instance embedding `embedding` laid out
 /// `[V][E][H][W]`; empty when there are no pixels or no channels.
-pub fn boundary_weights(embedding: &[f32], views: usize, height: usize, width: usize, config: &LossConfig) -> Vec<f32> {
+pub fn boundary_weights(
+    embedding: &[f32],
+    views: usize,
+    height: usize,
+    width: usize,
+    config: &LossConfig,
+) -> Vec<f32> {
     let plane = height * width;
     let e = embedding.len() / (views * plane).max(1);
     if plane == 0 || e == 0 {
@@ -26,7 +34,9 @@ pub fn boundary_weights(embedding: &[f32], views: usize, height: usize, width: u
     let mut weights = Vec::with_capacity(views * plane);
     for view in embedding.chunks(e * plane).take(views) {
         let unit = unit_pixel_vectors(view, e);
-        let distance = |p: usize, q: usize| 1.0 - (0..e).map(|c| unit[p * e + c] * unit[q * e + c]).sum::<f32>();
+        let distance = |p: usize, q: usize| {
+            1.0 - (0..e).map(|c| unit[p * e + c] * unit[q * e + c]).sum::<f32>()
+        };
         let mut r = vec![0.0f32; plane];
         for y in 0..height {
             for x in 0..width {
@@ -53,15 +63,19 @@ pub fn boundary_weights(embedding: &[f32], views: usize, height: usize, width: u
         for y in 0..height {
             for x in 0..width {
                 let (lo, hi) = (x.saturating_sub(DILATE), (x + DILATE).min(width - 1));
-                rows[y * width + x] =
-                    r[y * width + lo..=y * width + hi].iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                rows[y * width + x] = r[y * width + lo..=y * width + hi]
+                    .iter()
+                    .copied()
+                    .fold(f32::NEG_INFINITY, f32::max);
             }
         }
         for y in 0..height {
             for x in 0..width {
                 let (lo, hi) = (y.saturating_sub(DILATE), (y + DILATE).min(height - 1));
-                let dilated = (lo..=hi).map(|yy| rows[yy * width + x]).fold(f32::NEG_INFINITY, f32::max);
-                let z = (f64::from(dilated) - config.boundary_threshold) / config.boundary_temperature;
+                let dilated =
+                    (lo..=hi).map(|yy| rows[yy * width + x]).fold(f32::NEG_INFINITY, f32::max);
+                let z =
+                    (f64::from(dilated) - config.boundary_threshold) / config.boundary_temperature;
                 weights.push((1.0 / (1.0 + (-z).exp())) as f32);
             }
         }
@@ -83,7 +97,11 @@ pub fn boundary_rgb_loss(
     let [ev, e, eh, ew] = embedding.dims();
     check_dims("instance embedding (views, height, width)", &[v, h, w], &[ev, eh, ew])?;
     if e == 0 {
-        return Err(LossError::Shape { what: "instance embedding", expected: vec![v, 1, h, w], got: vec![v, 0, h, w] });
+        return Err(LossError::Shape {
+            what: "instance embedding",
+            expected: vec![v, 1, h, w],
+            got: vec![v, 0, h, w],
+        });
     }
     let device = rendered.device();
     if config.boundary == BoundaryTerm::Off || v * h * w == 0 {

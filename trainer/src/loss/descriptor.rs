@@ -83,7 +83,12 @@ pub fn view_pairs(views: usize) -> impl Iterator<Item = (usize, usize)> {
 /// `[V][H][W]` metres, 0 = no hit), up to `per_pair` pixels of a whose true point b sees, spread
 /// evenly over those pixels in scan order, and the pixel of b that sees each. Pairs that share
 /// no pixel have no samples.
-pub fn descriptor_matches(cameras: &[Camera], depth: &[f32], size: usize, per_pair: usize) -> Result<DescriptorMatches, LossError> {
+pub fn descriptor_matches(
+    cameras: &[Camera],
+    depth: &[f32],
+    size: usize,
+    per_pair: usize,
+) -> Result<DescriptorMatches, LossError> {
     let hw = size * size;
     check_len("ground-truth depth of the descriptor matches", cameras.len() * hw, depth.len())?;
     let cameras: Vec<Camera> = cameras
@@ -102,7 +107,8 @@ pub fn descriptor_matches(cameras: &[Camera], depth: &[f32], size: usize, per_pa
                 let point = cameras[b].world_to_camera(cameras[a].camera_to_world(own));
                 let (x, y) = cameras[b].pixel_of(point)?;
                 let there = depth[b * hw + y * size + x];
-                ((point.z - there).abs() <= VISIBLE * there).then_some((a * hw + p, b * hw + y * size + x))
+                ((point.z - there).abs() <= VISIBLE * there)
+                    .then_some((a * hw + p, b * hw + y * size + x))
             })
             .collect();
         let take = seen.len().min(per_pair);
@@ -118,7 +124,10 @@ pub fn descriptor_matches(cameras: &[Camera], depth: &[f32], size: usize, per_pa
 
 /// L_desc of `descriptors` `[V, D, H, W]` (raw; normalized here) on `matches` (from
 /// [`descriptor_matches`] at the same size); zero when there are none.
-pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> Result<Tensor<1>, LossError> {
+pub fn descriptor_loss(
+    descriptors: Tensor<4>,
+    matches: &DescriptorMatches,
+) -> Result<Tensor<1>, LossError> {
     let [v, d, h, w] = descriptors.dims();
     check_len("descriptor matches", matches.a.len(), matches.b.len())?;
     let device = descriptors.device();
@@ -147,7 +156,8 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
             index_b[p * k + i] = matches.b[s] as i64;
             diagonal[(p * k + i) * k + i] = weight;
             for (j, t) in range.clone().enumerate() {
-                let negative = i != j && (near(matches.a[s], matches.a[t]) || near(matches.b[s], matches.b[t]));
+                let negative = i != j
+                    && (near(matches.a[s], matches.a[t]) || near(matches.b[s], matches.b[t]));
                 if !negative {
                     bias[(p * k + i) * k + j] = 0.0;
                 }
@@ -155,9 +165,11 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
         }
     }
     let rows = normalize_rows(pixels_last(descriptors));
-    let gather = |index: Vec<i64>| rows.clone().select(0, indices(index, &device)).reshape([pairs, k, d]);
+    let gather =
+        |index: Vec<i64>| rows.clone().select(0, indices(index, &device)).reshape([pairs, k, d]);
     let (a, b) = (gather(index_a), gather(index_b));
-    let logits = a.matmul(b.swap_dims(1, 2)).mul_scalar(1.0 / TEMPERATURE) + constant(bias, [pairs, k, k], &device);
+    let logits = a.matmul(b.swap_dims(1, 2)).mul_scalar(1.0 / TEMPERATURE)
+        + constant(bias, [pairs, k, k], &device);
     let picks = constant(diagonal, [pairs, k, k], &device);
     let both = log_softmax(logits.clone(), 2) + log_softmax(logits, 1);
     Ok((both * picks).sum().neg())
@@ -167,7 +179,10 @@ pub fn descriptor_loss(descriptors: Tensor<4>, matches: &DescriptorMatches) -> R
 /// `stride`-th pixel of an `h`×`w` view in both directions, starting half a stride in.
 pub fn registration_grid(h: usize, w: usize, stride: usize) -> Vec<usize> {
     let stride = stride.max(1);
-    (stride / 2..h).step_by(stride).flat_map(|y| (stride / 2..w).step_by(stride).map(move |x| y * w + x)).collect()
+    (stride / 2..h)
+        .step_by(stride)
+        .flat_map(|y| (stride / 2..w).step_by(stride).map(move |x| y * w + x))
+        .collect()
 }
 
 /// L_desc with the grid's negatives: for every sample of `matches` (from [`descriptor_matches`]
@@ -175,7 +190,11 @@ pub fn registration_grid(h: usize, w: usize, stride: usize) -> Vec<usize> {
 /// cos/τ between its descriptor in a and every point of b's [`registration_grid`] of `stride`,
 /// of the grid points within `stride` pixels (in x and in y) of its match; the same from b to
 /// a's grid; averaged over the samples and both ways. Zero when there are none.
-pub fn descriptor_grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches, stride: usize) -> Result<Tensor<1>, LossError> {
+pub fn descriptor_grid_loss(
+    descriptors: Tensor<4>,
+    matches: &DescriptorMatches,
+    stride: usize,
+) -> Result<Tensor<1>, LossError> {
     let [v, d, h, w] = descriptors.dims();
     check_len("descriptor matches", matches.a.len(), matches.b.len())?;
     let device = descriptors.device();
@@ -188,12 +207,17 @@ pub fn descriptor_grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches,
     let grid = registration_grid(h, w, stride);
     let g = grid.len();
     if g == 0 {
-        return Err(LossError::Shape { what: "descriptor map holding a registration grid point", expected: vec![v, d, stride / 2 + 1, stride / 2 + 1], got: vec![v, d, h, w] });
+        return Err(LossError::Shape {
+            what: "descriptor map holding a registration grid point",
+            expected: vec![v, d, stride / 2 + 1, stride / 2 + 1],
+            got: vec![v, d, h, w],
+        });
     }
     let k = pairs.iter().map(|&p| matches.pair(p).len()).max().unwrap_or(0);
     let weight = 0.5 / matches.len() as f32;
     let rows = normalize_rows(pixels_last(descriptors));
-    let grid_rows: Vec<i64> = (0..v).flat_map(|view| grid.iter().map(move |&p| (view * hw + p) as i64)).collect();
+    let grid_rows: Vec<i64> =
+        (0..v).flat_map(|view| grid.iter().map(move |&p| (view * hw + p) as i64)).collect();
     let grid_rows = rows.clone().select(0, indices(grid_rows, &device)).reshape([v, g, d]);
     // One direction: queries at `from`'s samples, keys on the grid of the view of `to`'s.
     let one_way = |from: &[usize], to: &[usize]| {
@@ -219,7 +243,10 @@ pub fn descriptor_grid_loss(descriptors: Tensor<4>, matches: &DescriptorMatches,
         let queries = rows.clone().select(0, indices(query, &device)).reshape([pairs.len(), k, d]);
         let keys = grid_rows.clone().select(0, indices(key_view, &device));
         let logits = queries.matmul(keys.swap_dims(1, 2)).mul_scalar(1.0 / TEMPERATURE);
-        let positives = (log_softmax(logits, 2) + constant(bias, [pairs.len(), k, g], &device)).exp().sum_dim(2).log();
+        let positives = (log_softmax(logits, 2) + constant(bias, [pairs.len(), k, g], &device))
+            .exp()
+            .sum_dim(2)
+            .log();
         (positives * constant(weights, [pairs.len(), k, 1], &device)).sum().neg()
     };
     Ok(one_way(&matches.a, &matches.b) + one_way(&matches.b, &matches.a))
@@ -230,7 +257,11 @@ fn check_matches_inside(matches: &DescriptorMatches, dims: [usize; 4]) -> Result
     let [v, d, h, w] = dims;
     let worst = matches.a.iter().chain(&matches.b).max().copied().unwrap_or(0);
     if worst >= v * h * w {
-        return Err(LossError::Shape { what: "descriptor map holding every match", expected: vec![worst / (h * w) + 1, d, h, w], got: vec![v, d, h, w] });
+        return Err(LossError::Shape {
+            what: "descriptor map holding every match",
+            expected: vec![worst / (h * w) + 1, d, h, w],
+            got: vec![v, d, h, w],
+        });
     }
     Ok(())
 }
@@ -250,12 +281,21 @@ impl DescriptorScores {
     pub fn merge(self, o: DescriptorScores) -> DescriptorScores {
         let n = self.samples + o.samples;
         let hits = self.within_stride * self.samples as f64 + o.within_stride * o.samples as f64;
-        DescriptorScores { samples: n, stride: self.stride.max(o.stride), within_stride: if n == 0 { 0.0 } else { hits / n as f64 } }
+        DescriptorScores {
+            samples: n,
+            stride: self.stride.max(o.stride),
+            within_stride: if n == 0 { 0.0 } else { hits / n as f64 },
+        }
     }
 }
 
 /// [`DescriptorScores`] of host `descriptors` `[V][D][H][W]` on `matches`.
-pub fn descriptor_scores(descriptors: &[f32], dims: [usize; 4], matches: &DescriptorMatches, stride: usize) -> DescriptorScores {
+pub fn descriptor_scores(
+    descriptors: &[f32],
+    dims: [usize; 4],
+    matches: &DescriptorMatches,
+    stride: usize,
+) -> DescriptorScores {
     let [v, d, h, w] = dims;
     let hw = h * w;
     // Pixel-major and unit length: row `view · H·W + p`.
@@ -276,11 +316,18 @@ pub fn descriptor_scores(descriptors: &[f32], dims: [usize; 4], matches: &Descri
         .zip(&matches.b)
         .filter(|&(&a, &b)| {
             let view = b / hw;
-            let cosine = |p: usize| row(view * hw + p).iter().zip(row(a)).map(|(x, y)| x * y).sum::<f32>();
+            let cosine =
+                |p: usize| row(view * hw + p).iter().zip(row(a)).map(|(x, y)| x * y).sum::<f32>();
             let best = grid.iter().map(|&p| (p, cosine(p))).max_by(|x, y| x.1.total_cmp(&y.1));
             let truth = b % hw;
-            best.is_some_and(|(p, _)| (p % w).abs_diff(truth % w) <= stride && (p / w).abs_diff(truth / w) <= stride)
+            best.is_some_and(|(p, _)| {
+                (p % w).abs_diff(truth % w) <= stride && (p / w).abs_diff(truth / w) <= stride
+            })
         })
         .count();
-    DescriptorScores { samples: matches.len(), stride, within_stride: hits as f64 / matches.len().max(1) as f64 }
+    DescriptorScores {
+        samples: matches.len(),
+        stride,
+        within_stride: hits as f64 / matches.len().max(1) as f64,
+    }
 }

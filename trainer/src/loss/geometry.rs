@@ -41,7 +41,10 @@ use burn::prelude::*;
 use inssplat_proto::Camera;
 use inssplat_proto::signature::CAMERA_CHANNELS;
 
-use super::{LossConfig, LossError, check_dims, check_len, constant, normalize_rows, pixels_per_instance, zero};
+use super::{
+    LossConfig, LossError, check_dims, check_len, constant, normalize_rows, pixels_per_instance,
+    zero,
+};
 
 /// A ground-truth camera in the layout of the network's `camera` output: translation xyz,
 /// rotation w,x,y,z (unit), fov_y, fov_x (radians); world = view 0's camera.
@@ -70,7 +73,8 @@ pub use inssplat_proto::rays::median_depth;
 /// as one more group), |Ω_i| that instance's valid pixels and n the instances with any. The
 /// weights sum to 1 over a sample with a valid pixel.
 pub fn depth_weights(target: &[f32], ids: &[u32], balance: f64) -> Vec<f32> {
-    let counts = pixels_per_instance(target.iter().zip(ids).filter(|(d, _)| **d > 0.0).map(|(_, &id)| id));
+    let counts =
+        pixels_per_instance(target.iter().zip(ids).filter(|(d, _)| **d > 0.0).map(|(_, &id)| id));
     let valid: usize = counts.values().sum();
     let groups = counts.len() as f64;
     target
@@ -120,7 +124,8 @@ pub fn depth_loss(
     };
     if let Some(k) = config.depth_gradient_weight.filter(|&k| k > 0.0) {
         let strides = config.depth_gradient_strides.as_deref().unwrap_or(&[1]);
-        per_pixel = per_pixel + gradient_error(error, target, strides).div_scalar(scale).mul_scalar(k);
+        per_pixel =
+            per_pixel + gradient_error(error, target, strides).div_scalar(scale).mul_scalar(k);
     }
     if let Some(k) = config.depth_shape_weight.filter(|&k| k > 0.0) {
         let aligned = view_scaled(depth_in, target) - constant(target.to_vec(), shape, &device);
@@ -187,7 +192,11 @@ fn gradient_error(error: Tensor<4>, target: &[f32], strides: &[usize]) -> Tensor
 
 /// L_cam of the predicted `camera` `[N, 9]` against `targets` (from [`camera_targets`]),
 /// translations divided by `scale`.
-pub fn camera_loss(camera: Tensor<2>, targets: &[CameraTarget], scale: f32) -> Result<Tensor<1>, LossError> {
+pub fn camera_loss(
+    camera: Tensor<2>,
+    targets: &[CameraTarget],
+    scale: f32,
+) -> Result<Tensor<1>, LossError> {
     let n = targets.len();
     check_dims("camera", &[n, CAMERA_CHANNELS], &camera.dims())?;
     let device = camera.device();
@@ -195,13 +204,16 @@ pub fn camera_loss(camera: Tensor<2>, targets: &[CameraTarget], scale: f32) -> R
         return Ok(zero(&device));
     }
     let target = constant(targets.concat(), [n, CAMERA_CHANNELS], &device);
-    let fov = (camera.clone().slice(s![.., 7..9]) - target.clone().slice(s![.., 7..9])).abs().mean();
+    let fov =
+        (camera.clone().slice(s![.., 7..9]) - target.clone().slice(s![.., 7..9])).abs().mean();
     if n == 1 {
         return Ok(fov);
     }
     let (camera, target) = (camera.slice(s![1.., ..]), target.slice(s![1.., ..]));
-    let translation =
-        (camera.clone().slice(s![.., 0..3]) - target.clone().slice(s![.., 0..3])).abs().mean().div_scalar(scale);
+    let translation = (camera.clone().slice(s![.., 0..3]) - target.clone().slice(s![.., 0..3]))
+        .abs()
+        .mean()
+        .div_scalar(scale);
     let q = normalize_rows(camera.slice(s![.., 3..7]));
     let q_target = target.slice(s![.., 3..7]);
     let sign = (q.clone() * q_target.clone()).sum_dim(1).detach().sign();

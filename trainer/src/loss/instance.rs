@@ -34,8 +34,8 @@ use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::{log_softmax, relu};
 
 use super::{
-    CrossView, HardNegatives, LossConfig, LossError, NORM_EPS, check_dims, check_len, constant, host, indices,
-    normalize_rows, pixels_last, unit_pixel_vectors, zero,
+    CrossView, HardNegatives, LossConfig, LossError, NORM_EPS, check_dims, check_len, constant,
+    host, indices, normalize_rows, pixels_last, unit_pixel_vectors, zero,
 };
 
 /// τ_assign of the assignment term (the temperature the contrastive L_sem is trained at).
@@ -76,8 +76,10 @@ impl Groups {
         let mut distinct: Vec<u32> = ids.to_vec();
         distinct.sort_unstable();
         distinct.dedup();
-        let k_from_pixel: Vec<usize> =
-            ids.iter().map(|id| distinct.binary_search(id).expect("every id is among the distinct ids")).collect();
+        let k_from_pixel: Vec<usize> = ids
+            .iter()
+            .map(|id| distinct.binary_search(id).expect("every id is among the distinct ids"))
+            .collect();
         let instances = distinct.len();
         let per_view = ids.len() / views.max(1);
         let mut counts = vec![0; views * instances];
@@ -108,7 +110,12 @@ pub fn instance_loss(
     check_len("instance ids", pixels, ids.len())?;
     let device = embedding.device();
     if pixels == 0 {
-        return Ok(InstanceTerms { pull: zero(&device), push: zero(&device), cross: zero(&device), assign: zero(&device) });
+        return Ok(InstanceTerms {
+            pull: zero(&device),
+            push: zero(&device),
+            cross: zero(&device),
+            assign: zero(&device),
+        });
     }
     let groups = Groups::new(ids, views);
     let kk = groups.instances;
@@ -116,8 +123,12 @@ pub fn instance_loss(
     let f = normalize_rows(pixels_last(embedding)); // [P, E]
     let e = f.dims()[1];
     let per_view = height * width;
-    let group_of_pixel: Vec<i64> =
-        groups.k_from_pixel.iter().enumerate().map(|(p, &k)| ((p / per_view) * kk + k) as i64).collect();
+    let group_of_pixel: Vec<i64> = groups
+        .k_from_pixel
+        .iter()
+        .enumerate()
+        .map(|(p, &k)| ((p / per_view) * kk + k) as i64)
+        .collect();
     let group_index = indices(group_of_pixel, &device);
     let k_index = indices(groups.k_from_pixel.iter().map(|&k| k as i64).collect(), &device);
     // S_vk as rows v·K + k, and T_k = Σ_v S_vk.
@@ -143,7 +154,8 @@ pub fn instance_loss(
             for (p, (&k, &share)) in groups.k_from_pixel.iter().zip(&pull_weights).enumerate() {
                 picks[p * kk + k] = share;
             }
-            let logits = f.clone().matmul(prototypes.clone().transpose()).div_scalar(ASSIGN_TEMPERATURE);
+            let logits =
+                f.clone().matmul(prototypes.clone().transpose()).div_scalar(ASSIGN_TEMPERATURE);
             -(log_softmax(logits, 1) * constant(picks, [pixels, kk], &device)).sum()
         }
         _ => zero(&device),
@@ -154,13 +166,17 @@ pub fn instance_loss(
         zero(&device)
     } else {
         let eta = match config.hard_negatives {
-            HardNegatives::SemanticWeighted => hard_negative_factors(&host("semantic map", semantic)?, &groups, config),
+            HardNegatives::SemanticWeighted => {
+                hard_negative_factors(&host("semantic map", semantic)?, &groups, config)
+            }
             HardNegatives::Uniform => vec![1.0; kk * kk],
         };
         let pairs = (kk * (kk - 1) / 2) as f32;
-        let pair_weights: Vec<f32> = (0..kk * kk).map(|i| if i / kk < i % kk { eta[i] / pairs } else { 0.0 }).collect();
+        let pair_weights: Vec<f32> =
+            (0..kk * kk).map(|i| if i / kk < i % kk { eta[i] / pairs } else { 0.0 }).collect();
         let cos = prototypes.clone().matmul(prototypes.transpose());
-        (relu(cos.add_scalar(config.push_margin - 1.0)) * constant(pair_weights, [kk, kk], &device)).sum()
+        (relu(cos.add_scalar(config.push_margin - 1.0)) * constant(pair_weights, [kk, kk], &device))
+            .sum()
     };
 
     let cross = match config.cross_view {
@@ -175,7 +191,9 @@ pub fn instance_loss(
             if valid == 0 {
                 zero(&device)
             } else {
-                let others = sums.unsqueeze_dim::<3>(0).expand([views, kk, e]).reshape([views * kk, e]) - view_sums;
+                let others =
+                    sums.unsqueeze_dim::<3>(0).expand([views, kk, e]).reshape([views * kk, e])
+                        - view_sums;
                 let targets = normalize_rows(others).select(0, group_index);
                 let cos_other = (f * targets).sum_dim(1).reshape([pixels]);
                 let hinge = relu(cos_other.neg().add_scalar(margin));
@@ -185,7 +203,11 @@ pub fn instance_loss(
                     .enumerate()
                     .map(|(p, &k)| {
                         let g = (p / per_view) * kk + k;
-                        if seen_elsewhere(g) { 1.0 / (valid as f32 * groups.counts[g] as f32) } else { 0.0 }
+                        if seen_elsewhere(g) {
+                            1.0 / (valid as f32 * groups.counts[g] as f32)
+                        } else {
+                            0.0
+                        }
                     })
                     .collect();
                 (hinge * constant(weights, [pixels], &device)).sum()

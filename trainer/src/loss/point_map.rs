@@ -34,7 +34,13 @@ pub fn pixel_rays(cameras: &[Camera], h: usize, w: usize) -> Vec<f32> {
 /// `[V][3][H][W]`: the true point of every pixel of the `cameras`' views in the camera frame
 /// of `cameras[0]`, from the true `depth` (`[V][H][W]` metres, 0 = no hit, whose points are 0);
 /// with `offsets`, that point minus the pixel's point in its own camera frame.
-pub fn point_map_targets(cameras: &[Camera], depth: &[f32], h: usize, w: usize, offsets: bool) -> Result<Vec<f32>, LossError> {
+pub fn point_map_targets(
+    cameras: &[Camera],
+    depth: &[f32],
+    h: usize,
+    w: usize,
+    offsets: bool,
+) -> Result<Vec<f32>, LossError> {
     let hw = h * w;
     check_len("ground-truth depth of the point map", cameras.len() * hw, depth.len())?;
     let Some(reference) = cameras.first() else { return Ok(Vec::new()) };
@@ -63,7 +69,12 @@ pub fn point_map_targets(cameras: &[Camera], depth: &[f32], h: usize, w: usize, 
 /// L_pm of the predicted `points` `[V, 3, H, W]` against `target` (from [`point_map_targets`])
 /// over the pixels with true `depth` (`[V][H][W]`), distances divided by `scale`. Zero when no
 /// pixel is valid.
-pub fn point_map_loss(points: Tensor<4>, target: &[f32], depth: &[f32], scale: f32) -> Result<Tensor<1>, LossError> {
+pub fn point_map_loss(
+    points: Tensor<4>,
+    target: &[f32],
+    depth: &[f32],
+    scale: f32,
+) -> Result<Tensor<1>, LossError> {
     let [v, c, h, w] = points.dims();
     check_dims("point map", &[v, 3, h, w], &[v, c, h, w])?;
     check_len("ground-truth point map", v * 3 * h * w, target.len())?;
@@ -75,7 +86,8 @@ pub fn point_map_loss(points: Tensor<4>, target: &[f32], depth: &[f32], scale: f
     }
     let weight = 1.0 / (valid as f32 * scale);
     let weights: Vec<f32> = depth.iter().map(|&d| if d > 0.0 { weight } else { 0.0 }).collect();
-    let squared = (points - constant(target.to_vec(), [v, 3, h, w], &device)).powi_scalar(2).sum_dim(1);
+    let squared =
+        (points - constant(target.to_vec(), [v, 3, h, w], &device)).powi_scalar(2).sum_dim(1);
     let distance = squared.add_scalar(NORM_EPS).sqrt();
     Ok((distance * constant(weights, [v, 1, h, w], &device)).sum())
 }

@@ -31,8 +31,8 @@ use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
 
 use super::{
-    LossError, NORM_EPS, check_dims, check_len, constant, host, indices, normalize_rows, pixels_last, pixels_per_instance,
-    zero,
+    LossError, NORM_EPS, check_dims, check_len, constant, host, indices, normalize_rows,
+    pixels_last, pixels_per_instance, zero,
 };
 
 /// L_sem of the rendered semantic features `semantic` `[V, d_s, H, W]` with ground-truth `ids`
@@ -67,7 +67,8 @@ pub fn semantic_loss(
         SemanticForm::Cosine => {
             let q = labels.len();
             let rows = indices(labels.iter().map(|&id| i64::from(id)).collect(), &device);
-            let (along, offset) = along_targets(normalize_rows(teacher).select(0, rows), weight, bias); // [Q, d_s], [Q, 1]
+            let (along, offset) =
+                along_targets(normalize_rows(teacher).select(0, rows), weight, bias); // [Q, d_s], [Q, 1]
             let cos = ((l * along).sum_dim(1) + offset) / norm;
             Ok(cos.neg().add_scalar(1.0).sum().div_scalar(q as f64))
         }
@@ -76,7 +77,8 @@ pub fn semantic_loss(
             if !log_prior.is_empty() {
                 check_len("label log prior", vocabulary.len() / text, log_prior.len())?;
             }
-            let classes = Classes::of(&host("semantic teacher", &teacher)?, vocabulary, text, &labels);
+            let classes =
+                Classes::of(&host("semantic teacher", &teacher)?, vocabulary, text, &labels);
             let q = labels.len();
             let k = classes.table.len() / text;
             let table = normalize_rows(constant(classes.table, [k, text], &device)); // [K, 384]
@@ -102,7 +104,9 @@ fn projected_norm(l: Tensor<2>, weight: Tensor<2>, bias: Tensor<1>) -> Tensor<2>
     let gram = weight.clone().transpose().matmul(weight.clone()); // [d_s, d_s]
     let wb = bias_row.clone().matmul(weight); // [1, d_s]
     let bb = (bias_row.clone() * bias_row).sum(); // [1]
-    let norm2 = (l.clone().matmul(gram) * l.clone()).sum_dim(1) + (l * wb).sum_dim(1).mul_scalar(2.0) + bb.reshape([1, 1]);
+    let norm2 = (l.clone().matmul(gram) * l.clone()).sum_dim(1)
+        + (l * wb).sum_dim(1).mul_scalar(2.0)
+        + bb.reshape([1, 1]);
     norm2.clamp_min(0.0).add_scalar(NORM_EPS).sqrt()
 }
 
@@ -155,13 +159,18 @@ impl Classes {
         });
         let mut ids: Vec<u32> = pixels_of.keys().copied().collect();
         ids.sort_unstable();
-        let class_of_id: HashMap<u32, i64> =
-            ids.into_iter().map(|id| (id, class_of(&teacher[id as usize * text..(id as usize + 1) * text]))).collect();
+        let class_of_id: HashMap<u32, i64> = ids
+            .into_iter()
+            .map(|id| (id, class_of(&teacher[id as usize * text..(id as usize + 1) * text])))
+            .collect();
         let instances = pixels_of.len() as f32;
         Classes {
             table,
             of_pixel: labels.iter().map(|id| class_of_id[id]).collect(),
-            pixel_weight: labels.iter().map(|id| 1.0 / (pixels_of[id] as f32 * instances)).collect(),
+            pixel_weight: labels
+                .iter()
+                .map(|id| 1.0 / (pixels_of[id] as f32 * instances))
+                .collect(),
         }
     }
 }

@@ -53,7 +53,11 @@ impl Block {
     /// [`Self::forward`], reading the keys and values through `pooling` when given, with the
     /// layer's queries and (unpooled) keys, `[batch, heads, seq, head_dim]` each (what a loss
     /// on the attention itself reads).
-    pub fn forward_with_keys(&self, x: Tensor<3>, pooling: Option<KeyPooling>) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
+    pub fn forward_with_keys(
+        &self,
+        x: Tensor<3>,
+        pooling: Option<KeyPooling>,
+    ) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
         let [b, l, d] = x.dims();
         let hd = d / self.heads;
         let qkv = self
@@ -62,15 +66,9 @@ impl Block {
             .reshape([b, l, 3, self.heads, hd])
             .permute([2, 0, 3, 1, 4]);
         let mut parts = qkv.chunk(3, 0).into_iter().map(|t| t.squeeze_dim::<4>(0));
-        let (q, k, v) = (
-            parts.next().unwrap(),
-            parts.next().unwrap(),
-            parts.next().unwrap(),
-        );
-        let options = AttentionModuleOptions {
-            scale: Some(1.0 / (hd as f64).sqrt()),
-            ..Default::default()
-        };
+        let (q, k, v) = (parts.next().unwrap(), parts.next().unwrap(), parts.next().unwrap());
+        let options =
+            AttentionModuleOptions { scale: Some(1.0 / (hd as f64).sqrt()), ..Default::default() };
         let (keys, values) = match pooling {
             Some(p) => (p.apply(k.clone()), p.apply(v)),
             None => (k.clone(), v),
@@ -79,9 +77,7 @@ impl Block {
             .swap_dims(1, 2)
             .reshape([b, l, d]);
         let x = x + self.proj.forward(ctx);
-        let h = self
-            .fc2
-            .forward(gelu(self.fc1.forward(self.norm2.forward(x.clone()))));
+        let h = self.fc2.forward(gelu(self.fc1.forward(self.norm2.forward(x.clone()))));
         (x + h, q, k)
     }
 }
@@ -97,7 +93,8 @@ pub struct KeyPooling {
 }
 
 impl KeyPooling {
-    /// `[1, heads, views·(1 + grid²), head_dim]` → `[1, heads, views·(1 + (grid/pool)²), head_dim]`.
+    /// `[1, heads, views·(1 + grid²), head_dim]` → `[1, heads, views·(1 + (grid/pool)²),
+    /// head_dim]`.
     pub fn apply(&self, t: Tensor<4>) -> Tensor<4> {
         let [_, heads, _, hd] = t.dims();
         let (n, g, p) = (self.views, self.grid, self.pool);
@@ -130,7 +127,9 @@ mod tests {
         let got = pooled.into_data().try_to_vec::<f32>().expect("f32");
         // View 0: camera 0, patches 1..=16 row-major; its top-left square is 1, 2, 5, 6.
         let square = |first: f32| (4.0 * first + 1.0 + 4.0 + 5.0) / 4.0;
-        let view = |cam: f32| vec![cam, square(cam + 1.0), square(cam + 3.0), square(cam + 9.0), square(cam + 11.0)];
+        let view = |cam: f32| {
+            vec![cam, square(cam + 1.0), square(cam + 3.0), square(cam + 9.0), square(cam + 11.0)]
+        };
         assert_eq!(got, [view(0.0), view(17.0)].concat());
     }
 }

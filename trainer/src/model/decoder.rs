@@ -57,18 +57,13 @@ impl CameraHead {
     pub fn forward(&self, tokens: Tensor<2>, c: &ModelConfig) -> Tensor<2> {
         let n = tokens.dims()[0];
         let device = tokens.device();
-        let raw = self
-            .fc2
-            .forward(gelu(self.fc1.forward(self.norm.forward(tokens))));
+        let raw = self.fc2.forward(gelu(self.fc1.forward(self.norm.forward(tokens))));
         let fov = sigmoid(raw.clone().slice([0..n, 7..9])) * (2.0 * c.fov_base);
         let identity = Tensor::<2>::from_floats([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], &device);
         let pose = if n == 1 {
             identity
         } else {
-            Tensor::cat(
-                vec![identity.clone(), raw.slice([1..n, 0..7]) + identity],
-                0,
-            )
+            Tensor::cat(vec![identity.clone(), raw.slice([1..n, 0..7]) + identity], 0)
         };
         Tensor::cat(vec![pose, fov], 1)
     }
@@ -186,16 +181,16 @@ impl DenseDecoder {
             .collect();
         let last = c.decoder_channels(c.stages());
         Self {
-            norm: LayerNormConfig::new(levels * c.dim)
-                .with_epsilon(LN_EPS)
-                .init(device),
+            norm: LayerNormConfig::new(levels * c.dim).with_epsilon(LN_EPS).init(device),
             fuse: LinearConfig::new(levels * c.dim, c.decoder_dim).init(device),
             stages,
             skips,
             mix: Conv2dConfig::new([last + 3, last], [1, 1]).init(device),
             out: Conv2dConfig::new([last, Self::out_channels(c)], [1, 1]).init(device),
             point: c.point_head.map(|hidden| PixelHead::new(last, hidden, 3, device)),
-            descriptor: c.descriptor_head.map(|dim| PixelHead::new(last, DESCRIPTOR_HIDDEN, dim, device)),
+            descriptor: c
+                .descriptor_head
+                .map(|dim| PixelHead::new(last, DESCRIPTOR_HIDDEN, dim, device)),
         }
     }
 
@@ -220,9 +215,7 @@ impl DenseDecoder {
             features.push(gelu(skip.encode.forward(input)));
         }
         let tokens = self.fuse.forward(self.norm.forward(Tensor::cat(levels, 2)));
-        let mut x = tokens
-            .reshape([n, g, g, c.decoder_dim])
-            .permute([0, 3, 1, 2]);
+        let mut x = tokens.reshape([n, g, g, c.decoder_dim]).permute([0, 3, 1, 2]);
         for (s, stage) in self.stages.iter().enumerate() {
             x = x.clone() + gelu(stage.refine.forward(x));
             x = stage.up.forward(x);
@@ -236,10 +229,7 @@ impl DenseDecoder {
         let descriptors = self.descriptor.as_ref().map(|head| head.forward(x.clone()));
         let raw = self.out.forward(x);
         let mut parts = raw
-            .split_with_sizes(
-                vec![1, 1, GAUSSIAN_AFFINE_CHANNELS, 3, c.sem_dim, OUT_INSTANCE],
-                1,
-            )
+            .split_with_sizes(vec![1, 1, GAUSSIAN_AFFINE_CHANNELS, 3, c.sem_dim, OUT_INSTANCE], 1)
             .into_iter();
         let mut next = || parts.next().expect("six output groups");
         let (depth, conf, affine, colour, semantic, instance) =
@@ -277,10 +267,7 @@ impl DenseDecoder {
 /// opacity logits as they are.
 pub fn gaussian_affine(
     c: &ModelConfig,
-) -> (
-    [f32; GAUSSIAN_AFFINE_CHANNELS],
-    [f32; GAUSSIAN_AFFINE_CHANNELS],
-) {
+) -> ([f32; GAUSSIAN_AFFINE_CHANNELS], [f32; GAUSSIAN_AFFINE_CHANNELS]) {
     let o = c.offset_scale as f32;
     let b = c.log_scale_bias as f32;
     (

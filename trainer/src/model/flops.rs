@@ -25,10 +25,7 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
     f += 2 * n * tokens * levels * d * c.decoder_dim as u64;
     for st in 0..c.stages() {
         let r = g << st;
-        let (ch, next) = (
-            c.decoder_channels(st) as u64,
-            c.decoder_channels(st + 1) as u64,
-        );
+        let (ch, next) = (c.decoder_channels(st) as u64, c.decoder_channels(st + 1) as u64);
         f += 2 * n * r * r * ch * ch * 9 + 2 * n * r * r * ch * next * 4;
     }
     let mut input = 3;

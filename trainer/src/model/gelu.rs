@@ -14,13 +14,16 @@
 use std::sync::Arc;
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
-use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, CheckpointStrategy, NoCheckpointing};
+use burn::backend::autodiff::checkpoint::strategy::{
+    BalancedCheckpointing, CheckpointStrategy, NoCheckpointing,
+};
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
-use burn::backend::{
-    Autodiff, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy, TensorMetadata,
-};
 use burn::backend::ops::FloatTensorOps;
+use burn::backend::{
+    Autodiff, DispatchKindConversion, DispatchTensor, Flex, GradientCheckpointingStrategy,
+    TensorMetadata,
+};
 use burn::prelude::*;
 use burn::tensor::DType;
 use rayon::prelude::*;
@@ -37,7 +40,9 @@ const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
 fn normal_cdf_pdf(x: f32) -> (f32, f32) {
     let density = (-0.5 * x * x).exp();
     let t = 1.0 / (1.0 + 0.327_591_1 * FRAC_1_SQRT_2 * x.abs());
-    let poly = t * (0.254_829_6 + t * (-0.284_496_7 + t * (1.421_413_8 + t * (-1.453_152 + t * 1.061_405_4))));
+    let poly = t
+        * (0.254_829_6
+            + t * (-0.284_496_7 + t * (1.421_413_8 + t * (-1.453_152 + t * 1.061_405_4))));
     let erf = 1.0 - poly * density;
     (0.5 + 0.5 * erf.copysign(x), FRAC_1_SQRT_2PI * density)
 }
@@ -56,14 +61,14 @@ fn forward_host(x: &[f32]) -> Vec<f32> {
 /// `grad · gelu'(x)` of every element, in parallel.
 fn backward_host(x: &[f32], grad: &[f32]) -> Vec<f32> {
     let mut out = vec![0.0; x.len()];
-    out.par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK).zip(grad.par_chunks(CHUNK)))
-        .for_each(|(o, (x, g))| {
+    out.par_chunks_mut(CHUNK).zip(x.par_chunks(CHUNK).zip(grad.par_chunks(CHUNK))).for_each(
+        |(o, (x, g))| {
             for ((o, &x), &g) in o.iter_mut().zip(x).zip(g) {
                 let (cdf, pdf) = normal_cdf_pdf(x);
                 *o = g * (cdf + x * pdf);
             }
-        });
+        },
+    );
     out
 }
 
@@ -71,8 +76,12 @@ fn backward_host(x: &[f32], grad: &[f32]) -> Vec<f32> {
 pub fn gelu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     let ours = match (x.dtype(), x.device().gradient_checkpointing_strategy()) {
         (DType::F32, None) => untracked(&x),
-        (DType::F32, Some(GradientCheckpointingStrategy::Disabled)) => tracked::<NoCheckpointing, D>(&x),
-        (DType::F32, Some(GradientCheckpointingStrategy::Balanced)) => tracked::<BalancedCheckpointing, D>(&x),
+        (DType::F32, Some(GradientCheckpointingStrategy::Disabled)) => {
+            tracked::<NoCheckpointing, D>(&x)
+        }
+        (DType::F32, Some(GradientCheckpointingStrategy::Balanced)) => {
+            tracked::<BalancedCheckpointing, D>(&x)
+        }
         _ => None,
     };
     ours.unwrap_or_else(|| burn::tensor::activation::gelu(x))
@@ -92,7 +101,8 @@ where
 {
     let input = x.clone().try_into_primitive::<Autodiff<Flex, C>>().ok()?;
     let host = Arc::new(x.to_data().try_into_vec::<f32>().ok()?);
-    let out = Flex::float_from_data(TensorData::new(forward_host(&host), x.shape()), &input.device());
+    let out =
+        Flex::float_from_data(TensorData::new(forward_host(&host), x.shape()), &input.device());
     let result = match GeluBackward::<D>.prepare::<C>([input.node()]).compute_bound().stateful() {
         OpsKind::Tracked(prep) => prep.finish(host, out),
         OpsKind::UnTracked(prep) => prep.finish(out),
@@ -107,13 +117,21 @@ impl<const D: usize> Backward<Flex, 1> for GeluBackward<D> {
     /// The input, on the host.
     type State = Arc<Vec<f32>>;
 
-    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
+    fn backward(
+        self,
+        ops: Ops<Self::State, 1>,
+        grads: &mut Gradients,
+        _checkpointer: &mut Checkpointer,
+    ) {
         let x = ops.state;
         unary::<Flex, _>(ops.parents, ops.node, grads, |grad| {
             let device = grad.device();
             let grad = Tensor::<D>::from_primitive::<Flex>(grad);
             let shape = grad.shape();
-            let grad = grad.into_data().try_into_vec::<f32>().expect("the gradient of a float32 GELU is float32");
+            let grad = grad
+                .into_data()
+                .try_into_vec::<f32>()
+                .expect("the gradient of a float32 GELU is float32");
             Flex::float_from_data(TensorData::new(backward_host(&x, &grad), shape), &device)
         });
     }
@@ -135,7 +153,8 @@ mod tests {
         for device in [Device::flex(), Device::flex().autodiff()] {
             let x = Tensor::<1>::from_floats(xs.as_slice(), &device).reshape([1, 40_001]);
             let ours = gelu(x.clone()).into_data().try_into_vec::<f32>().unwrap();
-            let theirs = burn::tensor::activation::gelu(x).into_data().try_into_vec::<f32>().unwrap();
+            let theirs =
+                burn::tensor::activation::gelu(x).into_data().try_into_vec::<f32>().unwrap();
             for ((a, b), x) in ours.iter().zip(&theirs).zip(&xs) {
                 assert!((a - b).abs() <= 4e-7 * x.abs().max(1.0), "gelu({x}) = {a}, burn says {b}");
             }
@@ -161,8 +180,17 @@ mod tests {
         for (i, &x) in xs.iter().enumerate() {
             let f = |x: f32| x * normal_cdf_pdf(x).0;
             let numeric = weights[i] * (f(x + h) - f(x - h)) / (2.0 * h);
-            assert!((ours[i] - numeric).abs() < 2e-3, "d gelu({x}): {} against finite differences {numeric}", ours[i]);
-            assert!((ours[i] - theirs[i]).abs() < 1e-6, "d gelu({x}): {} against burn's {}", ours[i], theirs[i]);
+            assert!(
+                (ours[i] - numeric).abs() < 2e-3,
+                "d gelu({x}): {} against finite differences {numeric}",
+                ours[i]
+            );
+            assert!(
+                (ours[i] - theirs[i]).abs() < 1e-6,
+                "d gelu({x}): {} against burn's {}",
+                ours[i],
+                theirs[i]
+            );
         }
     }
 }

@@ -23,11 +23,11 @@ use burn::prelude::*;
 use inssplat_proto::signature::TEXT_DIM;
 
 pub use block::{Block, KeyPooling, LN_EPS};
-pub use gelu::gelu;
 pub use decoder::{
-    CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
-    DESCRIPTOR_HIDDEN, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
+    CameraHead, DESCRIPTOR_HIDDEN, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH,
+    OUT_GAUSSIANS, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
 };
+pub use gelu::gelu;
 
 /// Shape and output-scaling hyper-parameters of the network.
 #[derive(Config, Debug, PartialEq)]
@@ -139,10 +139,7 @@ impl ModelConfig {
             ));
         }
         if self.heads == 0 || !self.dim.is_multiple_of(self.heads) {
-            return bad(format!(
-                "dim {} must be a multiple of heads {}",
-                self.dim, self.heads
-            ));
+            return bad(format!("dim {} must be a multiple of heads {}", self.dim, self.heads));
         }
         if self.sem_dim == 0
             || self.decoder_min_dim == 0
@@ -157,7 +154,10 @@ impl ModelConfig {
         if let Some(p) = self.global_kv_pool
             && (p < 2 || !self.grid().is_multiple_of(p))
         {
-            return bad(format!("global_kv_pool {p} must be ≥ 2 and divide the {} patches a side", self.grid()));
+            return bad(format!(
+                "global_kv_pool {p} must be ≥ 2 and divide the {} patches a side",
+                self.grid()
+            ));
         }
         Ok(())
     }
@@ -166,10 +166,7 @@ impl ModelConfig {
     pub fn init(&self, device: &Device) -> Result<InsSplatNet, ModelError> {
         self.validate()?;
         let tokens = self.grid() * self.grid();
-        let small = Initializer::Normal {
-            mean: 0.0,
-            std: 0.02,
-        };
+        let small = Initializer::Normal { mean: 0.0, std: 0.02 };
         Ok(InsSplatNet {
             patch_embed: LinearConfig::new(3 * self.patch * self.patch, self.dim).init(device),
             pos_embed: small.init([tokens, self.dim], device),
@@ -184,7 +181,10 @@ impl ModelConfig {
             ray_embed: self.camera_rays.map(|k| {
                 // No bias: zero rays add nothing to a token however the layer trains, so the
                 // pipeline's first pass (every ray zero) runs the network as it is without rays.
-                LinearConfig::new(rays::ray_channels(k), self.dim).with_bias(false).with_initializer(Initializer::Zeros).init(device)
+                LinearConfig::new(rays::ray_channels(k), self.dim)
+                    .with_bias(false)
+                    .with_initializer(Initializer::Zeros)
+                    .init(device)
             }),
             config: self.clone(),
         })
@@ -306,10 +306,7 @@ impl InsSplatNet {
         if n == 1 {
             return first;
         }
-        let rest_cam = cams
-            .narrow(0, 1, 1)
-            .unsqueeze_dim::<3>(0)
-            .repeat_dim(0, n - 1);
+        let rest_cam = cams.narrow(0, 1, 1).unsqueeze_dim::<3>(0).repeat_dim(0, n - 1);
         let rest = Tensor::cat(vec![rest_cam, x.narrow(0, 1, n - 1)], 1);
         Tensor::cat(vec![first, rest], 0)
     }
@@ -322,14 +319,15 @@ impl InsSplatNet {
     /// The forward pass of a network that also reads the cameras: `rays` `[N, tokens,
     /// 6·k²]` from [`rays::patch_rays`], required with [`ModelConfig::camera_rays`] and
     /// refused without it.
-    pub fn forward_with_rays(&self, images: Tensor<4>, rays: Option<Tensor<3>>) -> Result<ModelOutput, ModelError> {
+    pub fn forward_with_rays(
+        &self,
+        images: Tensor<4>,
+        rays: Option<Tensor<3>>,
+    ) -> Result<ModelOutput, ModelError> {
         let c = &self.config;
         let dims = images.dims();
         if dims[0] == 0 || dims[1] != 3 || dims[2] != c.image_size || dims[3] != c.image_size {
-            return Err(ModelError::InputShape {
-                size: c.image_size,
-                got: dims,
-            });
+            return Err(ModelError::InputShape { size: c.image_size, got: dims });
         }
         let n = dims[0];
         let tokens = c.grid() * c.grid();
@@ -337,7 +335,10 @@ impl InsSplatNet {
         let got = rays.as_ref().map(|r| r.dims());
         if got != expected {
             return Err(ModelError::Rays(match expected {
-                Some(shape) => format!("this network reads its cameras as rays {shape:?}, given {}", got.map_or("none".into(), |g| format!("{g:?}"))),
+                Some(shape) => format!(
+                    "this network reads its cameras as rays {shape:?}, given {}",
+                    got.map_or("none".into(), |g| format!("{g:?}"))
+                ),
                 None => "this network reads no camera rays, and some were given".into(),
             }));
         }
@@ -359,11 +360,11 @@ impl InsSplatNet {
         let (q, k) = keys.expect("depth ≥ 2 has a global layer");
         let hd = d / c.heads;
         // Head 0 of the last global layer, patch tokens only: [N, tokens, head_dim].
-        let patch_rows = |t: Tensor<4>| t.slice([0..1, 0..1, 0..n * s, 0..hd]).reshape([n, s, hd]).slice([0..n, 1..s]);
+        let patch_rows = |t: Tensor<4>| {
+            t.slice([0..1, 0..1, 0..n * s, 0..hd]).reshape([n, s, hd]).slice([0..n, 1..s])
+        };
         let (global_queries, global_keys) = (patch_rows(q), patch_rows(k));
-        let camera = self
-            .camera_head
-            .forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
+        let camera = self.camera_head.forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
         let dense = self.decoder.forward(levels, images, c);
         Ok(ModelOutput {
             camera,

@@ -46,7 +46,8 @@ pub fn gradients(
     let k = samples.len();
     assert!(k > 0, "a step needs a sample");
     if k == 1 {
-        return one(net, &samples[0], 1, loss, device).map_err(|error| SampleFailure { sample: 0, error });
+        return one(net, &samples[0], 1, loss, device)
+            .map_err(|error| SampleFailure { sample: 0, error });
     }
     let results: Vec<Result<StepGradients, StepError>> = std::thread::scope(|scope| {
         let handles: Vec<_> = samples
@@ -66,8 +67,11 @@ pub fn gradients(
             Some(mut acc) => {
                 move_gradients(net, &mut part.grads, &mut acc.grads);
                 acc.values = acc.values + part.values;
-                (acc.forward, acc.render, acc.backward) =
-                    (acc.forward + part.forward, acc.render + part.render, acc.backward + part.backward);
+                (acc.forward, acc.render, acc.backward) = (
+                    acc.forward + part.forward,
+                    acc.render + part.render,
+                    acc.backward + part.backward,
+                );
                 acc.render_backward += part.render_backward;
                 acc
             }
@@ -76,12 +80,19 @@ pub fn gradients(
     let mut total = total.expect("k > 0");
     let n = k as u32;
     total.values = total.values * (1.0 / k as f32);
-    (total.forward, total.render, total.backward) = (total.forward / n, total.render / n, total.backward / n);
+    (total.forward, total.render, total.backward) =
+        (total.forward / n, total.render / n, total.backward / n);
     Ok(total)
 }
 
 /// One sample's gradient with its loss divided by `k`.
-fn one(net: &InsSplatNet, sample: &Sample, k: usize, loss: &LossConfig, device: &Device) -> Result<StepGradients, StepError> {
+fn one(
+    net: &InsSplatNet,
+    sample: &Sample,
+    k: usize,
+    loss: &LossConfig,
+    device: &Device,
+) -> Result<StepGradients, StepError> {
     let obj = objective(net, sample, loss, device)?;
     let values = obj.values();
     let t = Instant::now();
@@ -98,7 +109,11 @@ fn one(net: &InsSplatNet, sample: &Sample, k: usize, loss: &LossConfig, device: 
 
 /// Moves the gradients of `module`'s parameters from `from` into `into`, adding them to any
 /// already there.
-pub fn move_gradients<M: Module>(module: &M, from: &mut GradientsParams, into: &mut GradientsParams) {
+pub fn move_gradients<M: Module>(
+    module: &M,
+    from: &mut GradientsParams,
+    into: &mut GradientsParams,
+) {
     module.visit(&mut Accumulate { from, into });
 }
 

@@ -68,7 +68,12 @@ pub fn checkpoints_dir(run: &Path) -> PathBuf {
 pub const DEFAULT_KEEP: usize = 2;
 
 /// Writes a checkpoint of `net` and `optim` at `state.step`; keeps the newest `state.keep`.
-pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &CheckpointState) -> Result<PathBuf, CheckpointError> {
+pub fn save(
+    run: &Path,
+    net: &InsSplatNet,
+    optim: &ModuleOptimizer,
+    state: &CheckpointState,
+) -> Result<PathBuf, CheckpointError> {
     let root = checkpoints_dir(run);
     std::fs::create_dir_all(&root).map_err(|e| io(&root, e))?;
     let name = format!("step_{:08}", state.step);
@@ -76,7 +81,8 @@ pub fn save(run: &Path, net: &InsSplatNet, optim: &ModuleOptimizer, state: &Chec
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
     let model = tmp.join("model.bpk");
-    net.save_into(&mut BurnpackStore::from_file(&model).overwrite(true)).map_err(|e| io(&model, e))?;
+    net.save_into(&mut BurnpackStore::from_file(&model).overwrite(true))
+        .map_err(|e| io(&model, e))?;
     let opt = tmp.join("optim.bpk");
     optim.save(&opt).map_err(|e| io(&opt, format!("{e:?}")))?;
     let json = tmp.join("state.json");
@@ -137,47 +143,63 @@ pub fn all(run: &Path) -> Vec<PathBuf> {
     if run.join("state.json").is_file() {
         return vec![run.to_path_buf()];
     }
-    step_folders(&checkpoints_dir(run)).into_iter().filter(|d| d.join("state.json").is_file()).collect()
+    step_folders(&checkpoints_dir(run))
+        .into_iter()
+        .filter(|d| d.join("state.json").is_file())
+        .collect()
 }
 
 /// Reads the `state.json` of checkpoint folder `dir`.
 pub fn read_state(dir: &Path) -> Result<CheckpointState, CheckpointError> {
     let json = dir.join("state.json");
     let text = std::fs::read_to_string(&json).map_err(|e| io(&json, e))?;
-    let state: CheckpointState = serde_json::from_str(&text).map_err(|e| io(&json, format!("not a checkpoint state: {e}")))?;
+    let state: CheckpointState = serde_json::from_str(&text)
+        .map_err(|e| io(&json, format!("not a checkpoint state: {e}")))?;
     if state.format != CHECKPOINT_FORMAT {
         return Err(CheckpointError::Incompatible {
             path: json,
-            problem: format!("format {} but this trainer reads format {CHECKPOINT_FORMAT}", state.format),
+            problem: format!(
+                "format {} but this trainer reads format {CHECKPOINT_FORMAT}",
+                state.format
+            ),
         });
     }
     Ok(state)
 }
 
 /// Loads the network of checkpoint `dir` (built from its own configuration) onto `device`.
-pub fn load_model(dir: &Path, state: &CheckpointState, device: &Device) -> Result<InsSplatNet, CheckpointError> {
+pub fn load_model(
+    dir: &Path,
+    state: &CheckpointState,
+    device: &Device,
+) -> Result<InsSplatNet, CheckpointError> {
     let model = dir.join("model.bpk");
     // Initialised under the seeding lock so that loading never draws from a training run's RNG.
-    let mut net = super::seeded_init(&state.config.model, 0, device).map_err(|e| CheckpointError::Incompatible {
-        path: dir.join("state.json"),
-        problem: e.to_string(),
+    let mut net = super::seeded_init(&state.config.model, 0, device).map_err(|e| {
+        CheckpointError::Incompatible { path: dir.join("state.json"), problem: e.to_string() }
     })?;
-    let result = net
-        .load_from(&mut BurnpackStore::from_file(&model))
-        .map_err(|e| CheckpointError::Incompatible { path: model.clone(), problem: e.to_string() })?;
+    let result = net.load_from(&mut BurnpackStore::from_file(&model)).map_err(|e| {
+        CheckpointError::Incompatible { path: model.clone(), problem: e.to_string() }
+    })?;
     // A tensor the network does not read (a ray layer's bias saved before the layer lost it)
     // would be dropped without a word, and the network would compute something else.
     if !result.errors.is_empty() || !result.missing.is_empty() || !result.unused.is_empty() {
         return Err(CheckpointError::Incompatible {
             path: model,
-            problem: format!("tensors missing {:?}, not read by this network {:?}, errors {:?}", result.missing, result.unused, result.errors),
+            problem: format!(
+                "tensors missing {:?}, not read by this network {:?}, errors {:?}",
+                result.missing, result.unused, result.errors
+            ),
         });
     }
     Ok(net.fork(device))
 }
 
 /// Loads the optimizer state of checkpoint `dir` into `optim`.
-pub fn load_optimizer(dir: &Path, optim: ModuleOptimizer) -> Result<ModuleOptimizer, CheckpointError> {
+pub fn load_optimizer(
+    dir: &Path,
+    optim: ModuleOptimizer,
+) -> Result<ModuleOptimizer, CheckpointError> {
     let path = dir.join("optim.bpk");
     optim.load(&path).map_err(|e| io(&path, format!("{e:?}")))
 }

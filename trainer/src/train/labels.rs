@@ -40,7 +40,10 @@ pub fn write_label_table(path: &Path) -> Result<usize, TrainError> {
     let labels: Vec<&str> = synth::all_labels().into_iter().collect();
     cache.embed(&labels)?;
     let model = cache.embedder()?.model_dir().display().to_string();
-    let table = LabelTable { model, labels: cache.entries().into_iter().map(|(l, e)| (l, e.to_vec())).collect() };
+    let table = LabelTable {
+        model,
+        labels: cache.entries().into_iter().map(|(l, e)| (l, e.to_vec())).collect(),
+    };
     let text = serde_json::to_string(&table).map_err(|e| super::io_error(path, e))?;
     std::fs::write(path, text).map_err(|e| super::io_error(path, e))?;
     Ok(labels.len())
@@ -49,12 +52,12 @@ pub fn write_label_table(path: &Path) -> Result<usize, TrainError> {
 fn read_label_table(path: &Path) -> Result<LabelCache, TrainError> {
     let bad = |problem: String| super::io_error(path, format!("{LABEL_TABLE_ENV}: {problem}"));
     let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
-    let table: LabelTable = serde_json::from_str(&text).map_err(|e| bad(format!("not a label table: {e}")))?;
+    let table: LabelTable =
+        serde_json::from_str(&text).map_err(|e| bad(format!("not a label table: {e}")))?;
     let entries = table.labels.into_iter().map(|(label, v)| {
-        let embedding: Embedding = v
-            .as_slice()
-            .try_into()
-            .map_err(|_| bad(format!("label {label:?} has {} numbers, not {EMBEDDING_DIM}", v.len())))?;
+        let embedding: Embedding = v.as_slice().try_into().map_err(|_| {
+            bad(format!("label {label:?} has {} numbers, not {EMBEDDING_DIM}", v.len()))
+        })?;
         Ok((label, embedding))
     });
     Ok(LabelCache::from_table(entries.collect::<Result<Vec<_>, TrainError>>()?))
@@ -71,9 +74,17 @@ mod tests {
         assert_eq!(write_label_table(&path).unwrap(), synth::all_labels().len());
         let table = read_label_table(&path).unwrap();
         let model = LabelCache::new(TextEmbedder::from_env().unwrap());
-        assert_eq!(table.embed(&["chair", "wall"]).unwrap(), model.embed(&["chair", "wall"]).unwrap());
+        assert_eq!(
+            table.embed(&["chair", "wall"]).unwrap(),
+            model.embed(&["chair", "wall"]).unwrap()
+        );
         std::fs::write(&path, "{\"model\": \"m\", \"labels\": {\"chair\": [1.0]}}").unwrap();
         let err = read_label_table(&path).unwrap_err().to_string();
-        assert!(err.contains("labels.json") && err.contains(LABEL_TABLE_ENV) && err.contains("\"chair\" has 1 numbers"), "{err}");
+        assert!(
+            err.contains("labels.json")
+                && err.contains(LABEL_TABLE_ENV)
+                && err.contains("\"chair\" has 1 numbers"),
+            "{err}"
+        );
     }
 }

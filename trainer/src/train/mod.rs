@@ -2,7 +2,8 @@
 //! the transformer backbone), one or more samples per step (side by side on threads, see
 //! [`batch`]) of 2–8 input views plus held-out target views each, data from a folder of scenes
 //! or synthesized on the fly (prefetched on background threads, one per sample of a step), a
-//! validation loss on fixed val samples ([`validation`]), checkpoints every few minutes with exact resume, an
+//! validation loss on fixed val samples ([`validation`]), checkpoints every few minutes with exact
+//! resume, an
 //! indicatif progress bar with the loss terms, and the CSV logs and loss chart of [`log`].
 //!
 //! A run lives in one folder `RUN`: `checkpoints/`, `train_log.csv`, `val_log.csv`,
@@ -36,12 +37,12 @@ pub use labels::label_cache;
 
 use crate::loss::{GaussianTraining, LossConfig};
 use crate::model::{InsSplatNet, ModelConfig};
-use checkpoint::{CheckpointError, CheckpointState, CHECKPOINT_FORMAT};
+use checkpoint::{CHECKPOINT_FORMAT, CheckpointError, CheckpointState};
 use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
+pub use ray_errors::RayPlan;
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use ray_errors::RayPlan;
 pub use validation::{CheckpointScores, Matching, ValidationSet, mean_loss, score_checkpoint};
 use validation::{val_samples, validate};
 
@@ -107,7 +108,14 @@ pub struct TrainConfig {
 
 impl TrainConfig {
     fn plan(&self) -> ViewPlan {
-        ViewPlan { min_views: self.min_views, max_views: self.max_views, targets: self.targets, reuse: self.scene_reuse, first_scene: self.first_scene, window: self.view_window }
+        ViewPlan {
+            min_views: self.min_views,
+            max_views: self.max_views,
+            targets: self.targets,
+            reuse: self.scene_reuse,
+            first_scene: self.first_scene,
+            window: self.view_window,
+        }
     }
 
     /// Samples per optimizer step (k ≥ 1).
@@ -128,24 +136,37 @@ impl TrainConfig {
             )));
         }
         if self.loss.point_map_weight.is_some_and(|w| w > 0.0) && self.model.point_head.is_none() {
-            return Err(TrainError::Config("a point-map weight needs a network with a point-map head".into()));
+            return Err(TrainError::Config(
+                "a point-map weight needs a network with a point-map head".into(),
+            ));
         }
-        if self.loss.descriptor_weight.is_some_and(|w| w > 0.0) && self.model.descriptor_head.is_none() {
-            return Err(TrainError::Config("a descriptor weight needs a network with a descriptor head".into()));
+        if self.loss.descriptor_weight.is_some_and(|w| w > 0.0)
+            && self.model.descriptor_head.is_none()
+        {
+            return Err(TrainError::Config(
+                "a descriptor weight needs a network with a descriptor head".into(),
+            ));
         }
         if self.rays_only == Some(true) && self.model.camera_rays.is_none() {
             return Err(TrainError::Config("training the ray layer alone needs a network that reads camera rays (--camera-rays)".into()));
         }
         if let Some(plan) = self.rays {
             if self.model.camera_rays.is_none() {
-                return Err(TrainError::Config("ray dropout or noise needs a network that reads camera rays (--camera-rays)".into()));
+                return Err(TrainError::Config(
+                    "ray dropout or noise needs a network that reads camera rays (--camera-rays)"
+                        .into(),
+                ));
             }
             if !(0.0..=1.0).contains(&plan.dropout) || !(0.0..=180.0).contains(&plan.noise_deg) {
-                return Err(TrainError::Config(format!("ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180", plan.dropout, plan.noise_deg)));
+                return Err(TrainError::Config(format!(
+                    "ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180",
+                    plan.dropout, plan.noise_deg
+                )));
             }
         }
         if self.loss.logit_adjustment().is_some()
-            && (self.loss.semantic_temperature.is_none() || self.loss.semantic_objects_only != Some(true))
+            && (self.loss.semantic_temperature.is_none()
+                || self.loss.semantic_objects_only != Some(true))
         {
             return Err(TrainError::Config(
                 "the logit-adjusted L_sem needs the contrastive form on the furniture alone (--semantic-temperature, --semantic-objects-only)".into(),
@@ -243,9 +264,13 @@ pub enum TrainError {
     Text(#[from] inssplat_text::TextError),
     #[error("{path}: {problem}")]
     Io { path: PathBuf, problem: String },
-    #[error("step {step}: the loss is not finite ({values:?}); lower the learning rate or check the data")]
+    #[error(
+        "step {step}: the loss is not finite ({values:?}); lower the learning rate or check the data"
+    )]
     Diverged { step: u64, values: LossValues },
-    #[error("{0} already holds a run (checkpoints/latest); pass --resume to continue it or choose another folder")]
+    #[error(
+        "{0} already holds a run (checkpoints/latest); pass --resume to continue it or choose another folder"
+    )]
     Exists(PathBuf),
     #[error("{0} has no checkpoint")]
     NoCheckpoint(PathBuf),
@@ -271,15 +296,29 @@ pub struct Summary {
 }
 
 /// Starts a new run in `run` (an error if it already has a checkpoint).
-pub fn train(run: &Path, config: TrainConfig, data: DataSpec, session: &Session) -> Result<Summary, TrainError> {
+pub fn train(
+    run: &Path,
+    config: TrainConfig,
+    data: DataSpec,
+    session: &Session,
+) -> Result<Summary, TrainError> {
     config.validate()?;
     if checkpoint::latest(run)?.is_some() {
         return Err(TrainError::Exists(run.to_path_buf()));
     }
     let device = session.compute.device()?;
-    let net = seeded_init(&config.model, config.seed, &device).map_err(|e| TrainError::Config(e.to_string()))?;
+    let net = seeded_init(&config.model, config.seed, &device)
+        .map_err(|e| TrainError::Config(e.to_string()))?;
     let optim = optimizer(&config);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: None, keep: None };
+    let state = CheckpointState {
+        format: CHECKPOINT_FORMAT,
+        step: 0,
+        elapsed_s: 0.0,
+        config,
+        data,
+        init_from: None,
+        keep: None,
+    };
     run_loop(run, net, optim, state, session, &device)
 }
 
@@ -306,7 +345,8 @@ pub fn fine_tune(
         let (net, meta) = crate::export::import_onnx(from, &device)?;
         (net, checkpoint::InitFrom { checkpoint: from.to_path_buf(), step: meta.train_steps })
     } else {
-        let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+        let dir = checkpoint::latest(from)?
+            .ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
         let source = checkpoint::read_state(&dir)?;
         let net = checkpoint::load_model(&dir, &source, &device)?;
         (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
@@ -333,19 +373,30 @@ pub fn fine_tune(
     }
     let net = if shape == *net.config() { net } else { grow(&net, shape, config.seed, &device)? };
     let net = match config.model.global_kv_pool {
-        Some(pool) => net.with_global_kv_pool((pool > 1).then_some(pool)).map_err(|e| TrainError::Config(e.to_string()))?,
+        Some(pool) => net
+            .with_global_kv_pool((pool > 1).then_some(pool))
+            .map_err(|e| TrainError::Config(e.to_string()))?,
         None => net,
     };
     config.model = net.config().clone();
     config.validate()?;
     let optim = optimizer(&config);
-    let state = CheckpointState { format: CHECKPOINT_FORMAT, step: 0, elapsed_s: 0.0, config, data, init_from: Some(init_from), keep: None };
+    let state = CheckpointState {
+        format: CHECKPOINT_FORMAT,
+        step: 0,
+        elapsed_s: 0.0,
+        config,
+        data,
+        init_from: Some(init_from),
+        keep: None,
+    };
     run_loop(run, net, optim, state, session, &device)
 }
 
 /// Continues the newest checkpoint of `run`; `steps` extends (or shortens) the run's length.
 pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summary, TrainError> {
-    let dir = checkpoint::latest(run)?.ok_or_else(|| TrainError::NoCheckpoint(run.to_path_buf()))?;
+    let dir =
+        checkpoint::latest(run)?.ok_or_else(|| TrainError::NoCheckpoint(run.to_path_buf()))?;
     let mut state = checkpoint::read_state(&dir)?;
     let device = session.compute.device()?;
     let net = checkpoint::load_model(&dir, &state, &device)?;
@@ -360,7 +411,11 @@ pub fn resume(run: &Path, steps: Option<u64>, session: &Session) -> Result<Summa
 /// A fresh network whose weights depend only on `seed`. The backend's random generator is
 /// process-wide, so seeding and drawing happen under one lock: two runs started in one process
 /// (tests) cannot interleave their draws.
-pub fn seeded_init(model: &ModelConfig, seed: u64, device: &Device) -> Result<InsSplatNet, crate::model::ModelError> {
+pub fn seeded_init(
+    model: &ModelConfig,
+    seed: u64,
+    device: &Device,
+) -> Result<InsSplatNet, crate::model::ModelError> {
     static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
     device.seed(seed);
@@ -390,7 +445,6 @@ fn optimizer(config: &TrainConfig) -> ModuleOptimizer {
 fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
     TrainError::Io { path: path.to_path_buf(), problem: e.to_string() }
 }
-
 
 /// One optimizer update of `net` with `grads` (see [`batch::gradients`]): the transformer
 /// blocks at `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the
@@ -429,8 +483,10 @@ fn progress_bar(state: &CheckpointState, session: &Session) -> ProgressBar {
         bar.set_draw_target(ProgressDrawTarget::hidden());
     }
     bar.set_style(
-        ProgressStyle::with_template("{spinner} step {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}")
-            .expect("progress template"),
+        ProgressStyle::with_template(
+            "{spinner} step {pos}/{len} [{elapsed_precise}<{eta_precise}] {wide_msg}",
+        )
+        .expect("progress template"),
     );
     bar.set_position(state.step);
     bar.reset_eta();
@@ -449,26 +505,48 @@ fn run_loop(
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let source = Source::open(&state.data)?;
-    if state.config.loss.logit_adjustment().is_some() && state.config.loss.semantic_label_counts.is_none() {
+    if state.config.loss.logit_adjustment().is_some()
+        && state.config.loss.semantic_label_counts.is_none()
+    {
         let counts = source.label_counts(state.config.first_scene, LABEL_PRIOR_SCENES)?;
         if session.progress {
             let total: u64 = counts.values().sum();
-            let shares: Vec<String> = counts.iter().map(|(l, n)| format!("{l} {:.1}%", 100.0 * *n as f64 / total.max(1) as f64)).collect();
-            eprintln!("label prior of the logit-adjusted L_sem, {total} instances of {LABEL_PRIOR_SCENES} scenes: {}", shares.join(", "));
+            let shares: Vec<String> = counts
+                .iter()
+                .map(|(l, n)| format!("{l} {:.1}%", 100.0 * *n as f64 / total.max(1) as f64))
+                .collect();
+            eprintln!(
+                "label prior of the logit-adjusted L_sem, {total} instances of {LABEL_PRIOR_SCENES} scenes: {}",
+                shares.join(", ")
+            );
         }
         state.config.loss.semantic_label_counts = Some(counts);
     }
-    let sampler = Sampler { source, plan: state.config.plan(), seed: state.config.seed, labels: labels.clone() };
+    let sampler = Sampler {
+        source,
+        plan: state.config.plan(),
+        seed: state.config.seed,
+        labels: labels.clone(),
+    };
     let val = val_samples(&state, session, &labels, None)?;
     let first_step = state.step;
-    let (train_csv, val_csv, chart) = (run.join("train_log.csv"), run.join("val_log.csv"), run.join("loss.png"));
-    let mut train_log = CsvLog::open(&train_csv, TRAIN_HEADER, first_step).map_err(|e| io_error(&train_csv, e))?;
-    let mut val_log = CsvLog::open(&val_csv, VAL_HEADER, first_step).map_err(|e| io_error(&val_csv, e))?;
+    let (train_csv, val_csv, chart) =
+        (run.join("train_log.csv"), run.join("val_log.csv"), run.join("loss.png"));
+    let mut train_log =
+        CsvLog::open(&train_csv, TRAIN_HEADER, first_step).map_err(|e| io_error(&train_csv, e))?;
+    let mut val_log =
+        CsvLog::open(&val_csv, VAL_HEADER, first_step).map_err(|e| io_error(&val_csv, e))?;
     let schedule = state.config.schedule();
     let bar = progress_bar(&state, session);
     let k = state.config.batch();
     // One data thread per sample of a step: a step of k samples needs up to k scenes made.
-    let mut prefetch = Prefetcher::start(sampler, first_step * k, state.config.steps * k, 3 * k as usize, k as usize);
+    let mut prefetch = Prefetcher::start(
+        sampler,
+        first_step * k,
+        state.config.steps * k,
+        3 * k as usize,
+        k as usize,
+    );
     let session_start = Instant::now();
     let base_elapsed = state.elapsed_s;
     let mut last_checkpoint = Instant::now();
@@ -495,11 +573,14 @@ fn run_loop(
         let data_wait = wait.elapsed();
         let t0 = Instant::now();
         let lr = schedule.lr(step);
-        let g = batch::gradients(&net, &samples, &state.config.loss, device).map_err(|failure| TrainError::Step {
-            step,
-            scene: samples[failure.sample].scene.clone(),
-            source: failure.error,
-        })?;
+        let g =
+            batch::gradients(&net, &samples, &state.config.loss, device).map_err(|failure| {
+                TrainError::Step {
+                    step,
+                    scene: samples[failure.sample].scene.clone(),
+                    source: failure.error,
+                }
+            })?;
         let values = g.values;
         if !values.total.is_finite() {
             return Err(TrainError::Diverged { step, values });
@@ -533,20 +614,29 @@ fn run_loop(
             values.boundary,
             step_time.as_secs_f64()
         ));
-        let validate_now = session.val_every > 0 && state.step.is_multiple_of(session.val_every) && !val.is_empty();
+        let validate_now = session.val_every > 0
+            && state.step.is_multiple_of(session.val_every)
+            && !val.is_empty();
         if validate_now {
             let v = validate(&net, &val, &state.config.loss, device)
                 .map_err(|source| TrainError::Step { step, scene: "validation".into(), source })?;
             let mut row = vec![state.step.to_string()];
             row.extend(loss_cells(&v));
             val_log.row(&row).map_err(|e| io_error(val_log.path(), e))?;
-            bar.println(format!("step {}: val loss {:.4} (rgb {:.4}, geom {:.3}, ins {:.3}, sem {:.3})", state.step, v.total, v.rgb, v.geometry, v.instance, v.semantic));
+            bar.println(format!(
+                "step {}: val loss {:.4} (rgb {:.4}, geom {:.3}, ins {:.3}, sem {:.3})",
+                state.step, v.total, v.rgb, v.geometry, v.instance, v.semantic
+            ));
             last_val = Some(v);
         }
         let out_of_time = session.time_limit.is_some_and(|limit| session_start.elapsed() >= limit);
         signal = session.stop.as_ref().map(|s| s.load(Ordering::Relaxed)).filter(|&s| s != 0);
         let done = state.step >= state.config.steps;
-        if last_checkpoint.elapsed() >= session.checkpoint_every || out_of_time || signal.is_some() || done {
+        if last_checkpoint.elapsed() >= session.checkpoint_every
+            || out_of_time
+            || signal.is_some()
+            || done
+        {
             checkpoint_dir = Some(checkpoint::save(run, &net, &optim, &state)?);
             let _ = log::draw_chart(&train_csv, &val_csv, &chart);
             last_checkpoint = Instant::now();
@@ -560,7 +650,9 @@ fn run_loop(
     }
     bar.finish();
     drop(prefetch);
-    let mean = |xs: &[f32]| if xs.is_empty() { f32::NAN } else { xs.iter().sum::<f32>() / xs.len() as f32 };
+    let mean = |xs: &[f32]| {
+        if xs.is_empty() { f32::NAN } else { xs.iter().sum::<f32>() / xs.len() as f32 }
+    };
     let k = totals.len().min(20);
     step_times.sort();
     Ok(Summary {

@@ -29,7 +29,10 @@ impl RayPlan {
             sample.ray_cameras = RayCameras::Dropped;
         } else if self.noise_deg > 0.0 {
             let max = self.noise_deg;
-            sample.ray_cameras = RayCameras::Given(turn_each(&sample.cameras[..sample.inputs], &mut rng, |rng| rng.random_range(0.0..=max)));
+            sample.ray_cameras =
+                RayCameras::Given(turn_each(&sample.cameras[..sample.inputs], &mut rng, |rng| {
+                    rng.random_range(0.0..=max)
+                }));
         }
     }
 }
@@ -46,12 +49,20 @@ pub(super) fn turned(cameras: &[Camera], degrees: f32, seed: u64) -> Vec<Camera>
 
 /// `cameras` with every one after the first turned about its own centre by `degrees(rng)`
 /// about a uniformly random axis.
-fn turn_each(cameras: &[Camera], rng: &mut ChaCha8Rng, degrees: impl Fn(&mut ChaCha8Rng) -> f32) -> Vec<Camera> {
+fn turn_each(
+    cameras: &[Camera],
+    rng: &mut ChaCha8Rng,
+    degrees: impl Fn(&mut ChaCha8Rng) -> f32,
+) -> Vec<Camera> {
     let mut out = cameras.to_vec();
     for cam in out.iter_mut().skip(1) {
-        let (z, phi): (f32, f32) = (rng.random_range(-1.0..1.0), rng.random_range(0.0..std::f32::consts::TAU));
+        let (z, phi): (f32, f32) =
+            (rng.random_range(-1.0..1.0), rng.random_range(0.0..std::f32::consts::TAU));
         let r = (1.0 - z * z).sqrt();
-        let turn = Quat::from_axis_angle(Vec3::new(r * phi.cos(), r * phi.sin(), z), degrees(rng).to_radians());
+        let turn = Quat::from_axis_angle(
+            Vec3::new(r * phi.cos(), r * phi.sin(), z),
+            degrees(rng).to_radians(),
+        );
         let centre = cam.center();
         cam.rotation = turn * cam.rotation;
         cam.translation = -(cam.rotation * centre);
@@ -66,7 +77,16 @@ mod tests {
 
     fn cameras() -> Vec<Camera> {
         let k = Intrinsics::from_fov_y(16, 16, 1.0);
-        (0..4).map(|i| Camera::look_at(k, Vec3::new(i as f32, 0.3, -1.0), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y)).collect()
+        (0..4)
+            .map(|i| {
+                Camera::look_at(
+                    k,
+                    Vec3::new(i as f32, 0.3, -1.0),
+                    Vec3::new(0.0, 0.0, 3.0),
+                    Vec3::NEG_Y,
+                )
+            })
+            .collect()
     }
 
     /// The plan drops about its share of samples' rays, turns every other sample's cameras
@@ -75,7 +95,19 @@ mod tests {
     #[test]
     fn a_ray_plan_drops_its_share_and_turns_within_its_angle() {
         let plan = RayPlan { dropout: 0.25, noise_deg: 20.0 };
-        let sample = Sample { scene: "s".into(), inputs: 3, size: 16, images: vec![], depth: vec![], ids: vec![], cameras: cameras(), teacher: vec![], vocabulary: vec![], shell: vec![], ray_cameras: RayCameras::True };
+        let sample = Sample {
+            scene: "s".into(),
+            inputs: 3,
+            size: 16,
+            images: vec![],
+            depth: vec![],
+            ids: vec![],
+            cameras: cameras(),
+            teacher: vec![],
+            vocabulary: vec![],
+            shell: vec![],
+            ray_cameras: RayCameras::True,
+        };
         let (mut dropped, mut angles) = (0, Vec::new());
         for index in 0..400 {
             let mut s = sample.clone();
@@ -88,7 +120,13 @@ mod tests {
                 RayCameras::Given(turned) => {
                     assert_eq!(turned.len(), 3, "the input views' cameras");
                     assert_eq!(turned[0], sample.cameras[0]);
-                    angles.extend(turned.iter().zip(&sample.cameras).skip(1).map(|(a, b)| a.rotation.angle_between(b.rotation).to_degrees()));
+                    angles.extend(
+                        turned
+                            .iter()
+                            .zip(&sample.cameras)
+                            .skip(1)
+                            .map(|(a, b)| a.rotation.angle_between(b.rotation).to_degrees()),
+                    );
                 }
                 RayCameras::True => panic!("a plan with noise turns every sample it keeps"),
             }

@@ -15,9 +15,9 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
+use inssplat_proto::Camera;
 use inssplat_proto::dataset::{Scene, TransformsJson};
 use inssplat_proto::signature::TEXT_DIM;
-use inssplat_proto::Camera;
 use inssplat_text::LabelCache;
 use rand::seq::index::sample as sample_indices;
 use rand::{Rng, SeedableRng};
@@ -81,13 +81,16 @@ impl Source {
         match spec {
             DataSpec::Folder(dir) => {
                 let problem = |problem: String| SampleError::Folder { dir: dir.clone(), problem };
-                let entries = std::fs::read_dir(dir).map_err(|e| problem(format!("cannot read the folder: {e}")))?;
+                let entries = std::fs::read_dir(dir)
+                    .map_err(|e| problem(format!("cannot read the folder: {e}")))?;
                 let mut scenes: Vec<PathBuf> = entries
                     .filter_map(|e| e.ok().map(|e| e.path()))
                     .filter(|p| p.join("transforms.json").is_file())
                     .collect();
                 if scenes.is_empty() {
-                    return Err(problem("no scene folders (sub-folders with a transforms.json) in it".into()));
+                    return Err(problem(
+                        "no scene folders (sub-folders with a transforms.json) in it".into(),
+                    ));
                 }
                 scenes.sort();
                 Ok(Source::Folder(Arc::new(scenes)))
@@ -112,18 +115,28 @@ impl Source {
     /// once), the room's shell left out: for a synthesized split the furniture its layouts
     /// place ([`synth::furniture_labels`], nothing rendered), for folders what their
     /// `transforms.json` list (no frame read).
-    pub fn label_counts(&self, first: u64, count: u64) -> Result<BTreeMap<String, u64>, SampleError> {
+    pub fn label_counts(
+        &self,
+        first: u64,
+        count: u64,
+    ) -> Result<BTreeMap<String, u64>, SampleError> {
         let labels: Vec<Vec<String>> = match self {
             Source::Folder(paths) => (first..first + count.min(paths.len() as u64))
                 .into_par_iter()
                 .map(|i| {
                     let json = wrapped(paths, i).join("transforms.json");
-                    Ok(TransformsJson::read(&json)?.instances.into_iter().map(|inst| inst.label).collect())
+                    Ok(TransformsJson::read(&json)?
+                        .instances
+                        .into_iter()
+                        .map(|inst| inst.label)
+                        .collect())
                 })
                 .collect::<Result<_, SampleError>>()?,
             Source::Synth(cfg) => (first..first + count)
                 .into_par_iter()
-                .map(|i| Ok(synth::furniture_labels(i, cfg)?.into_iter().map(String::from).collect()))
+                .map(|i| {
+                    Ok(synth::furniture_labels(i, cfg)?.into_iter().map(String::from).collect())
+                })
                 .collect::<Result<_, SampleError>>()?,
         };
         let mut counts = BTreeMap::new();
@@ -218,12 +231,21 @@ impl Sample {
     }
 
     /// The sample of `scene` for the views `order` (the first `inputs` of them are input).
-    pub fn from_scene(scene: &Scene, order: &[usize], inputs: usize, labels: &LabelCache) -> Result<Self, SampleError> {
+    pub fn from_scene(
+        scene: &Scene,
+        order: &[usize],
+        inputs: usize,
+        labels: &LabelCache,
+    ) -> Result<Self, SampleError> {
         let name = scene.dir.display().to_string();
         let bad = |problem: String| SampleError::Scene { scene: name.clone(), problem };
         let first = scene.frames.first().ok_or_else(|| bad("has no frames".into()))?;
         let (w, h) = (first.width() as usize, first.height() as usize);
-        if let Some(f) = scene.frames.iter().position(|f| f.width() != first.width() || f.height() != first.height()) {
+        if let Some(f) = scene
+            .frames
+            .iter()
+            .position(|f| f.width() != first.width() || f.height() != first.height())
+        {
             return Err(bad(format!("frame {f} differs in size from frame 0")));
         }
         if w != h {
@@ -237,26 +259,42 @@ impl Sample {
         for &f in order {
             let frame = &scene.frames[f];
             images.extend(frame.planar_rgb());
-            let frame_depth = frame.depth.as_ref().ok_or_else(|| bad(format!("frame {f} has no depth")))?;
+            let frame_depth =
+                frame.depth.as_ref().ok_or_else(|| bad(format!("frame {f} has no depth")))?;
             depth.extend_from_slice(frame_depth);
-            let frame_ids = frame.instances.as_ref().ok_or_else(|| bad(format!("frame {f} has no instance map")))?;
+            let frame_ids = frame
+                .instances
+                .as_ref()
+                .ok_or_else(|| bad(format!("frame {f} has no instance map")))?;
             ids.extend(frame_ids.iter().map(|&i| u32::from(i)));
             cameras.push(frame.camera);
         }
         let cameras = in_reference_frame(&cameras);
         let rows = ids.iter().copied().max().unwrap_or(0) as usize + 1;
         let mut teacher = vec![0.0; rows * TEXT_DIM];
-        let present: Vec<(u32, &str)> = (1..rows as u32)
-            .filter_map(|id| scene.label_of(id as u16).map(|l| (id, l)))
-            .collect();
+        let present: Vec<(u32, &str)> =
+            (1..rows as u32).filter_map(|id| scene.label_of(id as u16).map(|l| (id, l))).collect();
         let embeddings = labels.embed(&present.iter().map(|(_, l)| *l).collect::<Vec<_>>())?;
         for ((id, _), e) in present.iter().zip(embeddings) {
             teacher[*id as usize * TEXT_DIM..(*id as usize + 1) * TEXT_DIM].copy_from_slice(&e);
         }
         let all: Vec<&str> = inssplat_synth::all_labels().into_iter().collect();
         let vocabulary = labels.embed(&all)?.iter().flatten().copied().collect();
-        let shell = present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
-        Ok(Sample { scene: name, inputs, size: w, images, depth, ids, cameras, teacher, vocabulary, shell, ray_cameras: RayCameras::True })
+        let shell =
+            present.iter().filter(|(_, l)| SHELL_LABELS.contains(l)).map(|(id, _)| *id).collect();
+        Ok(Sample {
+            scene: name,
+            inputs,
+            size: w,
+            images,
+            depth,
+            ids,
+            cameras,
+            teacher,
+            vocabulary,
+            shell,
+            ray_cameras: RayCameras::True,
+        })
     }
 }
 
@@ -279,7 +317,9 @@ pub fn in_reference_frame(cameras: &[Camera]) -> Vec<Camera> {
 pub fn draw_views(frames: usize, plan: &ViewPlan, rng: &mut ChaCha8Rng) -> (Vec<usize>, usize) {
     let inputs = rng.random_range(plan.min_views..=plan.max_views).min(frames);
     let total = (inputs + plan.targets).min(frames);
-    let Some(window) = plan.window else { return (sample_indices(rng, frames, total).into_vec(), inputs) };
+    let Some(window) = plan.window else {
+        return (sample_indices(rng, frames, total).into_vec(), inputs);
+    };
     let span = window.max(total).min(frames);
     let start = rng.random_range(0..=frames - span);
     (sample_indices(rng, span, total).into_iter().map(|i| start + i).collect(), inputs)
@@ -308,9 +348,13 @@ impl Sampler {
 
     /// Sample `index` drawn from `scene`.
     pub fn sample_of(&self, scene: &Scene, index: u64) -> Result<Sample, SampleError> {
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(self.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
         if scene.frames.len() < 2 {
-            return Err(SampleError::Scene { scene: scene.dir.display().to_string(), problem: "needs ≥ 2 frames".into() });
+            return Err(SampleError::Scene {
+                scene: scene.dir.display().to_string(),
+                problem: "needs ≥ 2 frames".into(),
+            });
         }
         let (order, inputs) = draw_views(scene.frames.len(), &self.plan, &mut rng);
         Sample::from_scene(scene, &order, inputs, &self.labels)
@@ -336,13 +380,16 @@ impl Prefetcher {
         let count = workers.max(1) as u64;
         let (mut receivers, mut handles) = (Vec::new(), Vec::new());
         for w in 0..count {
-            let (sender, receiver): (SyncSender<_>, _) = sync_channel(ahead.div_ceil(count as usize).max(1));
+            let (sender, receiver): (SyncSender<_>, _) =
+                sync_channel(ahead.div_ceil(count as usize).max(1));
             let sampler = sampler.clone();
             let worker = std::thread::Builder::new()
                 .name(format!("inssplat-data-{w}"))
                 .spawn(move || {
                     let mut cached: Option<(u64, Scene)> = None;
-                    let owned = (start..end).map(|step| (step, sampler.scene_index(step))).filter(|(_, index)| index % count == w);
+                    let owned = (start..end)
+                        .map(|step| (step, sampler.scene_index(step)))
+                        .filter(|(_, index)| index % count == w);
                     for (step, index) in owned {
                         let sample = match &cached {
                             Some((i, scene)) if *i == index => sampler.sample_of(scene, step),
@@ -395,8 +442,15 @@ pub fn describe(spec: &DataSpec) -> String {
         DataSpec::Folder(dir) => format!("scenes in {}", dir.display()),
         DataSpec::Synth { split, furniture_dir, size, structure, antialias } => format!(
             "{split} scenes synthesized on the fly at {size}²{}, room shell as {structure:?} ({})",
-            if *antialias > 1 { format!(" ({antialias}×{antialias} rays a pixel)") } else { String::new() },
-            furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!("furniture {}", d.display()))
+            if *antialias > 1 {
+                format!(" ({antialias}×{antialias} rays a pixel)")
+            } else {
+                String::new()
+            },
+            furniture_dir.as_deref().map_or("primitives only".to_string(), |d: &Path| format!(
+                "furniture {}",
+                d.display()
+            ))
         ),
     }
 }
@@ -409,7 +463,14 @@ mod tests {
 
     #[test]
     fn a_view_window_keeps_each_steps_views_among_consecutive_frames() {
-        let plan = ViewPlan { min_views: 2, max_views: 8, targets: 1, reuse: 1, first_scene: 0, window: None };
+        let plan = ViewPlan {
+            min_views: 2,
+            max_views: 8,
+            targets: 1,
+            reuse: 1,
+            first_scene: 0,
+            window: None,
+        };
         let windowed = ViewPlan { window: Some(6), ..plan };
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let (mut spread, mut starts) = (0, std::collections::BTreeSet::new());
@@ -417,7 +478,11 @@ mod tests {
             let (views, inputs) = draw_views(24, &windowed, &mut rng);
             let (lo, hi) = (*views.iter().min().unwrap(), *views.iter().max().unwrap());
             assert_eq!(views.len(), (inputs + 1).min(24));
-            assert_eq!(views.iter().collect::<std::collections::BTreeSet<_>>().len(), views.len(), "distinct: {views:?}");
+            assert_eq!(
+                views.iter().collect::<std::collections::BTreeSet<_>>().len(),
+                views.len(),
+                "distinct: {views:?}"
+            );
             // Never wider than the window, or than the step's views when they outnumber it.
             assert!(hi - lo < views.len().max(6), "{views:?}");
             starts.insert(lo);
@@ -427,7 +492,11 @@ mod tests {
         assert!(starts.len() > 10, "windows start all along the trajectory: {starts:?}");
         assert!(spread > 15, "without a window the views span the trajectory ({spread})");
         // A window of more frames than the scene has is the whole scene.
-        let (views, _) = draw_views(4, &ViewPlan { window: Some(40), min_views: 3, max_views: 3, ..plan }, &mut rng);
+        let (views, _) = draw_views(
+            4,
+            &ViewPlan { window: Some(40), min_views: 3, max_views: 3, ..plan },
+            &mut rng,
+        );
         assert!(views.iter().all(|&v| v < 4) && views.len() == 4);
     }
 }

@@ -24,8 +24,10 @@ use inssplat_raster::render::RenderOptions;
 use super::sample::{RayCameras, Sample};
 use crate::loss::descriptor::DEFAULT_SAMPLES as DESCRIPTOR_SAMPLES;
 use crate::loss::{
-    GaussianTraining, LossConfig, LossError, LossTerms, boundary_rgb_loss, camera_targets, geometry_loss, instance_loss,
-    attention_match_loss, descriptor_grid_loss, descriptor_loss, descriptor_matches, match_targets, median_depth, pixel_rays, point_map_loss, point_map_targets, SemanticForm, rgb_loss, semantic_loss,
+    GaussianTraining, LossConfig, LossError, LossTerms, SemanticForm, attention_match_loss,
+    boundary_rgb_loss, camera_targets, descriptor_grid_loss, descriptor_loss, descriptor_matches,
+    geometry_loss, instance_loss, match_targets, median_depth, pixel_rays, point_map_loss,
+    point_map_targets, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{BackwardMeter, RenderOpError, SplatTensors, render_metered};
@@ -126,15 +128,24 @@ pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option
         RayCameras::True => &sample.cameras,
     };
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
-    Some(Tensor::from_data(TensorData::new(rays::patch_rays(&cameras[..inputs], size, patch, k, scale), shape), device))
+    Some(Tensor::from_data(
+        TensorData::new(rays::patch_rays(&cameras[..inputs], size, patch, k, scale), shape),
+        device,
+    ))
 }
 
 /// Evaluates the objective of `sample` for `net` on `device` (an autodiff device to train).
-pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device: &Device) -> Result<Objective, StepError> {
+pub fn objective(
+    net: &InsSplatNet,
+    sample: &Sample,
+    config: &LossConfig,
+    device: &Device,
+) -> Result<Objective, StepError> {
     let (views, inputs, size) = (sample.views(), sample.inputs, sample.size);
     let pixels = size * size;
     let t0 = Instant::now();
-    let images: Tensor<4> = Tensor::from_data(TensorData::new(sample.images.clone(), [views, 3, size, size]), device);
+    let images: Tensor<4> =
+        Tensor::from_data(TensorData::new(sample.images.clone(), [views, 3, size, size]), device);
     let input_images = images.clone().narrow(0, 0, inputs);
     let mut out = net.forward_with_rays(input_images.clone(), input_rays(net, sample, device))?;
     if config.gaussians == GaussianTraining::Frozen {
@@ -159,7 +170,10 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
     let renders = sample
         .cameras
         .iter()
-        .map(|camera| render_metered(splats.clone(), camera, &[], &RenderOptions::default(), &meter).map(|r| r.features))
+        .map(|camera| {
+            render_metered(splats.clone(), camera, &[], &RenderOptions::default(), &meter)
+                .map(|r| r.features)
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let rendered = Tensor::stack::<4>(renders, 0); // [V, C, H, W]
     let render_time = t1.elapsed();
@@ -181,18 +195,35 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         &targets,
         config,
     )?;
-    if let (Some(points), Some(weight)) = (out.point_map.clone(), config.point_map_weight.filter(|&w| w > 0.0)) {
-        let target = point_map_targets(input_cameras, input_depth, size, size, config.point_map_offsets == Some(true))?;
+    if let (Some(points), Some(weight)) =
+        (out.point_map.clone(), config.point_map_weight.filter(|&w| w > 0.0))
+    {
+        let target = point_map_targets(
+            input_cameras,
+            input_depth,
+            size,
+            size,
+            config.point_map_offsets == Some(true),
+        )?;
         let scale = median_depth(input_depth).unwrap_or(1.0);
-        geometry = geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
+        geometry =
+            geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
     }
     if let Some(weight) = config.attention_match_weight.filter(|&w| w > 0.0 && inputs > 1) {
         let targets = match_targets(input_cameras, input_depth, size, net.config().patch)?;
-        let matching = attention_match_loss(out.global_queries.clone(), out.global_keys.clone(), &targets)?;
+        let matching =
+            attention_match_loss(out.global_queries.clone(), out.global_keys.clone(), &targets)?;
         geometry = geometry + matching.mul_scalar(weight);
     }
-    if let (Some(descriptors), Some(weight)) = (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1)) {
-        let mut matches = descriptor_matches(input_cameras, input_depth, size, config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES))?;
+    if let (Some(descriptors), Some(weight)) =
+        (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1))
+    {
+        let mut matches = descriptor_matches(
+            input_cameras,
+            input_depth,
+            size,
+            config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES),
+        )?;
         if let Some(degrees) = config.descriptor_min_angle {
             matches = matches.turned_at_least(input_cameras, (degrees as f32).to_radians());
         }
@@ -202,27 +233,52 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
         };
         geometry = geometry + term.mul_scalar(weight);
     }
-    let teacher = Tensor::from_data(TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]), device);
+    let teacher = Tensor::from_data(
+        TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]),
+        device,
+    );
     let (weight, bias) = net.sem_proj();
     let vocabulary_labels: Vec<&str> = inssplat_synth::all_labels().into_iter().collect();
     let log_prior = config.semantic_log_prior(&vocabulary_labels);
     let semantic_form = match config.semantic_temperature {
-        Some(temperature) => SemanticForm::Contrastive { temperature, vocabulary: &sample.vocabulary, log_prior: &log_prior },
+        Some(temperature) => SemanticForm::Contrastive {
+            temperature,
+            vocabulary: &sample.vocabulary,
+            log_prior: &log_prior,
+        },
         None => SemanticForm::Cosine,
     };
     let own_ids = &sample.ids[..inputs * pixels];
-    let mut instance = instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config);
+    let mut instance =
+        instance_loss(instance, &semantic.clone().detach(), &sample.ids, config)?.total(config);
     if let Some(weight) = config.direct_instance_weight.filter(|&w| w > 0.0) {
-        let own = instance_loss(out.instance.clone(), &out.semantic.clone().detach(), own_ids, config)?;
+        let own =
+            instance_loss(out.instance.clone(), &out.semantic.clone().detach(), own_ids, config)?;
         instance = instance + own.total(config).mul_scalar(weight);
     }
     let semantic_ids: Cow<[u32]> = match config.semantic_objects_only {
-        Some(true) => sample.ids.iter().map(|id| if sample.shell.contains(id) { 0 } else { *id }).collect(),
+        Some(true) => {
+            sample.ids.iter().map(|id| if sample.shell.contains(id) { 0 } else { *id }).collect()
+        }
         _ => Cow::Borrowed(&sample.ids),
     };
-    let mut semantic = semantic_loss(semantic, &semantic_ids, teacher.clone(), weight.clone(), bias.clone(), semantic_form)?;
+    let mut semantic = semantic_loss(
+        semantic,
+        &semantic_ids,
+        teacher.clone(),
+        weight.clone(),
+        bias.clone(),
+        semantic_form,
+    )?;
     if let Some(direct) = config.direct_semantic_weight.filter(|&w| w > 0.0) {
-        let own = semantic_loss(out.semantic.clone(), &semantic_ids[..inputs * pixels], teacher, weight, bias, semantic_form)?;
+        let own = semantic_loss(
+            out.semantic.clone(),
+            &semantic_ids[..inputs * pixels],
+            teacher,
+            weight,
+            bias,
+            semantic_form,
+        )?;
         semantic = semantic + own.mul_scalar(direct);
     }
     let terms = LossTerms {
@@ -239,7 +295,14 @@ pub fn objective(net: &InsSplatNet, sample: &Sample, config: &LossConfig, device
                 + terms.semantic.clone().mul_scalar(config.semantic_weight)
         }
     };
-    Ok(Objective { total, terms, forward_time, render_time, loss_time: t2.elapsed(), render_backward: meter })
+    Ok(Objective {
+        total,
+        terms,
+        forward_time,
+        render_time,
+        loss_time: t2.elapsed(),
+        render_backward: meter,
+    })
 }
 
 /// `x` unchanged, with its gradient multiplied by `k` on the way back.
@@ -259,7 +322,8 @@ pub fn splats_from_outputs(out: &ModelOutput, cameras: &[Camera]) -> SplatTensor
         let c = x.dims()[1];
         x.reshape([v, c, hw]).swap_dims(1, 2) // [V, HW, C]
     };
-    let rays = Tensor::<4>::from_data(TensorData::new(pixel_rays(cameras, h, w), [v, 3, h, w]), &device);
+    let rays =
+        Tensor::<4>::from_data(TensorData::new(pixel_rays(cameras, h, w), [v, 3, h, w]), &device);
     let camera_points = rays * out.depth.clone() + g.clone().narrow(1, 0, 3);
     // World = Rᵀ(p − t); with points as rows: (p − t)ᵀ·R.
     let (mut rotations, mut translations, mut quats) = (Vec::new(), Vec::new(), Vec::new());
@@ -309,7 +373,8 @@ mod tests {
     fn scale_gradient_keeps_the_value_and_scales_the_gradient() {
         let device = Device::flex().autodiff();
         let values = vec![0.5f32, -1.25, 2.0, 3.5];
-        let x = Tensor::<4>::from_data(TensorData::new(values.clone(), [1, 1, 2, 2]), &device).require_grad();
+        let x = Tensor::<4>::from_data(TensorData::new(values.clone(), [1, 1, 2, 2]), &device)
+            .require_grad();
         for k in [0.0, 0.25, 1.0] {
             let y = scale_gradient(x.clone(), k);
             assert_eq!(y.clone().into_data().try_to_vec::<f32>().unwrap(), values);

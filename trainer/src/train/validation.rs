@@ -47,21 +47,27 @@ pub struct CheckpointScores {
 /// asked: model selection between runs and checkpoints on more samples than a run spends
 /// while training — and, with `matching`, on the same samples and weights (loaded and
 /// synthesized once), whether it matches the views ([`Matching`]).
-pub fn score_checkpoint(from: &Path, set: &ValidationSet, matching: bool) -> Result<CheckpointScores, TrainError> {
+pub fn score_checkpoint(
+    from: &Path,
+    set: &ValidationSet,
+    matching: bool,
+) -> Result<CheckpointScores, TrainError> {
     let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
-    let losses = validate_each(&net, &val, &state.config.loss, &device)
-        .map_err(|source| TrainError::Step { step: state.step, scene: "validation".into(), source })?;
-    let matching = matching
-        .then(|| matching_scores(&net, &val, &device))
-        .transpose()
-        .map_err(|source| TrainError::Step { step: state.step, scene: "matching".into(), source })?;
+    let losses = validate_each(&net, &val, &state.config.loss, &device).map_err(|source| {
+        TrainError::Step { step: state.step, scene: "validation".into(), source }
+    })?;
+    let matching =
+        matching.then(|| matching_scores(&net, &val, &device)).transpose().map_err(|source| {
+            TrainError::Step { step: state.step, scene: "matching".into(), source }
+        })?;
     Ok(CheckpointScores { dir, step: state.step, losses, matching })
 }
 
 /// The mean of per-sample losses (zero for none).
 pub fn mean_loss(losses: &[LossValues]) -> LossValues {
-    losses.iter().fold(LossValues::default(), |sum, l| sum + *l) * (1.0 / losses.len().max(1) as f32)
+    losses.iter().fold(LossValues::default(), |sum, l| sum + *l)
+        * (1.0 / losses.len().max(1) as f32)
 }
 
 /// Whether `net` matches the views of `val`:
@@ -71,25 +77,56 @@ pub fn mean_loss(losses: &[LossValues]) -> LossValues {
 /// descriptor head, whether each pixel's most alike descriptor in another view is the one that
 /// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
 /// depth's AbsRel, beside them.
-fn matching_scores(net: &InsSplatNet, val: &[Sample], device: &Device) -> Result<Matching, StepError> {
+fn matching_scores(
+    net: &InsSplatNet,
+    val: &[Sample],
+    device: &Device,
+) -> Result<Matching, StepError> {
     let mut scores = crate::loss::MatchScores::default();
     let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
     let mut depth_abs_rel = Vec::with_capacity(val.len());
     for s in val {
         let pixels = s.size * s.size;
-        let images = Tensor::<4>::from_data(TensorData::new(s.images[..s.inputs * 3 * pixels].to_vec(), [s.inputs, 3, s.size, s.size]), device);
-        let out = net.forward_with_rays(images, super::step::input_rays(net, s, device)).map_err(StepError::from)?;
+        let images = Tensor::<4>::from_data(
+            TensorData::new(
+                s.images[..s.inputs * 3 * pixels].to_vec(),
+                [s.inputs, 3, s.size, s.size],
+            ),
+            device,
+        );
+        let out = net
+            .forward_with_rays(images, super::step::input_rays(net, s, device))
+            .map_err(StepError::from)?;
         let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = crate::loss::host("depth", &out.depth).map_err(StepError::from)?;
-        let depth_scores = inssplat_metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| StepError::from(crate::loss::LossError::Read { what: "depth", message: e.to_string() }))?;
+        let depth_scores =
+            inssplat_metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| {
+                StepError::from(crate::loss::LossError::Read {
+                    what: "depth",
+                    message: e.to_string(),
+                })
+            })?;
         depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
-        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch).map_err(StepError::from)?;
-        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets).map_err(StepError::from)?;
+        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch)
+            .map_err(StepError::from)?;
+        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets)
+            .map_err(StepError::from)?;
         scores = scores.merge(sample);
         if let Some(descriptors) = out.descriptors {
-            let matches = crate::loss::descriptor_matches(cameras, depth, s.size, VALIDATION_DESCRIPTOR_SAMPLES).map_err(StepError::from)?;
+            let matches = crate::loss::descriptor_matches(
+                cameras,
+                depth,
+                s.size,
+                VALIDATION_DESCRIPTOR_SAMPLES,
+            )
+            .map_err(StepError::from)?;
             let dims = descriptors.dims();
-            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| StepError::from(crate::loss::LossError::Read { what: "descriptors", message: format!("{e:?}") }))?;
+            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| {
+                StepError::from(crate::loss::LossError::Read {
+                    what: "descriptors",
+                    message: format!("{e:?}"),
+                })
+            })?;
             let sample = crate::loss::descriptor_scores(&host, dims, &matches, REGISTRATION_STRIDE);
             descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
         }
@@ -122,50 +159,88 @@ const REGISTRATION_STRIDE: usize = 4;
 
 /// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with the
 /// samples of `set`.
-fn checkpoint_with_samples(from: &Path, set: &ValidationSet, device: &Device) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
-    let dir = checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
+fn checkpoint_with_samples(
+    from: &Path,
+    set: &ValidationSet,
+    device: &Device,
+) -> Result<(PathBuf, CheckpointState, InsSplatNet, Vec<Sample>), TrainError> {
+    let dir =
+        checkpoint::latest(from)?.ok_or_else(|| TrainError::NoCheckpoint(from.to_path_buf()))?;
     let state = checkpoint::read_state(&dir)?;
     let net = checkpoint::load_model(&dir, &state, device)?;
-    let session = Session { val_every: 1, val_samples: set.samples, val_data: set.data.clone(), ..Session::default() };
+    let session = Session {
+        val_every: 1,
+        val_samples: set.samples,
+        val_data: set.data.clone(),
+        ..Session::default()
+    };
     let mut val = val_samples(&state, &session, &label_cache()?, set.window)?;
     if set.ray_noise_deg != 0.0 {
         for (i, s) in val.iter_mut().enumerate() {
-            s.ray_cameras = RayCameras::Given(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
+            s.ray_cameras =
+                RayCameras::Given(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
         }
     }
     if val.is_empty() {
-        return Err(TrainError::Config(format!("{}: no validation samples (a folder-trained run needs --val-data)", dir.display())));
+        return Err(TrainError::Config(format!(
+            "{}: no validation samples (a folder-trained run needs --val-data)",
+            dir.display()
+        )));
     }
     Ok((dir, state, net, val))
 }
 
 /// The validation loss: mean over fixed samples, without gradients (`device`: the training
 /// device, whose inner device runs it).
-pub(super) fn validate(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<LossValues, StepError> {
+pub(super) fn validate(
+    net: &InsSplatNet,
+    samples: &[Sample],
+    loss: &LossConfig,
+    device: &Device,
+) -> Result<LossValues, StepError> {
     Ok(mean_loss(&validate_each(&net.valid(), samples, loss, &device.clone().inner())?))
 }
 
 /// Each sample's loss for `net` on `device` (not an autodiff one: no gradients are kept).
-fn validate_each(net: &InsSplatNet, samples: &[Sample], loss: &LossConfig, device: &Device) -> Result<Vec<LossValues>, StepError> {
+fn validate_each(
+    net: &InsSplatNet,
+    samples: &[Sample],
+    loss: &LossConfig,
+    device: &Device,
+) -> Result<Vec<LossValues>, StepError> {
     samples.iter().map(|s| Ok(objective(net, s, loss, device)?.values())).collect()
 }
 
-pub(super) fn val_samples(state: &CheckpointState, session: &Session, labels: &Arc<LabelCache>, window: Option<usize>) -> Result<Vec<Sample>, TrainError> {
+pub(super) fn val_samples(
+    state: &CheckpointState,
+    session: &Session,
+    labels: &Arc<LabelCache>,
+    window: Option<usize>,
+) -> Result<Vec<Sample>, TrainError> {
     if session.val_every == 0 || session.val_samples == 0 {
         return Ok(Vec::new());
     }
     let spec = match (&session.val_data, &state.data) {
         (Some(spec), _) => spec.clone(),
-        (None, DataSpec::Synth { furniture_dir, size, structure, antialias, .. }) => DataSpec::Synth {
-            split: inssplat_synth::Split::Val,
-            furniture_dir: furniture_dir.clone(),
-            size: *size,
-            structure: *structure,
-            antialias: *antialias,
-        },
+        (None, DataSpec::Synth { furniture_dir, size, structure, antialias, .. }) => {
+            DataSpec::Synth {
+                split: inssplat_synth::Split::Val,
+                furniture_dir: furniture_dir.clone(),
+                size: *size,
+                structure: *structure,
+                antialias: *antialias,
+            }
+        }
         (None, DataSpec::Folder(_)) => return Ok(Vec::new()),
     };
-    let plan = ViewPlan { min_views: 4, max_views: 4, targets: state.config.targets, reuse: 1, first_scene: 0, window };
+    let plan = ViewPlan {
+        min_views: 4,
+        max_views: 4,
+        targets: state.config.targets,
+        reuse: 1,
+        first_scene: 0,
+        window,
+    };
     let sampler = Sampler { source: Source::open(&spec)?, plan, seed: 7, labels: labels.clone() };
     Ok((0..session.val_samples as u64).map(|i| sampler.sample(i)).collect::<Result<_, _>>()?)
 }

@@ -18,7 +18,10 @@ pub struct FeatureMap<'a> {
 }
 
 /// Clusters one view: an id per pixel (0 where alpha ≤ 0.5 or no prototype is close).
-pub fn cluster_view(map: &FeatureMap<'_>, params: &ClusterParams) -> Result<Clustering, ClusterError> {
+pub fn cluster_view(
+    map: &FeatureMap<'_>,
+    params: &ClusterParams,
+) -> Result<Clustering, ClusterError> {
     let pixels = map.alpha.len();
     if map.features.len() != INSTANCE_DIM * pixels {
         return Err(ClusterError::Shape {
@@ -42,7 +45,10 @@ pub fn cluster_view(map: &FeatureMap<'_>, params: &ClusterParams) -> Result<Clus
 }
 
 /// Clusters every view independently (views in parallel).
-pub fn cluster_views(maps: &[FeatureMap<'_>], params: &ClusterParams) -> Result<Vec<Clustering>, ClusterError> {
+pub fn cluster_views(
+    maps: &[FeatureMap<'_>],
+    params: &ClusterParams,
+) -> Result<Vec<Clustering>, ClusterError> {
     maps.par_iter().map(|m| cluster_view(m, params)).collect()
 }
 
@@ -59,14 +65,19 @@ mod tests {
         let (w, h) = (40, 40);
         let pixels = w * h;
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut features: Vec<f32> = (0..INSTANCE_DIM * pixels).map(|_| rng.random_range(-0.15..0.15)).collect();
+        let mut features: Vec<f32> =
+            (0..INSTANCE_DIM * pixels).map(|_| rng.random_range(-0.15..0.15)).collect();
         let mut alpha = vec![1.0; pixels];
         for p in 0..pixels {
             let k = usize::from(p % w >= w / 2);
             features[k * pixels + p] += 1.0;
         }
         alpha[..w].fill(0.2);
-        let c = cluster_view(&FeatureMap { features: &features, alpha: &alpha }, &ClusterParams::default()).unwrap();
+        let c = cluster_view(
+            &FeatureMap { features: &features, alpha: &alpha },
+            &ClusterParams::default(),
+        )
+        .unwrap();
         assert_eq!(c.prototypes.len(), 2);
         assert!(c.ids[..w].iter().all(|&id| id == 0));
         let (left, right) = (c.ids[w], c.ids[w + w - 1]);
@@ -75,6 +86,9 @@ mod tests {
             assert_eq!(c.ids[p], if p % w < w / 2 { left } else { right }, "pixel {p}");
         }
         let bad = FeatureMap { features: &features[1..], alpha: &alpha };
-        assert!(matches!(cluster_views(&[bad], &ClusterParams::default()), Err(ClusterError::Shape { .. })));
+        assert!(matches!(
+            cluster_views(&[bad], &ClusterParams::default()),
+            Err(ClusterError::Shape { .. })
+        ));
     }
 }

@@ -68,7 +68,12 @@ impl Parts {
 /// [`SplitParams`] says: points of one id are connected when they fall in the same or
 /// touching cells (26-neighbourhood) of a grid of edge `cell` (world units) over `means`.
 /// New ids follow the largest id. Returns how many instances were added.
-pub fn split_disconnected(means: &[[f32; 3]], ids: &mut [u32], cell: f32, params: &SplitParams) -> usize {
+pub fn split_disconnected(
+    means: &[[f32; 3]],
+    ids: &mut [u32],
+    cell: f32,
+    params: &SplitParams,
+) -> usize {
     assert_eq!(means.len(), ids.len(), "one id per point");
     if cell.is_nan() || cell <= 0.0 {
         return 0;
@@ -141,7 +146,11 @@ mod tests {
         let params = SplitParams { cell_voxels: 1.0, min_share: 0.1, min_gaussians: 5 };
         assert_eq!(split_disconnected(&means, &mut ids, 0.15, &params), 1);
         assert!(ids[..40].iter().all(|&i| i == 1), "the largest part keeps the id");
-        assert!(ids[40..70].iter().all(|&i| i == 3), "the far part is instance 3: {:?}", &ids[40..70]);
+        assert!(
+            ids[40..70].iter().all(|&i| i == 3),
+            "the far part is instance 3: {:?}",
+            &ids[40..70]
+        );
         assert_eq!(ids[70], 1, "a part under min_share keeps the id");
         assert!(ids[71..].iter().all(|&i| i == 2), "another id touching it is not merged");
     }
@@ -160,7 +169,15 @@ mod tests {
         assert_eq!(split_disconnected(&means, &mut ids, 0.0, &SplitParams::default()), 0);
         assert!(ids.iter().all(|&i| i == 1));
         // Parts of equal size: the one holding the lower index keeps the id.
-        assert_eq!(split_disconnected(&means, &mut ids, 0.15, &SplitParams { min_gaussians: 5, ..SplitParams::default() }), 1);
+        assert_eq!(
+            split_disconnected(
+                &means,
+                &mut ids,
+                0.15,
+                &SplitParams { min_gaussians: 5, ..SplitParams::default() }
+            ),
+            1
+        );
         assert!(ids[..30].iter().all(|&i| i == 1) && ids[30..].iter().all(|&i| i == 2));
     }
 }

@@ -130,8 +130,13 @@ fn two_objects_with_one_embedding_part_by_position_only_with_a_position_weight()
     let alone = ClusterParams { position_weight: 0.0, ..ClusterParams::default() };
     let c = cluster_points_at(&points, Some(&positions), &weights, &alone).unwrap();
     assert_eq!(c.prototypes.len(), 2, "the embeddings alone see two instances");
-    assert_eq!(c, cluster_points(&points, &weights, &alone).unwrap(), "weight 0 ignores the positions");
-    let c = cluster_points_at(&points, Some(&positions), &weights, &ClusterParams::default()).unwrap();
+    assert_eq!(
+        c,
+        cluster_points(&points, &weights, &alone).unwrap(),
+        "weight 0 ignores the positions"
+    );
+    let c =
+        cluster_points_at(&points, Some(&positions), &weights, &ClusterParams::default()).unwrap();
     assert_bijection(&c.ids, &truth, 3);
     // Both chairs keep code 0's embedding as their prototype.
     let chairs: Vec<&Embedding> = c.prototypes.iter().filter(|p| p[0] > 0.9).collect();

@@ -27,7 +27,9 @@ impl SemanticProjection<'_> {
 
     /// W·l + β·b (`text_dim` entries).
     fn project(&self, l: &[f64], beta: f64) -> Vec<f32> {
-        (0..self.text_dim()).map(|r| (beta * self.bias[r] as f64 + dot64(self.row(r, l.len()), l)) as f32).collect()
+        (0..self.text_dim())
+            .map(|r| (beta * self.bias[r] as f64 + dot64(self.row(r, l.len()), l)) as f32)
+            .collect()
     }
 
     /// Row `r` of W for features of `sem_dim` entries.
@@ -108,7 +110,9 @@ pub fn semantic_prototypes(
                 let quadratic: f64 = (0..sem_dim)
                     .map(|a| {
                         let row = &gram[a * sem_dim..(a + 1) * sem_dim];
-                        l[a] as f64 * (row.iter().zip(l).map(|(&g, &x)| g * x as f64).sum::<f64>() + 2.0 * wb[a])
+                        l[a] as f64
+                            * (row.iter().zip(l).map(|(&g, &x)| g * x as f64).sum::<f64>()
+                                + 2.0 * wb[a])
                     })
                     .sum();
                 let n = (quadratic + bb).max(0.0).sqrt();
@@ -226,13 +230,18 @@ pub fn query(
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            (QueryHit { id: p.id, score: dot(&p.embedding, &t) }, label_scores.get(i).copied().unwrap_or(f32::MIN))
+            (
+                QueryHit { id: p.id, score: dot(&p.embedding, &t) },
+                label_scores.get(i).copied().unwrap_or(f32::MIN),
+            )
         })
         .collect();
     hits.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
     let best = hits.first().map_or(f32::MIN, |h| h.0.score);
     hits.retain(|(h, own)| {
-        h.score >= rule.min_score && h.score >= best - rule.margin && h.score >= own - rule.label_margin
+        h.score >= rule.min_score
+            && h.score >= best - rule.margin
+            && h.score >= own - rule.label_margin
     });
     Ok(hits.into_iter().map(|(h, _)| h).collect())
 }

@@ -56,7 +56,8 @@ pub fn ground(points: &[Vec3], up_prior: Vec3) -> Ground {
     let up_prior = up_prior.try_normalize().unwrap_or(Vec3::NEG_Y);
     let mut rng = ChaCha8Rng::seed_from_u64(0x9_0d);
     let step = (points.len() / 4000).max(1);
-    let sample: Vec<Vec3> = points.iter().step_by(step).copied().filter(|p| p.is_finite()).collect();
+    let sample: Vec<Vec3> =
+        points.iter().step_by(step).copied().filter(|p| p.is_finite()).collect();
     if sample.len() < 3 {
         return Ground { up: up_prior, floor: 0.0, found: false };
     }
@@ -64,7 +65,8 @@ pub fn ground(points: &[Vec3], up_prior: Vec3) -> Ground {
     let lowest = quantile(&mut heights, 0.02);
     let range = (quantile(&mut heights, 0.98) - lowest).max(1e-6);
     let fallback = Ground { up: up_prior, floor: lowest, found: false };
-    let low: Vec<Vec3> = sample.iter().copied().filter(|p| up_prior.dot(*p) < lowest + 0.35 * range).collect();
+    let low: Vec<Vec3> =
+        sample.iter().copied().filter(|p| up_prior.dot(*p) < lowest + 0.35 * range).collect();
     if low.len() < 3 {
         return fallback;
     }
@@ -106,7 +108,11 @@ pub fn ground(points: &[Vec3], up_prior: Vec3) -> Ground {
 
 /// The descriptor of one instance from its points and their colours (RGB in [0, 1]);
 /// `None` under [`MIN_POINTS`].
-pub fn descriptor(points: &[Vec3], colors: &[[f32; 3]], ground: &Ground) -> Option<[f32; DESCRIPTOR.len()]> {
+pub fn descriptor(
+    points: &[Vec3],
+    colors: &[[f32; 3]],
+    ground: &Ground,
+) -> Option<[f32; DESCRIPTOR.len()]> {
     if points.len() < MIN_POINTS || points.len() != colors.len() {
         return None;
     }
@@ -134,8 +140,9 @@ pub fn descriptor(points: &[Vec3], colors: &[[f32; 3]], ground: &Ground) -> Opti
     };
     let (e_a, e_b) = (extent(axes[0]), extent(axes[1]));
     let mean: [f32; 3] = std::array::from_fn(|c| colors.iter().map(|x| x[c]).sum::<f32>() / n);
-    let spread: [f32; 3] =
-        std::array::from_fn(|c| (colors.iter().map(|x| (x[c] - mean[c]).powi(2)).sum::<f32>() / n).sqrt());
+    let spread: [f32; 3] = std::array::from_fn(|c| {
+        (colors.iter().map(|x| (x[c] - mean[c]).powi(2)).sum::<f32>() / n).sqrt()
+    });
     Some([
         top - bottom,
         e_a.max(e_b),
@@ -153,7 +160,10 @@ pub fn descriptor(points: &[Vec3], colors: &[[f32; 3]], ground: &Ground) -> Opti
 
 /// The descriptor of every instance id of `scene` (ids in order; ids with too few Gaussians
 /// left out), with the floor found on all of the scene's Gaussians.
-pub fn instance_descriptors(scene: &GaussianScene, cameras: &[Camera]) -> (Ground, Vec<(u32, [f32; DESCRIPTOR.len()])>) {
+pub fn instance_descriptors(
+    scene: &GaussianScene,
+    cameras: &[Camera],
+) -> (Ground, Vec<(u32, [f32; DESCRIPTOR.len()])>) {
     let points: Vec<Vec3> = scene.means.iter().map(|m| Vec3::from_array(*m)).collect();
     let ground = ground(&points, camera_up(cameras));
     let k = scene.instance_id.iter().copied().max().unwrap_or(0) as usize;
@@ -203,13 +213,21 @@ mod tests {
     /// A floor grid at height 0 (y up), plus a 0.5 × 1.0 × 2.0 box standing on it.
     fn room(tilt: Quat) -> (Vec<Vec3>, Vec<Vec3>) {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let floor: Vec<Vec3> =
-            (0..3000).map(|_| Vec3::new(rng.random_range(-3.0..3.0), 0.0, rng.random_range(-3.0..3.0))).collect();
-        let object: Vec<Vec3> = (0..2000)
-            .map(|_| Vec3::new(rng.random_range(0.0..2.0), rng.random_range(0.0..1.0), rng.random_range(0.0..0.5)))
+        let floor: Vec<Vec3> = (0..3000)
+            .map(|_| Vec3::new(rng.random_range(-3.0..3.0), 0.0, rng.random_range(-3.0..3.0)))
             .collect();
-        let walls: Vec<Vec3> =
-            (0..2000).map(|_| Vec3::new(3.0, rng.random_range(0.0..2.5), rng.random_range(-3.0..3.0))).collect();
+        let object: Vec<Vec3> = (0..2000)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(0.0..2.0),
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(0.0..0.5),
+                )
+            })
+            .collect();
+        let walls: Vec<Vec3> = (0..2000)
+            .map(|_| Vec3::new(3.0, rng.random_range(0.0..2.5), rng.random_range(-3.0..3.0)))
+            .collect();
         let all = floor.iter().chain(&object).chain(&walls).map(|p| tilt * *p).collect();
         (all, object.iter().map(|p| tilt * *p).collect())
     }
@@ -240,7 +258,13 @@ mod tests {
     fn without_a_floor_the_prior_and_the_lowest_points_stand_in() {
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let blob: Vec<Vec3> = (0..1000)
-            .map(|_| Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)))
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                )
+            })
             .filter(|p| p.length() < 1.0)
             .collect();
         let g = ground(&blob, Vec3::Y);
@@ -251,14 +275,16 @@ mod tests {
 
     #[test]
     fn fusing_moves_a_prototype_toward_the_likely_label() {
-        let mut protos = vec![InstancePrototype { id: 2, embedding: vec![1.0, 0.0, 0.0], gaussians: 5 }];
+        let mut protos =
+            vec![InstancePrototype { id: 2, embedding: vec![1.0, 0.0, 0.0], gaussians: 5 }];
         let texts = [vec![0.0, 2.0, 0.0], vec![0.0, 0.0, 1.0]];
         fuse(&mut protos, &[(2, vec![0.9, 0.1])], &texts, 3.0);
         let e = &protos[0].embedding;
         assert!(e[1] > e[0] && e[1] > e[2], "{e:?}");
         assert!((e.iter().map(|x| x * x).sum::<f32>() - 1.0).abs() < 1e-5);
         // An id without probabilities keeps its prototype.
-        let mut other = vec![InstancePrototype { id: 3, embedding: vec![1.0, 0.0, 0.0], gaussians: 5 }];
+        let mut other =
+            vec![InstancePrototype { id: 3, embedding: vec![1.0, 0.0, 0.0], gaussians: 5 }];
         fuse(&mut other, &[(2, vec![0.9, 0.1])], &texts, 3.0);
         assert_eq!(other[0].embedding, [1.0, 0.0, 0.0]);
     }

@@ -52,10 +52,17 @@ fn prototypes_are_normalized_means_of_normalized_projections() {
     let (a, b) = (unit3([3.0, 0.0, 0.5]), unit3([0.0, 1.0, 0.5]));
     let mean: Vec<f32> = a.iter().zip(&b).map(|(x, y)| x + y).collect();
     let n = mean.iter().map(|x| x * x).sum::<f32>().sqrt();
-    assert!(close(&p[0].embedding, &mean.iter().map(|x| x / n).collect::<Vec<_>>()), "{:?}", p[0].embedding);
+    assert!(
+        close(&p[0].embedding, &mean.iter().map(|x| x / n).collect::<Vec<_>>()),
+        "{:?}",
+        p[0].embedding
+    );
     assert!(close(&p[1].embedding, &unit3([0.0, -2.0, 0.5])));
     let bad = SemanticProjection { weight: &W[..4], bias: &B };
-    assert!(matches!(semantic_prototypes(&s, &bad), Err(LabelError::Projection { expected: 6, .. })));
+    assert!(matches!(
+        semantic_prototypes(&s, &bad),
+        Err(LabelError::Projection { expected: 6, .. })
+    ));
 }
 
 #[test]
@@ -81,7 +88,12 @@ fn prototypes_match_the_definition_for_a_dense_projection() {
         let t: Vec<f64> = (0..text_dim)
             .map(|r| {
                 let row = &weight[r * sem_dim..(r + 1) * sem_dim];
-                bias[r] as f64 + row.iter().zip(s.semantic_of(i)).map(|(&w, &x)| w as f64 * x as f64).sum::<f64>()
+                bias[r] as f64
+                    + row
+                        .iter()
+                        .zip(s.semantic_of(i))
+                        .map(|(&w, &x)| w as f64 * x as f64)
+                        .sum::<f64>()
             })
             .collect();
         let n = t.iter().map(|x| x * x).sum::<f64>().sqrt();

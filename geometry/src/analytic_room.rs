@@ -1,17 +1,18 @@
-//! A small analytic room for the post-processing tests and benchmark: a floor with four
+//! A small analytic room for the tests and benchmark of the post-processing chain: a floor with
+//! four
 //! boxes (two "chair"s, a "table", a "cabinet"), seen by cameras on a ring, rendered exactly
 //! by ray–box intersection per pixel centre into an `inssplat_proto::dataset::Scene` (depth,
 //! instance ids, colour). [`ideal_outputs`] gives what a perfect network would output for it
-//! (`inssplat_geometry::ideal`, with the room's exact surface normals and labels), and the
+//! (`crate::ideal`, with the room's exact surface normals and labels), and the
 //! semantic code's Φ_sem projection lands on its label's (random, unit) text embedding.
-//! Included as a module by `post_pipeline.rs` and `benches/post.rs`; the same chain runs on
-//! synthesized scenes in the workspace's `tests/tests/chain_synth.rs`.
+//! The geometry and eval crates' tests and `eval/benches/post.rs` use it; the same chain runs
+//! on synthesized scenes in the workspace's `tests/tests/chain_synth.rs`.
 
+use crate::ideal::{ViewPlanes, ideal_view, label_projection, pixel_ray};
 use glam::Vec3;
 use inssplat_proto::dataset::{Frame, InstanceLabel, Scene};
 use inssplat_proto::signature::TEXT_DIM;
 use inssplat_proto::{Camera, Intrinsics};
-use inssplat_geometry::ideal::{ViewPlanes, ideal_view, label_projection, pixel_ray};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -31,7 +32,8 @@ const BOXES: [([f32; 3], [f32; 3], u16, &str); 4] = [
 pub const FLOOR_LABEL: &str = "floor";
 
 /// The vocabulary: every label of the room, the floor's, and distractors.
-pub const VOCABULARY: [&str; 8] = ["table", "chair", "cabinet", FLOOR_LABEL, "lamp", "sofa", "bed", "plant"];
+pub const VOCABULARY: [&str; 8] =
+    ["table", "chair", "cabinet", FLOOR_LABEL, "lamp", "sofa", "bed", "plant"];
 
 /// Width of the semantic feature L.
 pub const SEM_DIM: usize = VOCABULARY.len();
@@ -59,7 +61,10 @@ fn cast(origin: Vec3, dir: Vec3) -> Option<Hit> {
         let (a, b) = ((min - origin) * inv, (max - origin) * inv);
         let (near, far) = (a.min(b), a.max(b));
         let t_near = near.max_element();
-        if t_near > far.min_element() || t_near <= 0.0 || best.as_ref().is_some_and(|h| h.t <= t_near) {
+        if t_near > far.min_element()
+            || t_near <= 0.0
+            || best.as_ref().is_some_and(|h| h.t <= t_near)
+        {
             continue;
         }
         // The entry face is the axis whose slab was entered last.
@@ -99,7 +104,8 @@ pub fn render_scene(cameras: &[Camera]) -> Scene {
                 if let Some(hit) = cast(o, d) {
                     depth[p] = cam.world_to_camera(o + hit.t * d).z;
                     instances[p] = hit.id;
-                    let shade = 0.6 + 0.4 * hit.normal.dot(Vec3::new(0.3, 0.9, 0.3).normalize()).abs();
+                    let shade =
+                        0.6 + 0.4 * hit.normal.dot(Vec3::new(0.3, 0.9, 0.3).normalize()).abs();
                     let base = colour(hit.id);
                     for c in 0..3 {
                         rgb[3 * p + c] = (255.0 * base[c] * shade) as u8;
@@ -111,7 +117,10 @@ pub fn render_scene(cameras: &[Camera]) -> Scene {
         .collect();
     Scene {
         dir: Default::default(),
-        instances: BOXES.iter().map(|b| InstanceLabel { id: u32::from(b.2), label: b.3.to_string() }).collect(),
+        instances: BOXES
+            .iter()
+            .map(|b| InstanceLabel { id: u32::from(b.2), label: b.3.to_string() })
+            .collect(),
         frames,
         eval: None,
         depth_unit_m: inssplat_proto::dataset::DEFAULT_DEPTH_UNIT_M,
@@ -119,7 +128,8 @@ pub fn render_scene(cameras: &[Camera]) -> Scene {
 }
 
 fn colour(id: u16) -> [f32; 3] {
-    [[0.5, 0.5, 0.45], [0.6, 0.3, 0.1], [0.2, 0.5, 0.8], [0.3, 0.7, 0.3], [0.8, 0.8, 0.2]][usize::from(id) % 5]
+    [[0.5, 0.5, 0.45], [0.6, 0.3, 0.1], [0.2, 0.5, 0.8], [0.3, 0.7, 0.3], [0.8, 0.8, 0.2]]
+        [usize::from(id) % 5]
 }
 
 /// Text embeddings of [`VOCABULARY`] (random unit vectors) and the Φ_sem that maps the
@@ -189,6 +199,9 @@ fn ray_casting_matches_the_projected_geometry() {
         for id in 1..=4 {
             assert!(ids.contains(&id), "box {id} unseen");
         }
-        assert!(depth.iter().all(|z| *z >= 0.0) && depth.iter().filter(|z| **z > 0.0).count() > w * w / 2);
+        assert!(
+            depth.iter().all(|z| *z >= 0.0)
+                && depth.iter().filter(|z| **z > 0.0).count() > w * w / 2
+        );
     }
 }
