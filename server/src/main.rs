@@ -15,7 +15,7 @@ use inssplat_server::check;
 
 /// inssplat: instance-aware 3D Gaussians from a few unposed photos.
 #[derive(Parser)]
-#[command(version, about)]
+#[command(version)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

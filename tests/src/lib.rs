@@ -1,18 +1,14 @@
-//! inssplat-e2e: helpers for end-to-end tests that run the real `inssplat` and `inssplat-eval`
-//! binaries. Each is found through `INSSPLAT_BIN` / `INSSPLAT_EVAL_BIN`, else in the
-//! workspace's target folder, built there once if it is missing.
+//! inssplat-e2e: helpers for end-to-end tests that run the real `inssplat`, `inssplat-eval` and
+//! `inssplat-train` binaries, found in the workspace's target folder and built there once if
+//! they are missing.
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-/// Path of the workspace binary `name`, found through the environment variable `var`, else
-/// built once in the workspace's target folder.
-fn workspace_bin(name: &str, var: &str, cell: &'static OnceLock<PathBuf>) -> PathBuf {
+/// Path of the workspace binary `name`, built once in the workspace's target folder.
+fn workspace_bin(name: &str, cell: &'static OnceLock<PathBuf>) -> PathBuf {
     cell.get_or_init(|| {
-        if let Some(p) = std::env::var_os(var) {
-            return PathBuf::from(p);
-        }
         let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
         // `--workspace` builds with the features of nextest's own workspace build, so after it
         // this compiles nothing; `-p` of one crate would rebuild ~80 crates for its own set.
@@ -32,13 +28,19 @@ fn workspace_bin(name: &str, var: &str, cell: &'static OnceLock<PathBuf>) -> Pat
 /// Path of the `inssplat` binary, building it if needed.
 pub fn inssplat_bin() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
-    workspace_bin("inssplat", "INSSPLAT_BIN", &BIN)
+    workspace_bin("inssplat", &BIN)
 }
 
 /// Path of the `inssplat-eval` binary, building it if needed.
 pub fn inssplat_eval_bin() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
-    workspace_bin("inssplat-eval", "INSSPLAT_EVAL_BIN", &BIN)
+    workspace_bin("inssplat-eval", &BIN)
+}
+
+/// Path of the `inssplat-train` binary, building it if needed.
+pub fn inssplat_train_bin() -> PathBuf {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    workspace_bin("inssplat-train", &BIN)
 }
 
 /// Runs `inssplat` with `args`, returning its output.

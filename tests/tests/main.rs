@@ -3,6 +3,7 @@
 
 mod chain_synth;
 mod check;
+mod cli_reference;
 mod eval;
 mod http_errors;
 mod http_load;
