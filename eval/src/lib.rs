@@ -354,7 +354,7 @@ pub fn evaluate(
             "context views reconstructed{}; instance mIoU per target view, pooled; predicted context cameras aligned to the true ones by the \
              similarity fitted to their orientations (chordal mean) and their centres, at the scale of the predicted depth (median ratio; the centres' least squares \
              with --known-poses); true target cameras mapped into the predicted frame and \
-             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}{}",
+             the clustered scene rendered there{}{}; depth AbsRel (the network's) after median scale; {}{}{}{}{}",
             match (req.switches.known_poses, req.switches.known_depth) {
                 (false, false) => "",
                 (true, false) => " with the TRUE context cameras (--known-poses), not the predicted ones",
@@ -384,11 +384,6 @@ pub fn evaluate(
                 (Some(p), false) if p.estimate_focal => "; cameras registered from keypoint matches and the predicted depth, with one focal length measured from the matches where they pin it down, else the camera head's (stage `register`)",
                 (Some(_), false) => "; cameras registered from keypoint matches and the predicted depth, at the camera head's field of view (stage `register`, --keep-focal)",
                 (None, false) => "; the camera head's poses as they are (--no-register)",
-            },
-            match (&req.pipeline.register, req.switches.known_poses) {
-                (Some(p), false) if model.network.has_descriptors && p.use_descriptors => "; the network's learned descriptors matched beside the keypoints",
-                (Some(_), false) if model.network.has_descriptors => "; the network's learned descriptors ignored (--no-learned-matches)",
-                _ => "",
             },
             match (&req.pipeline.register, &req.pipeline.heading, req.switches.known_poses) {
                 (Some(_), Some(h), false) => format!(

@@ -162,9 +162,6 @@ struct AblationArgs {
     /// length for all views from the matches.
     #[arg(long)]
     keep_focal: bool,
-    /// Register on keypoint matches alone, ignoring the network's learned descriptors.
-    #[arg(long)]
-    no_learned_matches: bool,
     /// Name every pixel from its own rendered semantic feature instead of its instance's
     /// prototype (the ablation of instance-grounded aggregation).
     #[arg(long)]
@@ -277,7 +274,6 @@ impl PostArgs {
         Ok(PipelineConfig {
             register: (!ablations.no_register).then(|| RegisterParams {
                 estimate_focal: !ablations.keep_focal,
-                use_descriptors: !ablations.no_learned_matches,
                 photo_size: self.register_photo_size,
                 ..RegisterParams::default()
             }),

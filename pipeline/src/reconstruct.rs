@@ -69,8 +69,7 @@ pub struct PipelineConfig {
     /// Split each clustered instance into its parts apart in 3D (`None`: keep the
     /// clustering's instances).
     pub split: Option<SplitParams>,
-    /// Register the views from matched keypoints (and the network's learned descriptors when
-    /// it outputs them) and the predicted depth (the "register"
+    /// Register the views from matched keypoints and the predicted depth (the "register"
     /// stage; views it cannot reach keep the camera head's pose). `None`: the camera head's
     /// poses as they are.
     pub register: Option<RegisterParams>,

@@ -5,20 +5,14 @@
 //! chains to view 0 must land on their true poses relative to view 0, most views must be
 //! chained, and the views that no pair links must land closer to their poses than the
 //! identity; so too with the keypoints found in 512² photos of the same scenes, as a user's
-//! camera gives them. Learned descriptors only link the pairs that keypoints leave without a pose:
-//! descriptors that match nothing change no pose. The predicted
-//! depth's effect is measured by `inssplat eval` (see the model card).
+//! camera gives them. The predicted depth's effect is measured by `inssplat eval` (see the model card).
 
 use glam::Quat;
-use inssplat_geometry::register::{
-    Descriptors, KeypointImage, RegisterParams, RegisterView, register,
-};
+use inssplat_geometry::register::{KeypointImage, RegisterParams, RegisterView, register};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use inssplat_trainer::train::sample::in_reference_frame;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
 const VIEWS: usize = 8;
 const SIZE: u32 = 128;
@@ -46,21 +40,16 @@ const MAX_FOCAL_ERROR: f64 = 0.03;
 const MAX_FOCAL_ERROR_PHOTOS: f64 = 0.04;
 
 /// The registration of `frames` from cameras at the identity whose focal lengths are
-/// `focal_given` × the true ones, with each view's `descriptors` (`[D][H][W]`, D = the length
-/// over the pixels) if given, and the focal multiplier it estimated (`None`: not measured).
-fn registered(
-    frames: &[&Frame],
-    focal_given: f32,
-    descriptors: Option<&[Vec<f32>]>,
-) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
-    registered_with(frames, focal_given, descriptors, None, &RegisterParams::default())
+/// `focal_given` × the true ones, and the focal multiplier it estimated (`None`: not
+/// measured).
+fn registered(frames: &[&Frame], focal_given: f32) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
+    registered_with(frames, focal_given, None, &RegisterParams::default())
 }
 
 /// [`registered`] with keypoints found in `details` (one per frame) when given, under `params`.
 fn registered_with(
     frames: &[&Frame],
     focal_given: f32,
-    descriptors: Option<&[Vec<f32>]>,
     details: Option<&[KeypointImage]>,
     params: &RegisterParams,
 ) -> (Vec<Camera>, Vec<usize>, Option<f64>) {
@@ -84,8 +73,6 @@ fn registered_with(
             depth: f.depth.as_deref().expect("synthesized frames carry depth"),
             photo: [0, 0, SIZE, SIZE],
             camera,
-            descriptors: descriptors
-                .map(|d| Descriptors { data: &d[v], dim: d[v].len() / (SIZE * SIZE) as usize }),
             detail: details.map(|d| &d[v]),
         })
         .collect();
@@ -121,7 +108,7 @@ fn two_photos_from_one_spot_keep_the_camera_heads_focal_length() {
     let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
     let scene = synth::generate_split(0, &cfg).unwrap().scene;
     let frame = &scene.frames[0];
-    let (cameras, component, focal) = registered(&[frame, frame], 0.85, None);
+    let (cameras, component, focal) = registered(&[frame, frame], 0.85);
     assert_eq!(focal, None);
     assert_eq!(component, [0, 0], "the pair itself still registers");
     assert_eq!(cameras[1].intrinsics, cameras[0].intrinsics);
@@ -164,13 +151,8 @@ fn chained_views_land_on_their_true_poses(
                 })
                 .collect()
         });
-        let (cameras, component, focal) = registered_with(
-            &frames,
-            focal_given,
-            None,
-            details.as_deref(),
-            &RegisterParams::default(),
-        );
+        let (cameras, component, focal) =
+            registered_with(&frames, focal_given, details.as_deref(), &RegisterParams::default());
         let focal =
             focal.unwrap_or_else(|| panic!("scene {index}: the focal length was not measured"));
         let focal_error = (focal * focal_given as f64 - 1.0).abs();
@@ -220,35 +202,4 @@ fn chained_views_land_on_their_true_poses(
         placed < UNLINKED_GAIN * identity,
         "unlinked views placed {placed}° off, {identity}° at the identity"
     );
-}
-
-#[test]
-fn descriptors_only_link_what_keypoints_leave_unlinked() {
-    // Descriptors that match nothing (seeded noise, D = 16): a pair its keypoints link keeps
-    // the keypoints' pose, and noise links no pair, so every view lands exactly where keypoints
-    // alone put it.
-    let cfg = SynthConfig::new(Split::Test, Furniture::from_env());
-    let mut rng = ChaCha8Rng::seed_from_u64(17);
-    for index in 0..3 {
-        let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let context =
-            scene.eval.as_ref().and_then(|e| e.context_for(VIEWS)).expect("an 8-view context set");
-        let frames: Vec<&Frame> = context.iter().map(|&i| &scene.frames[i]).collect();
-        let noise: Vec<Vec<f32>> = (0..VIEWS)
-            .map(|_| {
-                (0..16 * (SIZE * SIZE) as usize).map(|_| rng.random_range(-1.0..1.0)).collect()
-            })
-            .collect();
-        let alone = registered(&frames, 1.0, None);
-        let with_noise = registered(&frames, 1.0, Some(&noise));
-        assert_eq!(with_noise.1, alone.1, "scene {index}: the components");
-        assert_eq!(with_noise.2, alone.2, "scene {index}: the focal multiplier");
-        for (v, (a, b)) in alone.0.iter().zip(&with_noise.0).enumerate() {
-            assert_eq!(
-                (a.rotation, a.translation),
-                (b.rotation, b.translation),
-                "scene {index}, view {v}"
-            );
-        }
-    }
 }

@@ -2,12 +2,9 @@
 //! VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
 //! ([`features`]; found in the photo at up to [`RegisterParams::photo_size`] pixels where it is
 //! larger than the network's input) are matched with every other view's; each pair with enough
-//! matches gets a relative pose ([`relative`]). A pair that its keypoints leave without a pose
-//! is matched on the network's learned per-pixel descriptors instead when the model outputs
-//! them ([`dense`]; unless [`RegisterParams::use_descriptors`] is off), lifted by the depth
-//! alike, and gets a pose when [`RegisterParams::descriptor_min_inliers`] of those matches
-//! agree. The views are chained to view 0 along the maximum spanning tree of the pairs' inlier
-//! counts, keypoint pairs before learned ones, each view through its best-supported path; then
+//! matches gets a relative pose ([`relative`]). The views are chained to view 0 along the
+//! maximum spanning tree of the pairs' inlier counts, each view through its best-supported
+//! path; then
 //! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors do
 //! not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms shot
 //! at 50–80°), so one focal-length multiplier for all views is measured first: each matched
@@ -27,12 +24,10 @@
 //! (world = view 0's camera), with the measured focal length and the depth's metric scale, so
 //! it replaces the predicted cameras one for one.
 
-pub mod dense;
 pub mod features;
 mod joint;
 pub mod relative;
 
-pub use dense::Descriptors;
 pub use features::KeypointImage;
 
 use glam::{DMat3, DQuat, Quat, Vec3};
@@ -73,16 +68,6 @@ pub struct RegisterParams {
     /// Estimate one focal-length multiplier for all views from the matches (the camera
     /// head's field of view is a guess); `false` keeps the intrinsics as given.
     pub estimate_focal: bool,
-    /// Match the views' learned descriptors ([`RegisterView::descriptors`]) beside their
-    /// keypoints; `false` ignores them (the A/B of learned matches).
-    pub use_descriptors: bool,
-    /// Spacing of the descriptor grid that is matched between views, in view pixels.
-    pub descriptor_stride: u32,
-    /// A descriptor match's 1 − cos must be below this × the runner-up's (outside the best's
-    /// neighbouring grid points). Lowe's 0.8 on distances between unit vectors is 0.64 here.
-    pub descriptor_ratio: f32,
-    /// Smallest cosine of a descriptor match.
-    pub descriptor_min_cos: f32,
     /// Long side, in pixels, of the copy of each photo that keypoints are found in when the
     /// photo is larger than the model's input (see [`RegisterView::detail`]); no larger than
     /// the input finds them in the input. 512 against the input (128) on 120 val scenes
@@ -90,11 +75,6 @@ pub struct RegisterParams {
     /// 0.36°, instance mIoU +0.84 ± 0.56, PSNR +0.37 ± 0.15 dB, for 17 ms more registration
     /// (`inssplat bench`, 8 views; the model card); 256 gained about half as much.
     pub photo_size: u32,
-    /// Inliers a pair linked by descriptor matches alone needs (they are matched only where
-    /// keypoints found no pose). On val40 at 8 views with run ds's descriptors (18% of the
-    /// matches right), 20 linked as many views wrongly as rightly (rotation error +0.87 ±
-    /// 0.49°) and 40 changed nothing beyond noise (+0.14 ± 0.15°).
-    pub descriptor_min_inliers: usize,
 }
 
 impl Default for RegisterParams {
@@ -111,11 +91,6 @@ impl Default for RegisterParams {
             min_inliers: 10,
             seed: 0x5eed,
             estimate_focal: true,
-            use_descriptors: true,
-            descriptor_stride: 4,
-            descriptor_ratio: 0.75,
-            descriptor_min_cos: 0.5,
-            descriptor_min_inliers: 40,
             photo_size: 512,
         }
     }
@@ -133,17 +108,9 @@ pub struct RegisterView<'a> {
     /// that is not letterbox padding.
     pub photo: [u32; 4],
     pub camera: &'a Camera,
-    /// The network's per-pixel matching descriptors of this view, if it outputs them.
-    pub descriptors: Option<Descriptors<'a>>,
     /// The photo at a finer scale than the view, to find keypoints in; `None` finds them in
     /// the view's own photo rectangle, upsampled.
     pub detail: Option<&'a KeypointImage>,
-}
-
-/// What a view is matched on: its keypoints, and its descriptor grid when it has one.
-struct Described {
-    keypoints: features::Features,
-    dense: Option<dense::DenseView>,
 }
 
 /// A pair of views with its relative pose.
@@ -154,8 +121,6 @@ struct PairPose {
     pose: Option<RelativePose>,
     /// The matches that agree with `pose`.
     inliers: Vec<Correspondence>,
-    /// The pose comes from learned descriptors ([`link_by_descriptors`]), not keypoints.
-    learned: bool,
 }
 
 /// The registered cameras and how they were found.
@@ -176,7 +141,7 @@ pub struct Registration {
 /// gets the identity pose.
 pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registration {
     let brief_tests = features::test_pairs();
-    let feats: Vec<Described> = views
+    let feats: Vec<features::Features> = views
         .par_iter()
         .map(|v| {
             let k = &v.camera.intrinsics;
@@ -188,10 +153,7 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
                     &own
                 }
             };
-            Described {
-                keypoints: features::detect(image, &brief_tests, params),
-                dense: if params.use_descriptors { dense::prepare(v, params) } else { None },
-            }
+            features::detect(image, &brief_tests, params)
         })
         .collect();
     let n = views.len();
@@ -214,9 +176,6 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
             matches.iter().map(|m| m.iter().map(|c| c.with_focal(scale)).collect()).collect();
         pairs = pair_poses(&jobs, &matches, &cameras, params);
     }
-    if params.use_descriptors {
-        link_by_descriptors(&mut pairs, views, &feats, &cameras, measured, params);
-    }
     // Prim's algorithm on inlier counts from view 0; when no pair reaches further, the first
     // view left (every view before it is placed) continues the motion before it and anchors
     // its own component.
@@ -237,13 +196,12 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
                 .iter()
                 .filter_map(|p| p.pose.map(|pose| (p, pose)))
                 .filter_map(|(p, pose)| match (component[p.i], component[p.j]) {
-                    (Some(c), None) => Some((p.i, p.j, pose, c, p.learned)),
-                    (None, Some(c)) => Some((p.j, p.i, pose.inverse(), c, p.learned)),
+                    (Some(c), None) => Some((p.i, p.j, pose, c)),
+                    (None, Some(c)) => Some((p.j, p.i, pose.inverse(), c)),
                     _ => None,
                 })
-                // Keypoint pairs first: a learned pair only reaches views no keypoint pair does.
-                .max_by_key(|&(_, _, pose, _, learned)| (!learned, pose.inliers));
-            let Some((from, to, pose, c, _)) = next else { break };
+                .max_by_key(|&(_, _, pose, _)| pose.inliers);
+            let Some((from, to, pose, c)) = next else { break };
             let parent = cameras[from];
             let cam = &mut cameras[to];
             cam.rotation = (pose.rotation * parent.rotation).normalize();
@@ -283,7 +241,7 @@ fn pair_poses(
                 &mut rng,
             )
             .unzip();
-            PairPose { i, j, pose, inliers: inliers.unwrap_or_default(), learned: false }
+            PairPose { i, j, pose, inliers: inliers.unwrap_or_default() }
         })
         .collect()
 }
@@ -416,11 +374,10 @@ fn lifted(
 fn keypoint_correspondences(
     a: &RegisterView<'_>,
     b: &RegisterView<'_>,
-    fa: &Described,
-    fb: &Described,
+    ka: &features::Features,
+    kb: &features::Features,
     params: &RegisterParams,
 ) -> Vec<Correspondence> {
-    let (ka, kb) = (&fa.keypoints, &fb.keypoints);
     lifted(
         a,
         b,
@@ -428,39 +385,4 @@ fn keypoint_correspondences(
             .into_iter()
             .map(|(ia, ib)| (ka.points[ia], kb.points[ib])),
     )
-}
-
-/// Gives every pair that its keypoints left without a pose one from its learned descriptors'
-/// matches, when both views have descriptors and the matches agree on a pose with
-/// [`RegisterParams::descriptor_min_inliers`] inliers. Only such pairs: where keypoints link
-/// two views, descriptors pooled with them brought in wrong matches that moved good poses.
-/// `focal` is the multiplier the keypoint pairs measured, if any.
-fn link_by_descriptors(
-    pairs: &mut [PairPose],
-    views: &[RegisterView<'_>],
-    feats: &[Described],
-    cameras: &[Camera],
-    focal: Option<f64>,
-    params: &RegisterParams,
-) {
-    let strict = RegisterParams { min_inliers: params.descriptor_min_inliers, ..params.clone() };
-    let n = cameras.len();
-    pairs.par_iter_mut().filter(|p| p.pose.is_none()).for_each(|p| {
-        let (Some(da), Some(db)) = (&feats[p.i].dense, &feats[p.j].dense) else { return };
-        let corr: Vec<Correspondence> =
-            lifted(&views[p.i], &views[p.j], dense::match_views(da, db, params))
-                .into_iter()
-                .map(|c| focal.map_or(c, |scale| c.with_focal(scale)))
-                .collect();
-        let mut rng = pair_rng(params, n, p.i, p.j);
-        if let Some((pose, inliers)) = relative_pose(
-            &corr,
-            &cameras[p.i].intrinsics,
-            &cameras[p.j].intrinsics,
-            &strict,
-            &mut rng,
-        ) {
-            (p.pose, p.inliers, p.learned) = (Some(pose), inliers, true);
-        }
-    });
 }

@@ -37,9 +37,6 @@ pub struct Network {
     pub model_version: String,
     /// The shape classifier stored with the network, if the file carries one.
     pub shapes: Option<ShapeClassifier>,
-    /// Whether the network has the optional descriptor head (a `descriptors` output), which
-    /// every run then reads into [`ModelOutput::descriptors`].
-    pub has_descriptors: bool,
     /// The camera rays the network reads, when it has the optional `rays` input.
     pub rays: Option<RayInput>,
 }
@@ -80,9 +77,6 @@ pub struct ModelOutput {
     /// Φ_sem, `[384][d_s]` row-major, and its bias `[384]`.
     pub sem_proj_weight: Vec<f32>,
     pub sem_proj_bias: Vec<f32>,
-    /// The learned matching descriptors, planar `[N][D][H][W]`, and D; `None` when the
-    /// network has no descriptor head (no `descriptors` output).
-    pub descriptors: Option<(Vec<f32>, usize)>,
 }
 
 /// The optional `rays` input ([`signature::INPUT_RAYS`]): each view's `tokens` patches get

@@ -1,11 +1,9 @@
 //! The network under ONNX Runtime, the one [`Backend`] today: finds the shared library
-//! (`ORT_DYLIB_PATH` or the setup
-//! step's `.deps/`), loads a model, checks its inputs, outputs and metadata against
-//! `proto::signature` (an error names the file and the tensor), reads the shape classifier the
-//! file may carry, notes whether the network has the optional descriptor head (read on every
-//! run when it does) and the optional `rays` input (then required on every run), sets
-//! intra-op threads from the
-//! core count, warms up, and runs batches of views into planar output arrays.
+//! (`ORT_DYLIB_PATH` or the setup step's `.deps/`), loads a model, checks its inputs, outputs
+//! and metadata against `proto::signature` (an error names the file and the tensor), reads the
+//! shape classifier the file may carry, notes whether the network has the optional `rays`
+//! input (then required on every run), sets intra-op threads from the core count, warms up,
+//! and runs batches of views into planar output arrays.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -104,12 +102,6 @@ impl Model {
             &signature::OUTPUTS,
             session.outputs().iter().map(|o| (o.name(), o.dtype())),
         )?;
-        let has_descriptors =
-            session.outputs().iter().any(|o| o.name() == signature::OUTPUT_DESCRIPTORS.name);
-        if has_descriptors {
-            let outputs = session.outputs().iter().map(|o| (o.name(), o.dtype()));
-            check_tensors(path, "output", &[signature::OUTPUT_DESCRIPTORS], outputs)?;
-        }
         let rays_input = session
             .inputs()
             .iter()
@@ -173,7 +165,7 @@ impl Model {
         drop(meta);
         let rays =
             rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
-        let network = Network { resolution, sem_dim, model_version, shapes, has_descriptors, rays };
+        let network = Network { resolution, sem_dim, model_version, shapes, rays };
         let mut model = Self { session, path: path.to_path_buf(), network };
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
         let warm_rays = rays.map(|r| vec![0.0f32; r.values(2)]);
@@ -229,16 +221,6 @@ impl Backend for Model {
                 .map_err(|e| RuntimeError::Run(e.to_string()))?;
             Ok(data.to_vec())
         };
-        let descriptors = if self.network.has_descriptors {
-            let spec = &signature::OUTPUT_DESCRIPTORS;
-            let (shape, data) = outputs[spec.name]
-                .try_extract_tensor::<f32>()
-                .map_err(|e| RuntimeError::Run(e.to_string()))?;
-            let dim = descriptor_dim(&self.path, shape, views, r)?;
-            Some((data.to_vec(), dim))
-        } else {
-            None
-        };
         Ok(ModelOutput {
             views,
             height: r,
@@ -252,30 +234,7 @@ impl Backend for Model {
             semantic: take(&signature::OUTPUT_SEMANTIC)?,
             sem_proj_weight: take(&signature::OUTPUT_SEM_PROJ_WEIGHT)?,
             sem_proj_bias: take(&signature::OUTPUT_SEM_PROJ_BIAS)?,
-            descriptors,
         })
-    }
-}
-
-/// D of a `descriptors` output of `shape` for `views` views at `resolution`², which must be
-/// `[views, D, resolution, resolution]` with D ≥ 1.
-fn descriptor_dim(
-    path: &Path,
-    shape: &[i64],
-    views: usize,
-    resolution: usize,
-) -> Result<usize, RuntimeError> {
-    let (n, r) = (views as i64, resolution as i64);
-    match *shape {
-        [v, d, h, w] if v == n && d >= 1 && h == r && w == r => Ok(d as usize),
-        _ => Err(RuntimeError::Signature {
-            path: path.to_path_buf(),
-            tensor: signature::OUTPUT_DESCRIPTORS.name.into(),
-            problem: format!(
-                "shape {shape:?}, expected {} = [{views}, D ≥ 1, {resolution}, {resolution}]",
-                signature::OUTPUT_DESCRIPTORS.shape
-            ),
-        }),
     }
 }
 
@@ -334,22 +293,6 @@ mod tests {
         for bad in [&[-1, 255, 24][..], &[-1, 256, 25], &[-1, 256], &[-1, 49, 6]] {
             let err = RayInput::of_shape(path, bad, 128).expect_err("refused").to_string();
             assert!(err.contains("m.onnx") && err.contains("`rays`"), "{err}");
-        }
-    }
-
-    use super::descriptor_dim;
-
-    #[test]
-    fn a_descriptor_output_of_the_wrong_shape_is_named() {
-        let path = Path::new("m.onnx");
-        assert_eq!(descriptor_dim(path, &[8, 16, 128, 128], 8, 128).unwrap(), 16);
-        for shape in [&[8, 16, 64, 128][..], &[4, 16, 128, 128], &[8, 0, 128, 128], &[8, 128, 128]]
-        {
-            let message = descriptor_dim(path, shape, 8, 128).unwrap_err().to_string();
-            assert!(
-                message.contains("`descriptors`") && message.contains("[N, D, H, W]"),
-                "{message}"
-            );
         }
     }
 }

@@ -1,12 +1,10 @@
 //! Stage "register": the views' cameras. Known poses are taken as given; else the camera
 //! head's, registered from matched keypoints (found in each photo's own detail where it is
-//! larger than the network's input), the network's learned descriptors when it has them, and
-//! the predicted depth ([`inssplat_geometry::register`]).
+//! larger than the network's input) and lifted by the predicted depth
+//! ([`inssplat_geometry::register`]).
 
 use glam::{Quat, Vec2, Vec3};
-use inssplat_geometry::register::{
-    Descriptors, KeypointImage, RegisterParams, RegisterView, register,
-};
+use inssplat_geometry::register::{KeypointImage, RegisterParams, RegisterView, register};
 use inssplat_proto::api::{FocalSource, Placement};
 use inssplat_proto::signature::CAMERA_CHANNELS;
 use inssplat_proto::{Camera, Intrinsics};
@@ -91,10 +89,6 @@ pub fn run(
                 depth: &out.depth[plane(1, pixels, v)],
                 photo: decoded[v].letterbox.photo_rect(),
                 camera: &predicted[v],
-                descriptors: out.descriptors.as_ref().map(|(data, dim)| Descriptors {
-                    data: &data[plane(*dim, pixels, v)],
-                    dim: *dim,
-                }),
                 detail: details[v].as_ref(),
             })
             .collect();
