@@ -10,62 +10,70 @@ largest true overlap with another view, and their largest with
 view 0 or a view registration chained to it: whether the views that no match links could be
 linked by any matcher at all. PAIRS.json gets, for each unlinked view that overlaps view 0 or
 a view chained to it by more than 30%, that pair [scene, view, other view, overlap]: the pairs
-a matcher could link (`descriptor_precision.py` scores matches on them alone). Needs numpy
-and pillow, and target/release/inssplat."""
-import json, os, shutil, subprocess, sys, numpy as np
-from PIL import Image
-data = sys.argv[1]; model = sys.argv[2] if len(sys.argv) > 2 else 'models/inssplat-default.onnx'
+a matcher could link. Needs numpy and pillow, and target/release/inssplat."""
+import collections
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+
+from scene import camera_of, scenes
+
+data = sys.argv[1]
+model = sys.argv[2] if len(sys.argv) > 2 else 'models/inssplat-default.onnx'
 pairs_out = sys.argv[3] if len(sys.argv) > 3 else None
 nv = 8
-def load(scene):
-    t = json.load(open(f'{data}/{scene}/transforms.json'))
-    return t
-def cam(t, f):
-    fx = f.get('fl_x', t['fl_x']); fy = f.get('fl_y', t['fl_y']); cx = f.get('cx', t['cx']); cy = f.get('cy', t['cy'])
-    return np.array(f['transform_matrix']), fx, fy, cx, cy
-def depth(t, scene, f):
-    return np.array(Image.open(f'{data}/{scene}/{f["depth_file_path"]}')).astype(np.float64) * t['depth_unit_m']
-def overlap(t, scene, fa, fb):
-    Ta, fx, fy, cx, cy = cam(t, fa); Tb, gx, gy, dx, dy = cam(t, fb)
-    da = depth(t, scene, fa); db = depth(t, scene, fb)
+WORLD_UP = np.array([0, 1.0, 0])
+
+
+def overlap(ca, da, cb, db):
+    """The share of view a's pixels (camera ca, true depth da) that project into view b and meet
+    its true surface db there within 5%."""
     h, w = da.shape
-    v, u = np.mgrid[0:h, 0:w]; u = u + .5; v = v + .5
     ok = da > 0
-    x = (u - cx) / fx * da; y = -(v - cy) / fy * da; z = -da
-    P = np.stack([x, y, z, np.ones_like(z)], -1)[ok]
-    W = P @ Ta.T; C = W @ np.linalg.inv(Tb).T
-    zb = -C[:, 2]
-    ub = C[:, 0] / zb * gx + dx; vb = -C[:, 1] / zb * gy + dy
+    world = ((ca.rays() * da[..., None])[ok] - ca.translation) @ ca.rotation
+    ub, vb, zb = cb.project(world @ cb.rotation.T + cb.translation)
     inside = (zb > 1e-3) & (ub >= 0) & (ub < w) & (vb >= 0) & (vb < h)
     ui = np.clip(ub.astype(int), 0, w - 1); vi = np.clip(vb.astype(int), 0, h - 1)
     vis = inside & (np.abs(db[vi, ui] - zb) < 0.05 * zb)
     return vis.sum() / max(ok.sum(), 1)
+
+
+def relative(c0, ck):
+    """Camera k in camera 0's frame: the rotation camera k → camera 0 and k's centre."""
+    return c0.rotation @ ck.rotation.T, c0.rotation @ ck.center() + c0.translation
+
+
 def rot_err(Rp, Rt):
     c = (np.trace(Rp.T @ Rt) - 1) / 2
     return np.degrees(np.arccos(np.clip(c, -1, 1)))
+
+
 rows = []
-for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
-    t = load(scene); ctx = t['eval']['context'][str(nv)]
-    fr = [t['frames'][i] for i in ctx]
+for sc in scenes(data):
+    scene = sc.name; ctx = sc.context(nv)
     tmp = f'/tmp/unlinked_views/{scene}'; shutil.rmtree(tmp, ignore_errors=True); os.makedirs(tmp + '/in')
-    for k, f in enumerate(fr): shutil.copy(f'{data}/{scene}/{f["file_path"]}', f'{tmp}/in/{k:03d}.png')
+    for k, i in enumerate(ctx): shutil.copy(sc.path(i), f'{tmp}/in/{k:03d}.png')
     out = subprocess.run(['target/release/inssplat', 'reconstruct', '--json', '--model', model, '--out', tmp + '/out', tmp + '/in'], capture_output=True, text=True, check=True).stdout
     cams = json.loads(out)['cameras']
-    O = np.array([[overlap(t, scene, a, b) if a is not b else 1.0 for b in fr] for a in fr])
-    T0 = cam(t, fr[0])[0]; P0 = np.array(cams[0]['transform_matrix'])
+    true = [sc.camera(i) for i in ctx]; pred = [camera_of(c, where=f'{scene}: cameras[{k}]') for k, c in enumerate(cams)]
+    depths = [sc.depth(i, np.float64) for i in ctx]
+    O = np.array([[overlap(true[a], depths[a], true[b], depths[b]) if a != b else 1.0 for b in range(nv)] for a in range(nv)])
+    # The true up in view 0's frame.
+    up = true[0].rotation @ WORLD_UP
     for k in range(1, nv):
-        Rt = np.linalg.inv(T0)[:3, :3] @ cam(t, fr[k])[0][:3, :3]
-        Rp = np.linalg.inv(P0)[:3, :3] @ np.array(cams[k]['transform_matrix'])[:3, :3]
+        Rt, ct = relative(true[0], true[k])
+        Rp, cp = relative(pred[0], pred[k])
         others = [O[k, j] for j in range(nv) if j != k]
         # The error split about the true up (view 0's frame): heading, pitch, roll.
-        up = np.linalg.inv(T0)[:3, :3] @ np.array([0, 1.0, 0])
-        fp, ft = -Rp[:, 2], -Rt[:, 2]
+        fp, ft = Rp[:, 2], Rt[:, 2]
         hp, ht = fp - (fp @ up) * up, ft - (ft @ up) * up
         heading = np.degrees(np.arccos(np.clip(hp @ ht / np.linalg.norm(hp) / np.linalg.norm(ht), -1, 1)))
         tilt = lambda a, b: abs(np.degrees(np.arcsin(np.clip(a @ up, -1, 1)) - np.arcsin(np.clip(b @ up, -1, 1))))
         # The centre's error relative to view 0, at the depth's scale against metres.
-        centre = lambda T, Tk: (np.linalg.inv(T) @ Tk)[:3, 3]
-        ct, cp = centre(T0, cam(t, fr[k])[0]), centre(P0, np.array(cams[k]['transform_matrix']))
         rows.append(dict(scene=scene, view=k, placement=cams[k]['placement'], rot=rot_err(Rp, Rt), ov0=O[k, 0], ovmax=max(others),
                          centre_err=np.linalg.norm(ct - cp), distance=np.linalg.norm(ct),
                          heading=heading, pitch=tilt(fp, ft), roll=tilt(Rp[:, 0], Rt[:, 0])))
@@ -74,7 +82,6 @@ for scene in sorted(s for s in os.listdir(data) if s.startswith('scene_')):
     for r in rows[-(nv - 1):]:
         r['ovlinked'] = max(O[r['view'], j] for j in linked if j != r['view'])
         r['partner'] = max((j for j in linked if j != r['view']), key=lambda j: O[r['view'], j])
-import collections
 by = collections.defaultdict(list)
 for r in rows: by[r['placement']].append(r)
 for p, rs in by.items():
