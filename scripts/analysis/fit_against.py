@@ -6,7 +6,7 @@
 Each FIT.json is `inssplat-train fit-scene --score-at ... --json FIT.json`; several runs of
 the same scenes (say, one stopped at 10 steps and scored at 1, 2 and 5, one run to
 convergence) pool their scored points, since a fit repeats step for step. Each EVAL.json
-is an `inssplat eval --out` run on the same scenes (its reports at fit-scene's view count).
+is an `inssplat-eval score --out` run on the same scenes (its reports at fit-scene's view count).
 Prints, for every evaluation, its mean instance mIoU and seconds a scene; fit-scene's means
 at each scored step count (a fit that converged before a count keeps its final score there)
 and at convergence, with the scenes on which the fit already matches the feed-forward score;

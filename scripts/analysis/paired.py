@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Paired per-scene differences between two `inssplat eval --out` runs on the same scenes.
+"""Paired per-scene differences between two `inssplat-eval score --out` runs on the same scenes.
 
     python3 scripts/analysis/paired.py BASE/eval.json NEW/eval.json [metric ...]
 
