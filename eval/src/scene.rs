@@ -1,4 +1,4 @@
-//! One scene at one view count, scored by the DESIGN.md protocol: reconstruct from the
+//! One scene at one view count, scored by the protocol of docs/EVALUATION.md: reconstruct from the
 //! scene's context views, align the predicted cameras to the true ones (the similarity fitted to
 //! their orientations and centres, [`inssplat_metrics::pose::pose_alignment`], with the
 //! scale of the predicted depth: its median ratio to the true depth, which the centres of

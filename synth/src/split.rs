@@ -1,6 +1,6 @@
 //! Dataset splits and their seeds. `train`, `val` and `test` draw scene seeds from disjoint
 //! ranges of [`SPLIT_STRIDE`] seeds each, so no scene appears in two splits whatever the
-//! counts and offsets. Test scenes also carry the evaluation split of DATASET.md: nested
+//! counts and offsets. Test scenes also carry the evaluation split of docs/DATASET.md: nested
 //! context sets for 2/4/8/16 views spread along the camera path and the remaining frames as
 //! targets (novel views between and beside the inputs).
 

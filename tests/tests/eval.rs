@@ -10,11 +10,29 @@
 //! `inssplat-eval bench`: every stage timed per view count (the refine stage when asked for),
 //! Gaussians in = views × pixels.
 
+use std::path::Path;
+use std::process::Output;
+
 use crate::support::{self, s};
+
 use inssplat_e2e::inssplat_eval;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use serde_json::Value;
+
+/// `inssplat-eval score` of the scenes in `data` at `views` with `model`, then `extra`.
+fn score(data: &Path, views: &str, model: &Path, extra: &[&str]) -> Output {
+    inssplat_eval(
+        &[&["score", "--data", s(data), "--views", views, "--model", s(model)], extra].concat(),
+    )
+}
+
+/// `inssplat-eval bench` of the scene `scene` at `views` with `model`, then `extra`.
+fn bench(scene: &Path, views: &str, model: &Path, extra: &[&str]) -> Output {
+    inssplat_eval(
+        &[&["bench", "--data", s(scene), "--views", views, "--model", s(model)], extra].concat(),
+    )
+}
 
 /// A network that reads its cameras as rays runs twice by default (stage "rays", on the
 /// registered cameras), once with `--no-ray-pass`, and with `--known-poses` once on the true
@@ -27,24 +45,7 @@ fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
     support::test_scene(&data, 0);
     let stages = |extra: &[&str]| {
         let out_dir = dir.path().join(format!("eval{}", extra.concat()));
-        let out = inssplat_eval(
-            &[
-                &[
-                    "score",
-                    "--data",
-                    s(&data),
-                    "--views",
-                    "2",
-                    "--model",
-                    s(&model),
-                    "--out",
-                    s(&out_dir),
-                    "--json",
-                ],
-                extra,
-            ]
-            .concat(),
-        );
+        let out = score(&data, "2", &model, &[&["--out", s(&out_dir), "--json"], extra].concat());
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
         (
@@ -69,18 +70,7 @@ fn eval_reports_every_metric_per_view_count() {
     let data = dir.path().join("test");
     support::test_scene(&data, 0);
     let out_dir = dir.path().join("eval");
-    let out = inssplat_eval(&[
-        "score",
-        "--data",
-        s(&data),
-        "--views",
-        "2,4",
-        "--model",
-        s(&model),
-        "--out",
-        s(&out_dir),
-        "--json",
-    ]);
+    let out = score(&data, "2,4", &model, &["--out", s(&out_dir), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // Stderr is a pipe here, so progress comes as one line per finished run, the JSON alone
     // on stdout.
@@ -199,24 +189,22 @@ fn eval_reports_every_metric_per_view_count() {
     // With the true context cameras the alignment is exact, with the true depth so is the
     // depth, and the report says so, as it says that the target cameras were refined and the
     // Gaussians fitted to the context photos (the given cameras kept) ...
-    let out = inssplat_eval(&[
-        "score",
-        "--data",
-        s(&data),
-        "--views",
+    let out = score(
+        &data,
         "4",
-        "--model",
-        s(&model),
-        "--known-poses",
-        "--known-depth",
-        "--no-aggregation",
-        "--target-pose-steps",
-        "6",
-        "--refine-steps",
-        "12",
-        "--no-fill",
-        "--json",
-    ]);
+        &model,
+        &[
+            "--known-poses",
+            "--known-depth",
+            "--no-aggregation",
+            "--target-pose-steps",
+            "6",
+            "--refine-steps",
+            "12",
+            "--no-fill",
+            "--json",
+        ],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["known_poses"], true);
@@ -267,20 +255,7 @@ fn eval_reports_every_metric_per_view_count() {
     assert!((0.0..=1.0).contains(&sem), "{scene}");
 
     // The paper's mode: per-view 2D clustering, same metrics, with the clustering asked for.
-    let out = inssplat_eval(&[
-        "score",
-        "--data",
-        s(&data),
-        "--views",
-        "4",
-        "--model",
-        s(&model),
-        "--cluster",
-        "2d",
-        "--min-samples",
-        "3",
-        "--json",
-    ]);
+    let out = score(&data, "4", &model, &["--cluster", "2d", "--min-samples", "3", "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["cluster"], "2d");
@@ -307,21 +282,12 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     let examples = |weight: &str| -> Vec<LabelledDescriptor> {
         let file = dir.path().join(format!("examples_{weight}.json"));
         let out_dir = dir.path().join(format!("eval_{weight}"));
-        let out = inssplat_eval(&[
-            "score",
-            "--data",
-            s(&data),
-            "--views",
+        let out = score(
+            &data,
             "4",
-            "--model",
-            s(&model),
-            "--shape-weight",
-            weight,
-            "--shape-examples",
-            s(&file),
-            "--out",
-            s(&out_dir),
-        ]);
+            &model,
+            &["--shape-weight", weight, "--shape-examples", s(&file), "--out", s(&out_dir)],
+        );
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap()
     };
@@ -341,13 +307,7 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
     // semantic mIoU averages over classes, and a mixed instance named for its larger part can
     // cost the smaller part's class more than it gains.)
     let semantic = |extra: &[&str]| -> (f64, Value) {
-        let out = inssplat_eval(
-            &[
-                &["score", "--data", s(&data), "--views", "4", "--model", s(&model), "--json"],
-                extra,
-            ]
-            .concat(),
-        );
+        let out = score(&data, "4", &model, &[&["--json"], extra].concat());
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let report: Value = serde_json::from_slice(&out.stdout).unwrap();
         (report["scenes"][0]["semantic_miou"].as_f64().unwrap(), report)
@@ -375,13 +335,8 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
     let (photos, other) = (dir.path().join("photos"), dir.path().join("other"));
     synth::generate_split(0, &cfg).unwrap().write(&photos.join("scene_000000")).unwrap();
     synth::generate_split(1, &cfg).unwrap().write(&other.join("scene_000000")).unwrap();
-    let eval = |extra: &[&str]| {
-        let mut args =
-            vec!["score", "--data", s(&data), "--views", "2", "--model", s(&model), "--json"];
-        args.extend_from_slice(extra);
-        inssplat_eval(&args)
-    };
-    let report = |out: std::process::Output| -> Value {
+    let eval = |extra: &[&str]| score(&data, "2", &model, &[&["--json"], extra].concat());
+    let report = |out: Output| -> Value {
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         serde_json::from_slice(&out.stdout).unwrap()
     };
@@ -450,18 +405,7 @@ fn bench_times_every_stage_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = support::tiny_model(dir.path());
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "2,4",
-        "--runs",
-        "2",
-        "--model",
-        s(&model),
-        "--json",
-    ]);
+    let out = bench(&scene, "2,4", &model, &["--runs", "2", "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
@@ -489,17 +433,7 @@ fn bench_times_every_stage_per_view_count() {
         assert_eq!(r["gaussians_in"].as_u64().unwrap(), r["views"].as_u64().unwrap() * 32 * 32);
         assert!(r["gaussians_kept"].as_u64().unwrap() <= r["gaussians_in"].as_u64().unwrap());
     }
-    let table = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "8,16",
-        "--runs",
-        "1",
-        "--model",
-        s(&model),
-    ]);
+    let table = bench(&scene, "8,16", &model, &["--runs", "1"]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(
         table.status.success()
@@ -509,19 +443,7 @@ fn bench_times_every_stage_per_view_count() {
     );
     assert!(!text.contains("refine"), "no refine stage unless asked: {text}");
     // With test-time refinement the stage is timed and gets its column.
-    let table = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "2",
-        "--runs",
-        "1",
-        "--model",
-        s(&model),
-        "--refine-steps",
-        "4",
-    ]);
+    let table = bench(&scene, "2", &model, &["--runs", "1", "--refine-steps", "4"]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(table.status.success() && text.contains("| label | refine | masks |"), "{text}");
 }
@@ -536,20 +458,7 @@ fn bench_against_times_two_models_in_turns() {
     let int8 = dir.path().join("tiny-int8.onnx");
     inssplat_trainer::export::quantize_file(&model, &int8, None).unwrap();
     let scene = support::test_scene(dir.path(), 1);
-    let out = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "2,4",
-        "--runs",
-        "3",
-        "--model",
-        s(&model),
-        "--against",
-        s(&int8),
-        "--json",
-    ]);
+    let out = bench(&scene, "2,4", &model, &["--runs", "3", "--against", s(&int8), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = rows.as_array().unwrap();
@@ -569,19 +478,7 @@ fn bench_against_times_two_models_in_turns() {
             "the network is one stage of the request: {r}"
         );
     }
-    let table = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "2",
-        "--runs",
-        "1",
-        "--model",
-        s(&model),
-        "--against",
-        s(&int8),
-    ]);
+    let table = bench(&scene, "2", &model, &["--runs", "1", "--against", s(&int8)]);
     let text = String::from_utf8_lossy(&table.stdout);
     assert!(
         table.status.success()
@@ -589,17 +486,7 @@ fn bench_against_times_two_models_in_turns() {
             && text.contains("B: e2e-random+int8 ("),
         "{text}"
     );
-    let missing = inssplat_eval(&[
-        "bench",
-        "--data",
-        s(&scene),
-        "--views",
-        "2",
-        "--model",
-        s(&model),
-        "--against",
-        "/nonexistent/b.onnx",
-    ]);
+    let missing = bench(&scene, "2", &model, &["--against", "/nonexistent/b.onnx"]);
     let err = String::from_utf8_lossy(&missing.stderr);
     assert!(!missing.status.success() && err.contains("/nonexistent/b.onnx"), "{err}");
 }
@@ -611,20 +498,12 @@ fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     let data = dir.path().join("test");
     support::test_scene(&data, 2);
     let out_dir = dir.path().join("eval");
-    let out = inssplat_eval(&[
-        "score",
-        "--data",
-        s(&data),
-        "--views",
+    let out = score(
+        &data,
         "4",
-        "--model",
-        s(&model),
-        "--perturb",
-        "noise,overlap,repeats",
-        "--out",
-        s(&out_dir),
-        "--json",
-    ]);
+        &model,
+        &["--perturb", "noise,overlap,repeats", "--out", s(&out_dir), "--json"],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = report["robustness"].as_array().unwrap();
@@ -656,18 +535,7 @@ fn sweep_draws_the_speed_accuracy_chart() {
     let data = dir.path().join("test");
     support::test_scene(&data, 3);
     let out_dir = dir.path().join("sweep");
-    let out = inssplat_eval(&[
-        "score",
-        "--data",
-        s(&data),
-        "--views",
-        "2",
-        "--model",
-        s(&model),
-        "--sweep",
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = score(&data, "2", &model, &["--sweep", "--out", s(&out_dir)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let points: Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap())

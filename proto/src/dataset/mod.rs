@@ -1,4 +1,4 @@
-//! The scene dataset format (DATASET.md): one folder per scene, nerfstudio `transforms.json`
+//! The scene dataset format (docs/DATASET.md): one folder per scene, nerfstudio `transforms.json`
 //! extended with 16-bit depth, 16-bit instance masks, instance labels and an optional
 //! context/target split for evaluation. [`Scene::load`] reads and validates a folder,
 //! [`Scene::write`] writes one; every rejection names the file and the field.

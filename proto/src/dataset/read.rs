@@ -1,4 +1,4 @@
-//! Reading and validating a scene folder. Everything DATASET.md says a reader must reject is
+//! Reading and validating a scene folder. Everything docs/DATASET.md says a reader must reject is
 //! rejected here with the file and the field: missing or unreadable images, mismatched sizes
 //! in a frame's image/depth/instance triple, non-finite or singular transforms, unknown
 //! instance ids, and paths that leave the scene folder.

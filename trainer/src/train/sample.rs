@@ -1,5 +1,5 @@
 //! Training samples: which scene and which views each step sees, read from a folder of scenes
-//! in the DATASET.md format or synthesized on the fly, and turned into host arrays the step
+//! in the docs/DATASET.md format or synthesized on the fly, and turned into host arrays the step
 //! feeds to the network and the losses.
 //!
 //! A sample is a pure function of (seed, index i): the scene is `first_scene + i / reuse` (a
