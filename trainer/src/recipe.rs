@@ -1,8 +1,8 @@
 //! A training run given as a TOML file (`inssplat-train train --config RUN.toml`). Each key is
 //! a flag of `train` without its leading dashes, spelled with dashes or underscores
-//! (`lr = 1.5e-4`, `camera-rays = 2`, `semantic-objects-only = true`, `depth-gradient-strides
-//! = [1, 8]`). The file's flags are placed before the command line's, and a flag given in
-//! both takes the command line's value, so a recipe can be rerun with one flag changed.
+//! (`lr = 1.5e-4`, `camera-rays = 2`, `semantic-objects-only = true`); a list is given with
+//! commas. The file's flags are placed before the command line's, and a flag given in both
+//! takes the command line's value, so a recipe can be rerun with one flag changed.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -18,7 +18,8 @@ pub enum RecipeError {
     MissingPath,
 }
 
-/// The flags of the recipe at `path`, in the file's order of keys.
+/// The flags of the recipe at `path`, by key in alphabetical order (the order of flags does not
+/// matter: each is given once).
 pub fn flags(path: &Path) -> Result<Vec<String>, RecipeError> {
     let read = |message: String| RecipeError::Read { path: path.to_path_buf(), message };
     let text = std::fs::read_to_string(path).map_err(|e| read(e.to_string()))?;
@@ -93,7 +94,7 @@ mod tests {
     fn a_recipe_becomes_flags_before_the_command_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.toml");
-        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\ndepth-gradient-strides = [1, 8]\n").unwrap();
+        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\nstrides = [1, 8]\n").unwrap();
         let args = expand(os(&[
             "t",
             "train",
@@ -105,12 +106,8 @@ mod tests {
             "3e-4",
         ]))
         .unwrap();
-        let recipe = [
-            "--lr=0.00015",
-            "--camera-rays=2",
-            "--semantic-objects-only",
-            "--depth-gradient-strides=1,8",
-        ];
+        let recipe =
+            ["--camera-rays=2", "--lr=0.00015", "--semantic-objects-only", "--strides=1,8"];
         let given = ["--out", "r", "--config", path.to_str().unwrap(), "--lr", "3e-4"];
         let want = os(&[&["t", "train"][..], &recipe, &given].concat());
         assert_eq!(args, want);
