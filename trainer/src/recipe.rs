@@ -1,7 +1,7 @@
 //! A training run given as a TOML file (`inssplat-train train --config RUN.toml`). Each key is
 //! a flag of `train` without its leading dashes, spelled with dashes or underscores
-//! (`lr = 1.5e-4`, `camera-rays = 2`, `semantic-objects-only = true`, `depth-gradient-strides
-//! = [1, 8]`). The file's flags are placed before the command line's, and a flag given in
+//! (`lr = 1.5e-4`, `camera-rays = 2`, `semantic-objects-only = true`; a list, `[1, 8]`, becomes
+//! the comma-separated `1,8`). The file's flags are placed before the command line's, and a flag given in
 //! both takes the command line's value, so a recipe can be rerun with one flag changed.
 
 use std::ffi::OsString;
@@ -93,7 +93,7 @@ mod tests {
     fn a_recipe_becomes_flags_before_the_command_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.toml");
-        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\ndepth-gradient-strides = [1, 8]\n").unwrap();
+        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\nsome-list = [1, 8]\n").unwrap();
         let args = expand(os(&[
             "t",
             "train",
@@ -105,12 +105,8 @@ mod tests {
             "3e-4",
         ]))
         .unwrap();
-        let recipe = [
-            "--lr=0.00015",
-            "--camera-rays=2",
-            "--semantic-objects-only",
-            "--depth-gradient-strides=1,8",
-        ];
+        let recipe =
+            ["--lr=0.00015", "--camera-rays=2", "--semantic-objects-only", "--some-list=1,8"];
         let given = ["--out", "r", "--config", path.to_str().unwrap(), "--lr", "3e-4"];
         let want = os(&[&["t", "train"][..], &recipe, &given].concat());
         assert_eq!(args, want);
