@@ -39,8 +39,8 @@ pub struct TrainArgs {
     data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
     /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
-    /// schedule; the network shape flags are then ignored, but for --image-skips,
-    /// --global-kv-pool and --point-map-weight.
+    /// schedule; the network shape flags are then ignored, but for --image-skips, a larger
+    /// --mlp-ratio or --sem-dim, --global-kv-pool and --camera-rays.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
@@ -68,9 +68,6 @@ pub struct TrainArgs {
     /// Peak learning rate.
     #[arg(long, default_value_t = 5e-4)]
     lr: f64,
-    /// Learning-rate factor of the transformer blocks.
-    #[arg(long, default_value_t = 1.0)]
-    backbone_lr_scale: f64,
     #[arg(long, default_value_t = 2)]
     min_views: usize,
     #[arg(long, default_value_t = 8)]
@@ -138,23 +135,6 @@ pub struct TrainArgs {
     /// w_geom, the weight of L_geom in the total (the paper's 1).
     #[arg(long, default_value_t = 1.0)]
     geometry_weight: f64,
-    /// Weight of VGGT's depth-gradient term inside L_depth (|∂(d̂ − d)| to the right and lower
-    /// neighbours; 0: the L1 term alone).
-    #[arg(long, default_value_t = 0.0)]
-    depth_gradient_weight: f64,
-    /// Pixel strides of the depth-gradient term, comma-separated: 1 is VGGT's neighbour
-    /// difference; strides of an object's size (8, 16, 32 at 128²) also pair each object
-    /// pixel with the background beside it.
-    #[arg(long, value_delimiter = ',', default_value = "1", value_parser = clap::value_parser!(u16).range(1..))]
-    depth_gradient_strides: Vec<u16>,
-    /// L_depth divides each pixel's error by its own true depth (the AbsRel of evaluation)
-    /// instead of by the scene's median depth.
-    #[arg(long)]
-    depth_relative: bool,
-    /// Weight of the scale-invariant shape term inside L_depth (|ŝ·d̂ − d| with ŝ each view's
-    /// least-squares scale onto the ground truth; 0: none).
-    #[arg(long, default_value_t = 0.0)]
-    depth_shape_weight: f64,
     /// β of L_depth's pixel weights, in [0, 1]: 0 weighs every pixel alike, 1 every instance
     /// alike (a chair as much as the floor), between them a mixture.
     #[arg(long, default_value_t = 0.0, value_parser = unit_interval)]
@@ -166,50 +146,9 @@ pub struct TrainArgs {
     /// pixel's embedding is no longer pulled (0: pulled all the way, into the tightest groups).
     #[arg(long, default_value_t = LossConfig::new().pull_margin, value_parser = unit_interval)]
     pull_margin: f64,
-    /// Weight, inside L_ins, of the assignment term: each pixel's cross-entropy of its own
-    /// instance's prototype among all of the sample's at τ 0.1 (the nearest-prototype choice
-    /// that inference makes; 0: none).
-    #[arg(long, default_value_t = 0.0)]
-    instance_assign_weight: f64,
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
-    /// Weight of the point-map term inside L_geom (each input pixel's point in view 0's camera
-    /// frame, DUSt3R-style; 0: none). Gives the network a point-map head of --point-head
-    /// channels; with --init-from, grows one on a network that has none.
-    #[arg(long, default_value_t = 0.0)]
-    point_map_weight: f64,
-    /// The point-map head predicts each pixel's displacement from its own camera frame into
-    /// view 0's, which starts at the identity pose, instead of the point itself.
-    #[arg(long)]
-    point_map_offsets: bool,
-    /// Weight of a loss on the attention itself inside L_geom: the cross-entropy of the last
-    /// global layer's first head against the view-0 token that sees the same point (0: none).
-    #[arg(long, default_value_t = 0.0)]
-    attention_match_weight: f64,
-    /// Weight of the descriptor term inside L_geom (the pixels of two views that see the same
-    /// point asked for the most alike descriptors, which registration matches; 0: none). Gives
-    /// the network a descriptor head of --descriptor-dim channels; with --init-from, grows one
-    /// on a network that has none.
-    #[arg(long, default_value_t = 0.0)]
-    descriptor_weight: f64,
-    /// Channels of the descriptor head that --descriptor-weight adds.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u16).range(1..))]
-    descriptor_dim: u16,
-    /// Sampled matches per pair of input views of the descriptor term.
-    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(2..))]
-    descriptor_samples: u16,
-    /// The descriptor term's negatives: every point of the other view's grid of this stride
-    /// (pixels; what registration compares), or the pair's other samples (0).
-    #[arg(long, default_value_t = 4)]
-    descriptor_grid: u16,
-    /// The descriptor term only on the pairs of views that turn by at least this many degrees
-    /// from one to the other (0: every pair).
-    #[arg(long, default_value_t = 0.0)]
-    descriptor_min_angle: f64,
-    /// Hidden channels of the point-map head that --point-map-weight adds.
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u16).range(1..))]
-    point_head: u16,
     /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
     /// tokens (grown onto an --init-from network at zero). Its exported file has a `rays`
     /// input, which `inssplat eval --known-poses` fills from the true cameras.
@@ -219,14 +158,6 @@ pub struct TrainArgs {
     /// also runs before any camera is known.
     #[arg(long, default_value_t = 0.0)]
     ray_dropout: f32,
-    /// With --camera-rays: turn every input camera but view 0's about its centre by an angle
-    /// up to this many degrees (uniform; a random axis each), as registration errs.
-    #[arg(long, default_value_t = 0.0)]
-    ray_noise: f32,
-    /// With --camera-rays: train the ray layer alone, every other weight kept (so that with
-    /// zero rays the network computes what its --init-from source did).
-    #[arg(long)]
-    train_rays_only: bool,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -234,27 +165,14 @@ pub struct TrainArgs {
     /// instance, instead of the paper's per-pixel cosine (0).
     #[arg(long, default_value_t = 0.0)]
     semantic_temperature: f64,
-    /// a > 0: the contrastive L_sem logit-adjusted, each label's logit plus a·ln of its share
-    /// of the furniture of 4000 training scenes (Menon et al., 2021), so that the features
-    /// name rare labels as readily as chairs. Needs --semantic-objects-only.
-    #[arg(long, default_value_t = 0.0)]
-    semantic_logit_adjust: f64,
     /// Weight of L_ins on the network's own per-pixel embeddings of the input views (what
     /// inference clusters), added inside L_ins to L_ins on the renders (the paper's: 0).
     #[arg(long, default_value_t = 0.0)]
     direct_instance_weight: f64,
-    /// Weight of L_sem on the network's own per-pixel semantic features of the input views
-    /// (what inference names), added inside L_sem to L_sem on the renders (the paper's: 0).
-    #[arg(long, default_value_t = 0.0)]
-    direct_semantic_weight: f64,
     /// L_sem on the furniture alone: the room shell's pixels (wall, floor, ceiling) are left out
     /// of it, while L_ins still separates the shell's instances.
     #[arg(long)]
     semantic_objects_only: bool,
-    /// Factor on the gradient the render losses send into the predicted depth through the
-    /// Gaussians' centres: 1 trains end to end (the paper), 0 leaves depth to L_geom alone.
-    #[arg(long, default_value_t = 1.0)]
-    render_depth_gradient: f64,
     /// Ablation: no semantic hard-negative weights in the push term.
     #[arg(long)]
     no_hard_negatives: bool,
@@ -326,70 +244,24 @@ impl TrainArgs {
             .with_global_kv_pool(
                 self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()),
             )
-            .with_point_head((self.point_map_weight > 0.0).then_some(usize::from(self.point_head)))
-            .with_descriptor_head(
-                (self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_dim)),
-            )
             .with_camera_rays(self.camera_rays.map(usize::from));
         let loss = LossConfig::new()
             .with_rgb_weight(self.rgb_weight)
             .with_geometry_weight(self.geometry_weight)
-            .with_depth_gradient_weight(
-                (self.depth_gradient_weight > 0.0).then_some(self.depth_gradient_weight),
-            )
-            .with_depth_gradient_strides(
-                (self.depth_gradient_strides != [1])
-                    .then(|| self.depth_gradient_strides.iter().map(|&k| usize::from(k)).collect()),
-            )
-            .with_depth_relative(self.depth_relative.then_some(true))
-            .with_depth_shape_weight(
-                (self.depth_shape_weight > 0.0).then_some(self.depth_shape_weight),
-            )
             .with_depth_instance_balance(
                 (self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance),
             )
             .with_instance_weight(self.instance_weight)
             .with_pull_margin(self.pull_margin)
-            .with_assign_weight(
-                (self.instance_assign_weight > 0.0).then_some(self.instance_assign_weight),
-            )
             .with_camera_weight(self.camera_weight)
-            .with_point_map_weight((self.point_map_weight > 0.0).then_some(self.point_map_weight))
-            .with_point_map_offsets(self.point_map_offsets.then_some(true))
-            .with_attention_match_weight(
-                (self.attention_match_weight > 0.0).then_some(self.attention_match_weight),
-            )
-            .with_descriptor_weight(
-                (self.descriptor_weight > 0.0).then_some(self.descriptor_weight),
-            )
-            .with_descriptor_samples(
-                (self.descriptor_weight > 0.0).then_some(usize::from(self.descriptor_samples)),
-            )
-            .with_descriptor_grid(
-                (self.descriptor_weight > 0.0 && self.descriptor_grid > 0)
-                    .then_some(usize::from(self.descriptor_grid)),
-            )
-            .with_descriptor_min_angle(
-                (self.descriptor_weight > 0.0 && self.descriptor_min_angle > 0.0)
-                    .then_some(self.descriptor_min_angle),
-            )
             .with_semantic_weight(self.semantic_weight)
             .with_semantic_temperature(
                 (self.semantic_temperature > 0.0).then_some(self.semantic_temperature),
             )
-            .with_semantic_logit_adjust(
-                (self.semantic_logit_adjust > 0.0).then_some(self.semantic_logit_adjust),
-            )
             .with_direct_instance_weight(
                 (self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight),
             )
-            .with_direct_semantic_weight(
-                (self.direct_semantic_weight > 0.0).then_some(self.direct_semantic_weight),
-            )
             .with_semantic_objects_only(self.semantic_objects_only.then_some(true))
-            .with_render_depth_gradient(
-                (self.render_depth_gradient != 1.0).then_some(self.render_depth_gradient),
-            )
             .with_hard_negatives(pick(
                 self.no_hard_negatives,
                 HardNegatives::SemanticWeighted,
@@ -406,7 +278,6 @@ impl TrainArgs {
             .with_steps(self.steps.unwrap_or(20_000))
             .with_warmup(self.warmup)
             .with_lr(self.lr)
-            .with_backbone_lr_scale(self.backbone_lr_scale)
             .with_min_views(self.min_views)
             .with_max_views(self.max_views)
             .with_targets(self.targets)
@@ -415,11 +286,7 @@ impl TrainArgs {
             .with_view_window(self.view_window.map(usize::from))
             .with_seed(self.seed)
             .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
-            .with_rays_only(self.train_rays_only.then_some(true))
-            .with_rays(
-                (self.ray_dropout > 0.0 || self.ray_noise > 0.0)
-                    .then_some(RayPlan { dropout: self.ray_dropout, noise_deg: self.ray_noise }),
-            )
+            .with_rays((self.ray_dropout > 0.0).then_some(RayPlan { dropout: self.ray_dropout }))
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {

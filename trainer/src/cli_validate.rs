@@ -1,6 +1,6 @@
 //! The `validate` subcommand of `inssplat-train`: a run's (or checkpoint's) loss on fixed
-//! validation samples, with `--matching` whether its attention and descriptors match the views
-//! and its depth's AbsRel, and with `--csv` every sample's scores, to pair checkpoints.
+//! validation samples, with `--matching` its depth's AbsRel, and with `--csv` every sample's
+//! scores, to pair checkpoints.
 
 use std::path::PathBuf;
 
@@ -23,15 +23,8 @@ pub struct ValidateArgs {
     /// `train --view-window`; default: from the whole trajectory, as a run validates).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     view_window: Option<u16>,
-    /// For a network trained with `--camera-rays`: turn every input view's camera but the
-    /// first by this many degrees about its centre (each about a random axis) before it
-    /// becomes rays, as registration's errors would.
-    #[arg(long, default_value_t = 0.0)]
-    ray_noise: f32,
-    /// Also score whether the last global layer's first attention head looks at the view-0
-    /// token that sees the same point (what `--attention-match-weight` trains), the depth's
-    /// AbsRel, and, for a network with a descriptor head, whether each pixel's most alike
-    /// descriptor in another view sees the same point (what `--descriptor-weight` trains).
+    /// Also score the depth's AbsRel at each sample's median scale (what matching the views
+    /// should lower).
     #[arg(long)]
     matching: bool,
     /// Write each sample's loss terms (and its depth AbsRel, with --matching) to this CSV, to
@@ -44,20 +37,16 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
     if args.samples == 0 {
         bail!("--samples must be at least 1");
     }
-    if !(0.0..=180.0).contains(&args.ray_noise) {
-        bail!("--ray-noise {} must be between 0 and 180 degrees", args.ray_noise);
-    }
     let set = train::ValidationSet {
         samples: args.samples,
         data: args.val_data.clone().map(DataSpec::Folder),
         window: args.view_window.map(usize::from),
-        ray_noise_deg: args.ray_noise,
     };
     let mut csv = String::from(
         "checkpoint,step,sample,total,rgb,geometry,instance,semantic,boundary,abs_rel\n",
     );
     for path in &args.checkpoints {
-        let train::CheckpointScores { dir, step, losses, matching } =
+        let train::CheckpointScores { dir, step, losses, depth } =
             train::score_checkpoint(path, &set, args.matching)
                 .with_context(|| format!("validating {}", path.display()))?;
         let v = train::mean_loss(&losses);
@@ -73,28 +62,11 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
             args.samples
         );
         let mut abs_rel = vec![None; losses.len()];
-        if let Some(matching) = matching {
-            let m = matching.attention;
-            println!(
-                "  attention matching over {} tokens with a match in view 0: cross-entropy {:.3}, most-attended token right {:.2}%, within one token {:.2}%",
-                m.tokens,
-                m.cross_entropy,
-                100.0 * m.top1,
-                100.0 * m.within_one
-            );
-            if let Some(mean) = matching.mean_depth_abs_rel() {
+        if let Some(depth) = depth {
+            if let Some(mean) = depth.mean_abs_rel() {
                 println!("  depth AbsRel at each sample's median scale: {mean:.4}");
             }
-            abs_rel = matching.depth_abs_rel;
-            if let Some(d) = matching.descriptors {
-                println!(
-                    "  descriptor matching over {} sampled matches: most alike descriptor on the {}-pixel grid within {} pixels of the match {:.2}%",
-                    d.samples,
-                    d.stride,
-                    d.stride,
-                    100.0 * d.within_stride
-                );
-            }
+            abs_rel = depth.abs_rel;
         }
         for (i, (l, a)) in losses.iter().zip(&abs_rel).enumerate() {
             let a = a.map_or(String::new(), |a| format!("{a:.6}"));

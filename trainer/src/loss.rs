@@ -9,39 +9,28 @@
 //! constant; everything else stays differentiable.
 //!
 //! - [`rgb_loss`]: L_rgb = mean over views, channels and pixels of (Î − I)².
-//! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view (+ the
-//!   [`point_map`] term of a network with a point-map head, the [`descriptor`] term of one
-//!   with a descriptor head, and the [`attention_match`] term on the global attention).
+//! - [`geometry`]: L_geom = confidence-weighted depth + camera pose and field of view.
 //! - [`instance`]: L_ins = 2·pull + 1·push + 2·cross on rendered instance features.
 //! - [`semantic`]: L_sem = 1 − cos(Φ_sem(rendered semantic feature), MiniLM label embedding),
 //!   or a contrastive form over the label vocabulary.
 //! - [`boundary`]: L_bd-rgb, Charbonnier RGB error weighted by instance boundaries.
 
-pub mod attention_match;
 pub mod boundary;
-pub mod descriptor;
 pub mod geometry;
 pub mod instance;
-pub mod point_map;
 pub mod semantic;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-pub use attention_match::{MatchScores, attention_match_loss, match_scores, match_targets};
 pub use boundary::{boundary_rgb_loss, boundary_weights};
-pub use descriptor::{
-    DescriptorMatches, DescriptorScores, descriptor_grid_loss, descriptor_loss, descriptor_matches,
-    descriptor_scores, registration_grid,
-};
 pub use geometry::{
     CameraTarget, camera_loss, camera_targets, depth_loss, depth_weights, geometry_loss,
     median_depth,
 };
 pub use instance::{InstanceTerms, instance_loss};
-pub use point_map::{pixel_rays, point_map_loss, point_map_targets};
 pub use semantic::{SemanticForm, semantic_loss};
 
 /// Added under square roots of squared norms, so that zero vectors normalize to zero with a
@@ -108,84 +97,21 @@ pub struct LossConfig {
     /// scale noise in S costs nothing there but scatters the clustered embeddings. `None`
     /// (also what configs saved before this term existed read as) means 0.
     pub direct_instance_weight: Option<f64>,
-    /// Weight, inside L_sem, of L_sem on the network's own per-pixel semantic features of the
-    /// input views (the Gaussians' L that inference names) beside L_sem on the renders. As with
-    /// S, a render fits the label when the blend of the Gaussians it covers does, whatever each
-    /// Gaussian's own L says. `None` (also what configs saved before this term existed read
-    /// as) means 0.
-    pub direct_semantic_weight: Option<f64>,
-    /// a of the logit-adjusted contrastive L_sem (see [`semantic`]): each label's logit gains
-    /// a·ln π, π its share of [`Self::semantic_label_counts`]. `None` (also what configs saved
-    /// before this switch existed read as): no adjustment.
-    pub semantic_logit_adjust: Option<f64>,
-    /// Instances per label of the training scenes, the π of the logit adjustment (a label
-    /// missing from it counts as the rarest); filled in when a run starts.
-    pub semantic_label_counts: Option<BTreeMap<String, u64>>,
     /// L_sem on the furniture alone: the pixels of the room's shell (instances labelled
     /// `wall`, `floor` or `ceiling`) are left out of it, as the evaluation's scenes leave the
     /// shell unlabelled, while L_ins still separates the shell's instances. `None` (also what
     /// configs saved before this switch existed read as) names the shell too.
     pub semantic_objects_only: Option<bool>,
-    /// Factor on the gradient that the render losses send into the predicted depth through
-    /// the Gaussians' centres (their values are unchanged): 1 is the paper's end-to-end
-    /// training, 0 leaves the depth to L_geom alone (the offsets still follow the renders).
-    /// `None` (also what configs saved before this switch existed read as) means 1.
-    pub render_depth_gradient: Option<f64>,
     /// w_bd.
     #[config(default = 0.02)]
     pub boundary_weight: f64,
     /// α of the confidence term −α·log(conf) of the depth loss (VGGT's value).
     #[config(default = 0.2)]
     pub depth_conf_alpha: f64,
-    /// Weight of the depth-gradient term inside L_depth (see [`geometry`]); `None` (also what
-    /// configs saved before this term existed read as) means 0, the L1 term alone.
-    pub depth_gradient_weight: Option<f64>,
-    /// Pixel strides of the depth-gradient term's differences (see [`geometry`]); `None` (also
-    /// what configs saved before this option existed read as) means VGGT's 1 alone.
-    pub depth_gradient_strides: Option<Vec<usize>>,
-    /// Whether L_depth divides each pixel's error by its own ground truth (see [`geometry`]);
-    /// `None` (also what configs saved before this switch existed read as) divides by the
-    /// scene's median depth.
-    pub depth_relative: Option<bool>,
-    /// Weight of the scale-invariant shape term inside L_depth (see [`geometry`]); `None`
-    /// (also what configs saved before this term existed read as) means 0.
-    pub depth_shape_weight: Option<f64>,
     /// β of L_depth's pixel weights: 0 (and `None`, also what configs saved before this switch
     /// existed read as) weighs every valid pixel alike, 1 every instance alike (see
     /// [`geometry`]).
     pub depth_instance_balance: Option<f64>,
-    /// Weight of the point-map term L_pm inside L_geom (see [`point_map`]), for a network with
-    /// a point-map head; `None` (also what configs saved before this term existed read as)
-    /// means 0.
-    pub point_map_weight: Option<f64>,
-    /// The point-map head predicts each pixel's displacement from its own camera frame into
-    /// view 0's (its point in view 0's frame minus its point in its own), so that a head that
-    /// knows no pose starts at the identity (see [`point_map`]); `None` (also what configs
-    /// saved before this switch existed read as) or `false`: the point itself.
-    pub point_map_offsets: Option<bool>,
-    /// Weight of L_match inside L_geom, the cross-entropy of the last global layer's first
-    /// attention head against the view-0 token that sees the same point (see
-    /// [`attention_match`]); `None` (also what configs saved before this term existed read
-    /// as) means 0.
-    pub attention_match_weight: Option<f64>,
-    /// Weight of L_desc inside L_geom (see [`descriptor`]), for a network with a descriptor
-    /// head; `None` (also what configs saved before this term existed read as) means 0.
-    pub descriptor_weight: Option<f64>,
-    /// Samples per pair of input views of L_desc; `None` (also what configs saved before this
-    /// term existed read as) means 256.
-    pub descriptor_samples: Option<usize>,
-    /// L_desc's negatives: every point of the other view's registration grid of this stride
-    /// ([`descriptor_grid_loss`]); `None` (also what configs saved before this switch existed
-    /// read as): the pair's other samples ([`descriptor_loss`]).
-    pub descriptor_grid: Option<usize>,
-    /// L_desc only on the pairs of views that turn by at least this many degrees from one to
-    /// the other ([`DescriptorMatches::turned_at_least`]); `None` (also what configs saved
-    /// before this switch existed read as): every pair.
-    pub descriptor_min_angle: Option<f64>,
-    /// Weight, inside L_ins, of its assignment term: each pixel's cross-entropy of its own
-    /// instance's prototype among all of the sample's (see [`instance`]); `None` (also what
-    /// configs saved before this term existed read as) means 0.
-    pub assign_weight: Option<f64>,
     /// Weight of the camera term inside L_geom (depth has weight 1).
     #[config(default = 1.0)]
     pub camera_weight: f64,
@@ -239,31 +165,12 @@ pub struct LossTerms {
     /// Already combined as pull_weight·pull + push_weight·push + cross_weight·cross, on the
     /// renders, plus direct_instance_weight times the same on the input views' own embeddings.
     pub instance: Tensor<1>,
-    /// On the renders, plus direct_semantic_weight times the same on the input views' own
-    /// semantic features.
+    /// On the renders.
     pub semantic: Tensor<1>,
     pub boundary: Tensor<1>,
 }
 
 impl LossConfig {
-    /// a of the logit-adjusted L_sem when there is an adjustment (a ≠ 0).
-    pub fn logit_adjustment(&self) -> Option<f64> {
-        self.semantic_logit_adjust.filter(|&a| a != 0.0)
-    }
-
-    /// a·ln π of each of `labels` for the logit-adjusted L_sem, π over
-    /// [`Self::semantic_label_counts`] (a label it lacks gets the smallest count, at least 1);
-    /// empty when there is no adjustment.
-    pub fn semantic_log_prior(&self, labels: &[&str]) -> Vec<f32> {
-        let (Some(a), Some(counts)) = (self.logit_adjustment(), &self.semantic_label_counts) else {
-            return Vec::new();
-        };
-        let least = counts.values().copied().filter(|&n| n > 0).min().unwrap_or(1);
-        let count = |l: &str| counts.get(l).copied().filter(|&n| n > 0).unwrap_or(least) as f64;
-        let total: f64 = labels.iter().map(|l| count(l)).sum();
-        labels.iter().map(|l| (a * (count(l) / total).ln()) as f32).collect()
-    }
-
     /// L = w_rgb·L_rgb + w_geom·L_geom + w_ins·L_ins + w_sem·L_sem + w_bd·L_bd-rgb.
     pub fn total(&self, terms: &LossTerms) -> Tensor<1> {
         terms.rgb.clone().mul_scalar(self.rgb_weight)

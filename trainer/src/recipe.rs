@@ -94,7 +94,7 @@ mod tests {
     fn a_recipe_becomes_flags_before_the_command_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.toml");
-        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\nstrides = [1, 8]\n").unwrap();
+        std::fs::write(&path, "lr = 1.5e-4\ncamera_rays = 2\nsemantic-objects-only = true\nno-boundary = false\nsome-list = [1, 8]\n").unwrap();
         let args = expand(os(&[
             "t",
             "train",
@@ -107,7 +107,7 @@ mod tests {
         ]))
         .unwrap();
         let recipe =
-            ["--camera-rays=2", "--lr=0.00015", "--semantic-objects-only", "--strides=1,8"];
+            ["--camera-rays=2", "--lr=0.00015", "--semantic-objects-only", "--some-list=1,8"];
         let given = ["--out", "r", "--config", path.to_str().unwrap(), "--lr", "3e-4"];
         let want = os(&[&["t", "train"][..], &recipe, &given].concat());
         assert_eq!(args, want);

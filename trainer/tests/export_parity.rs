@@ -145,22 +145,10 @@ fn check_views(
             OrtTensor::from_array((r.dims(), to_vec(r.clone()))).expect("rays tensor"),
         ));
     }
-    let ModelOutput {
-        camera,
-        depth,
-        depth_conf,
-        gaussians,
-        instance,
-        semantic,
-        point_map,
-        descriptors,
-        ..
-    } = net.forward_with_rays(images, rays).expect("forward");
+    let ModelOutput { camera, depth, depth_conf, gaussians, instance, semantic } =
+        net.forward_with_rays(images, rays).expect("forward");
     let (w, b) = net.sem_proj();
     let outputs = session.run(inputs).expect("ORT run");
-    let point_map = point_map.map(|p| (sig::OUTPUT_POINT_MAP.name, p.dims().to_vec(), to_vec(p)));
-    let descriptors =
-        descriptors.map(|d| (sig::OUTPUT_DESCRIPTORS.name, d.dims().to_vec(), to_vec(d)));
     let ours = [
         (sig::OUTPUT_CAMERA.name, camera.dims().to_vec(), to_vec(camera)),
         (sig::OUTPUT_DEPTH.name, depth.dims().to_vec(), to_vec(depth)),
@@ -172,7 +160,7 @@ fn check_views(
         (sig::OUTPUT_SEM_PROJ_BIAS.name, b.dims().to_vec(), to_vec(b)),
     ];
     let mut figures = Vec::new();
-    for (name, dims, values) in ours.into_iter().chain(point_map).chain(descriptors) {
+    for (name, dims, values) in ours {
         let (shape, theirs) = outputs[name].try_extract_tensor::<f32>().expect("f32 output");
         let shape: Vec<usize> = shape.iter().map(|&d| d as usize).collect();
         assert_eq!(shape, dims, "{name}: shape");
@@ -444,39 +432,24 @@ fn a_fine_tune_starts_from_an_exported_onnx_file() {
     }
 }
 
-/// `--init-from M --image-skips K --point-map-weight W --descriptor-weight W --mlp-ratio R` on
-/// a network without an image encoder or either head and with narrower MLPs: the grown network
-/// computes exactly what the source did (the skips and the new hidden units join through
-/// zeros, each head has an output of its own), has the new
-/// parts' weights besides, and exports (the point map and the descriptors as the optional
-/// `point_map` and `descriptors` outputs) and reads back with parity.
+/// `--init-from M --image-skips K --mlp-ratio R` on a network without an image encoder and
+/// with narrower MLPs: the grown network computes exactly what the source did (the skips and
+/// the new hidden units join through zeros), has the new parts' weights besides, and exports
+/// and reads back with parity.
 #[test]
-fn growing_an_image_encoder_the_point_and_descriptor_heads_and_the_mlps_keeps_the_output_and_exports_with_parity()
- {
+fn growing_an_image_encoder_and_the_mlps_keeps_the_output_and_exports_with_parity() {
     let device = Device::flex();
     device.seed(11);
     let source =
         small_config().init(&device).expect("valid config").map(&mut Perturb { std: 0.15 });
-    let shape = source
-        .config()
-        .clone()
-        .with_image_skips(Some(4))
-        .with_point_head(Some(8))
-        .with_descriptor_head(Some(6))
-        .with_mlp_ratio(6);
+    let shape = source.config().clone().with_image_skips(Some(4)).with_mlp_ratio(6);
     let grown = inssplat_trainer::train::grow(&source, shape, 5, &device).expect("grow");
     let c = grown.config();
-    assert_eq!(
-        (c.image_skips, c.point_head, c.descriptor_head, c.mlp_ratio),
-        (Some(4), Some(8), Some(6), 6)
-    );
+    assert_eq!((c.image_skips, c.mlp_ratio), (Some(4), 6));
     assert!(grown.num_params() > source.num_params(), "the new parts add weights");
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
     let (a, b) =
         (source.forward(images.clone()).expect("forward"), grown.forward(images).expect("forward"));
-    assert!(a.point_map.is_none() && a.descriptors.is_none());
-    assert_eq!(b.point_map.as_ref().map(|p| p.dims()), Some([3, 3, 32, 32]));
-    assert_eq!(b.descriptors.as_ref().map(|p| p.dims()), Some([3, 6, 32, 32]));
     for (name, x, y) in [
         ("depth", a.depth, b.depth),
         ("gaussians", a.gaussians, b.gaussians),

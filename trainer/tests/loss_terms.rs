@@ -67,7 +67,7 @@ fn loss_rgb_is_mse() {
 }
 
 #[test]
-fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term() {
+fn loss_depth_is_confidence_weighted_relative_error() {
     // Pixels: gt 2, 0 (no hit), 4, 3 → median of {2, 3, 4} is 3.
     let gt = [2.0, 0.0, 4.0, 3.0];
     let ids = [1, 1, 2, 1];
@@ -84,83 +84,6 @@ fn loss_depth_is_confidence_weighted_relative_error_with_optional_gradient_term(
         scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &config).unwrap()),
         expected,
         "L_depth",
-    );
-
-    // The gradient term: errors e = (0.3, 5, −0.4, 0) row-major on the 2×2 view. Pairs with
-    // both pixels valid: ∂y at pixel 0 (|−0.4 − 0.3| = 0.7) and ∂x at pixel 2 (|0 + 0.4|);
-    // pixel 1 has no ground truth, so its pairs count nothing.
-    let k = 0.5;
-    let with_gradient = config.clone().with_depth_gradient_weight(Some(k));
-    let expected = ((2.0 * (0.3 + k * 0.7) / 3.0 - alpha * 2f64.ln())
-        + (e * (0.4 + k * 0.4) / 3.0 - alpha))
-        / 3.0;
-    close(
-        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_gradient).unwrap()),
-        expected,
-        "L_depth with ∂ term",
-    );
-
-    // Strides: on a 1×3 row, gt (1, 2, 3) (median 2), errors (0.1, −0.2, 0.4), unit
-    // confidence. Stride 2 pairs pixels 0 and 2 (|0.4 − 0.1| at pixel 0); strides 1 and 2 add
-    // the neighbours' |−0.2 − 0.1| at pixel 0 and |0.4 + 0.2| at pixel 1. A stride as long as
-    // the row pairs nothing.
-    let row = tensor(&[1.1, 1.8, 3.4], [1, 1, 1, 3]);
-    let unit = tensor(&[1.0; 3], [1, 1, 1, 3]);
-    let l1 = 0.1 + 0.2 + 0.4;
-    for (strides, pairs) in [(vec![2], 0.3), (vec![1, 2], 0.3 + 0.3 + 0.6), (vec![3], 0.0)] {
-        let strided = config
-            .clone()
-            .with_depth_gradient_weight(Some(k))
-            .with_depth_gradient_strides(Some(strides.clone()));
-        let got = scalar(
-            depth_loss(row.clone(), unit.clone(), &[1.0, 2.0, 3.0], &[1, 1, 1], 2.0, &strided)
-                .unwrap(),
-        );
-        close(got, (l1 + k * pairs) / 2.0 / 3.0, &format!("L_depth with strides {strides:?}"));
-    }
-
-    // Relative: each error over its own ground truth, 0.1/1 + 0.2/2 + 0.4/3 over the three
-    // valid pixels; a fourth pixel without ground truth counts nothing (and is no NaN).
-    let relative = config.clone().with_depth_relative(Some(true));
-    let row4 = tensor(&[1.1, 1.8, 3.4, 5.0], [1, 1, 1, 4]);
-    let got = scalar(
-        depth_loss(
-            row4,
-            tensor(&[1.0; 4], [1, 1, 1, 4]),
-            &[1.0, 2.0, 3.0, 0.0],
-            &[1, 1, 1, 1],
-            2.0,
-            &relative,
-        )
-        .unwrap(),
-    );
-    close(got, (0.1 + 0.1 + 0.4 / 3.0) / 3.0, "relative L_depth");
-
-    // The shape term: the view's least-squares scale ŝ = Σ d̂·d / Σ d̂² over the valid pixels
-    // (the one without ground truth counts nowhere), then |ŝ·d̂ − d| per valid pixel.
-    let (pred, truth) = ([2.3, 3.6, 3.0], [2.0, 4.0, 3.0]);
-    let s_hat =
-        (0..3).map(|i| pred[i] * truth[i]).sum::<f64>() / pred.iter().map(|p| p * p).sum::<f64>();
-    let shape = |i: usize| (s_hat * pred[i] - truth[i]).abs();
-    let k = 0.8;
-    let with_shape = config.clone().with_depth_shape_weight(Some(k));
-    let expected = ((2.0 * (0.3 + k * shape(0)) / 3.0 - alpha * 2f64.ln())
-        + (e * (0.4 + k * shape(1)) / 3.0 - alpha)
-        + k * shape(2) / 3.0)
-        / 3.0;
-    close(
-        scalar(depth_loss(depth.clone(), conf.clone(), &gt, &ids, 3.0, &with_shape).unwrap()),
-        expected,
-        "L_depth with shape term",
-    );
-    // It ignores the view's scale: a prediction off by a factor only pays the L1 term.
-    let doubled = tensor(&[4.0, 1.0, 8.0, 6.0], [1, 1, 2, 2]);
-    let ones = tensor(&[1.0; 4], [1, 1, 2, 2]);
-    let plain = scalar(depth_loss(doubled.clone(), ones.clone(), &gt, &ids, 3.0, &config).unwrap());
-    close(
-        scalar(depth_loss(doubled, ones, &gt, &ids, 3.0, &with_shape).unwrap()),
-        plain,
-        "shape term of a scaled truth",
     );
 
     // Instance balance β: instance 1 has the valid pixels 0 and 3, instance 2 pixel 2, so at
@@ -302,13 +225,12 @@ fn loss_semantic_hand_values() {
     );
 }
 
-/// The contrastive L_sem of a 1×5 view, with `log_prior` added to the vocabulary's logits,
-/// and its value by hand. Ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id
+/// The contrastive L_sem of a 1×5 view, and its value by hand. Ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id
 /// 2 has another: A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). The vocabulary holds B again
 /// (one class) and C = (0, 0, 3), a label the view does not show: three classes, A (the
 /// sample's own, beyond the vocabulary) last. Φ_sem embeds (l0, l1) as (l0, l1, 1) with
 /// W = [[1, 0], [0, 1], [0, 0]] and b = (0, 0, 1).
-fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
+fn contrastive_loss_and_hand_value() -> (f64, f64) {
     let ids = [0, 1, 2, 3, 1];
     let features: [(f32, f32); 5] = [(9.0, 9.0), (1.0, 0.0), (1.0, 1.0), (0.0, 2.0), (3.0, 1.0)];
     let planar: Vec<f32> =
@@ -319,22 +241,15 @@ fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
     let bias = tensor(&[0.0, 0.0, 1.0], [3]);
     let tau = 0.5;
     let vocabulary = [0.0, 2.0, 0.0, 0.0, 0.0, 3.0];
-    let form = SemanticForm::Contrastive { temperature: tau, vocabulary: &vocabulary, log_prior };
+    let form = SemanticForm::Contrastive { temperature: tau, vocabulary: &vocabulary };
     let loss = semantic_loss(semantic, &ids, teacher, weight, bias, form).unwrap();
-    // Offsets of B, C and A: the prior's, A the smallest of them (the rarest label).
-    let least = log_prior.iter().copied().fold(f32::INFINITY, f32::min);
-    let [ob, oc, oa] = if log_prior.is_empty() {
-        [0.0; 3]
-    } else {
-        [log_prior[0], log_prior[1], least].map(f64::from)
-    };
     // Pixel p (label pixels 1..5) has cos_A = l0/|y|, cos_B = l1/|y|, cos_C = 1/|y|,
     // |y| = sqrt(l0² + l1² + 1); CE of its own class; weights: instance 1 has 2 pixels,
     // instances 2 and 3 one each.
     let ce = |(l0, l1): (f32, f32), own_a: bool| {
         let (l0, l1) = (f64::from(l0), f64::from(l1));
         let n = (l0 * l0 + l1 * l1 + 1.0).sqrt();
-        let (a, b, c) = (l0 / n / tau + oa, l1 / n / tau + ob, 1.0 / n / tau + oc);
+        let (a, b, c) = (l0 / n / tau, l1 / n / tau, 1.0 / n / tau);
         let lse = (a.exp() + b.exp() + c.exp()).ln();
         lse - if own_a { a } else { b }
     };
@@ -346,37 +261,8 @@ fn contrastive_loss_and_hand_value(log_prior: &[f32]) -> (f64, f64) {
 
 #[test]
 fn loss_semantic_contrastive_hand_values() {
-    let (loss, expected) = contrastive_loss_and_hand_value(&[]);
+    let (loss, expected) = contrastive_loss_and_hand_value();
     close(loss, expected, "contrastive L_sem");
-}
-
-#[test]
-fn logit_adjusted_l_sem_charges_the_frequent_label_more_and_a_uniform_prior_nothing() {
-    let (plain, _) = contrastive_loss_and_hand_value(&[]);
-    // A uniform prior shifts every logit alike: the softmax, and the loss, stay.
-    let (uniform, _) = contrastive_loss_and_hand_value(&[-1.5, -1.5]);
-    close(uniform, plain, "uniform prior");
-    // B (the label of instance 2) frequent, C rare and A rarer still by default: the adjusted
-    // loss asks B's pixel for a larger margin and A's for a smaller one.
-    let prior = [0.6f32.ln(), 0.1f32.ln()];
-    let (adjusted, expected) = contrastive_loss_and_hand_value(&prior);
-    close(adjusted, expected, "logit-adjusted L_sem");
-    assert!(
-        (adjusted - plain).abs() > 1e-3,
-        "the prior must change the loss: {adjusted} vs {plain}"
-    );
-    // The prior's scale follows LossConfig::semantic_log_prior: a·ln π over the labels asked.
-    let counts = [("chair".to_string(), 60u64), ("bed".to_string(), 10)].into_iter().collect();
-    let config = LossConfig::new()
-        .with_semantic_logit_adjust(Some(2.0))
-        .with_semantic_label_counts(Some(counts));
-    let got = config.semantic_log_prior(&["chair", "bed", "piano"]);
-    let want = [60.0f64, 10.0, 10.0].map(|n| (2.0 * (n / 80.0).ln()) as f32);
-    assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-6), "{got:?} vs {want:?}");
-    assert!(
-        LossConfig::new().semantic_log_prior(&["chair"]).is_empty(),
-        "no adjustment asked, no prior"
-    );
 }
 
 /// A 1×9 strip (or its 9×1 transpose): pixels 0–1 embed as (1, 0), pixels 2–8 as (0.8, 0.6)

@@ -6,10 +6,7 @@
 mod average;
 mod export_parity;
 mod fit_scene;
-mod loss_attention_match;
-mod loss_descriptor;
 mod loss_instance;
-mod loss_point_map;
 mod loss_terms;
 mod model_forward;
 mod recipe;

@@ -1,8 +1,6 @@
 //! Dataset statistics measured by library code on generated scenes: most scenes show two or
 //! more instances of one category (neighbouring chairs, nightstands, bookcases), the
-//! furniture spans at least twenty categories, and every scene shows several objects. The
-//! label counts of the logit-adjusted L_sem: a layout's furniture is what its rendered scene
-//! shows, and a folder counts what its scenes' `transforms.json` list.
+//! furniture spans at least twenty categories, and every scene shows several objects.
 
 use std::collections::BTreeSet;
 
@@ -11,7 +9,6 @@ use inssplat_synth::room::Room;
 use inssplat_synth::{
     self as synth, Catalog, DatasetStats, Furniture, Reserved, Split, SynthConfig,
 };
-use inssplat_trainer::train::sample::{DataSpec, Source as DataSource};
 use rand::SeedableRng;
 
 /// Train-split rooms at 32×32, six frames each: enough to render what a room shows, quickly.
@@ -73,63 +70,4 @@ fn synth_layouts_span_twenty_categories_with_repeats() {
     }
     assert!(labels.len() >= 20, "{} categories: {labels:?}", labels.len());
     assert!(repeats as f64 >= 0.6 * n as f64, "{repeats} of {n}");
-}
-
-#[test]
-fn synth_furniture_labels_are_the_layout_that_the_rendered_scene_shows() {
-    let cfg = small_train_rooms();
-    for index in 0..6 {
-        let placed = synth::furniture_labels(index, &cfg).unwrap();
-        assert_eq!(
-            placed,
-            synth::furniture_labels(index, &cfg).unwrap(),
-            "scene {index}: the same layout each time"
-        );
-        // Every furniture instance the frames show is one the layout placed (as a multiset).
-        let mut left: std::collections::BTreeMap<&str, i32> = Default::default();
-        placed.iter().for_each(|l| *left.entry(l).or_default() += 1);
-        let scene = synth::generate_split(index, &cfg).unwrap().scene;
-        let shown: Vec<&str> = scene
-            .instances
-            .iter()
-            .map(|i| i.label.as_str())
-            .filter(|l| !synth::stats::SHELL_LABELS.contains(l))
-            .collect();
-        assert!(!shown.is_empty(), "scene {index} shows no furniture");
-        for label in &shown {
-            let n = left.get_mut(label).unwrap_or_else(|| {
-                panic!("scene {index} shows a {label} its layout did not place: {placed:?}")
-            });
-            *n -= 1;
-            assert!(
-                *n >= 0,
-                "scene {index} shows more of {label} than its layout placed: {placed:?}"
-            );
-        }
-    }
-}
-
-#[test]
-fn a_folder_of_scenes_counts_the_furniture_its_transforms_list() {
-    let cfg = small_train_rooms();
-    let tmp = tempfile::tempdir().unwrap();
-    let mut want: std::collections::BTreeMap<String, u64> = Default::default();
-    for index in 0..3 {
-        let scene = synth::generate_split(index, &cfg).unwrap();
-        scene.write(&tmp.path().join(format!("scene_{index}"))).unwrap();
-        for inst in scene
-            .scene
-            .instances
-            .iter()
-            .filter(|i| !synth::stats::SHELL_LABELS.contains(&i.label.as_str()))
-        {
-            *want.entry(inst.label.clone()).or_default() += 1;
-        }
-    }
-    let source = DataSource::open(&DataSpec::Folder(tmp.path().to_path_buf())).unwrap();
-    assert_eq!(
-        source.label_counts(0, 10).unwrap(),
-        want,
-        "each folder counted once, the shell left out"
-    );
 }

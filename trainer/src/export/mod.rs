@@ -121,11 +121,6 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
             vec![n(), F(tokens), F(inssplat_proto::rays::ray_channels(k) as i64)],
         )
     });
-    let point_map =
-        c.point_head.map(|_| (sig::OUTPUT_POINT_MAP.name, vec![n(), F(3), F(hw), F(hw)]));
-    let descriptors = c
-        .descriptor_head
-        .map(|d| (sig::OUTPUT_DESCRIPTORS.name, vec![n(), F(d as i64), F(hw), F(hw)]));
     let graph = GraphProto {
         node: g.nodes,
         name: Some("inssplat".into()),
@@ -133,12 +128,7 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         input: std::iter::once(value_info(sig::INPUT_IMAGES.name, &[n(), F(3), F(hw), F(hw)]))
             .chain(rays.iter().map(|(name, dims)| value_info(name, dims)))
             .collect(),
-        output: outputs
-            .iter()
-            .chain(point_map.iter())
-            .chain(descriptors.iter())
-            .map(|(name, dims)| value_info(name, dims))
-            .collect(),
+        output: outputs.iter().map(|(name, dims)| value_info(name, dims)).collect(),
     };
     let resolution = format!("{}x{}", c.image_size, c.image_size);
     let props = [

@@ -15,7 +15,7 @@ use super::ExportError;
 use super::graph::{Graph, attr_float, attr_int, attr_ints};
 use crate::model::{
     Block, CameraHead, DenseDecoder, GAUSSIAN_AFFINE_CHANNELS, InsSplatNet, LN_EPS, ModelConfig,
-    OUT_INSTANCE, PixelHead, SH_C0, gaussian_affine,
+    OUT_INSTANCE, SH_C0, gaussian_affine,
 };
 
 const END: i64 = i64::MAX;
@@ -64,13 +64,6 @@ fn conv(g: &mut Graph, hint: &str, m: &Conv2d, x: &str) -> Result<String, Export
         attr_ints("strides", &[m.stride[0] as i64, m.stride[1] as i64]),
     ];
     Ok(g.op("Conv", &[x, &w, &b], attrs))
-}
-
-/// A [`PixelHead`]: its hidden 1×1 layer, GELU, its output 1×1 layer.
-fn pixel_head(g: &mut Graph, hint: &str, head: &PixelHead, x: &str) -> Result<String, ExportError> {
-    let h = conv(g, &format!("{hint}.hidden"), &head.hidden, x)?;
-    let h = g.gelu(&h);
-    conv(g, &format!("{hint}.out"), &head.out, &h)
 }
 
 fn conv_transpose(
@@ -245,15 +238,6 @@ fn decoder(
     let x = g.op("Concat", &[&x, centred], vec![attr_int("axis", 1)]);
     let x = conv(g, "decoder.mix", &m.mix, &x)?;
     let x = g.gelu(&x);
-    if let Some(head) = &m.point {
-        let p = pixel_head(g, "decoder.point", head, &x)?;
-        let scale = g.scalar(c.depth_scale as f32);
-        g.op_into("Mul", &[&p, &scale], &[sig::OUTPUT_POINT_MAP.name], vec![]);
-    }
-    if let Some(head) = &m.descriptor {
-        let d = pixel_head(g, "decoder.descriptor", head, &x)?;
-        g.op_into("Identity", &[&d], &[sig::OUTPUT_DESCRIPTORS.name], vec![]);
-    }
     let raw = conv(g, "decoder.out", &m.out, &x)?;
     let split =
         g.i64s(&[1, 1, GAUSSIAN_AFFINE_CHANNELS as i64, 3, c.sem_dim as i64, OUT_INSTANCE as i64]);

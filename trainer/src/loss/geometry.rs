@@ -5,29 +5,13 @@
 //! L_depth = (1/|Ω|) Σ_Ω [c_p·|d̂_p − d_p|/s − α·log c_p], with c_p > 1 the predicted confidence
 //! and s the median ground-truth depth of the scene (all views). Dividing by s makes the error
 //! relative, so rooms of any size weigh the same, while keeping a gradient that does not
-//! explode near zero as log-depth would. With `depth_relative` each pixel's error is divided
-//! by its own ground truth instead, |d̂_p − d_p|/d_p (the AbsRel that evaluation reports; its
-//! gradient ±1/d_p is bounded by the nearest surface), which weighs each pixel s/d_p times as
-//! much as the default does: the near ones more. With `depth_gradient_weight` w > 0 (VGGT's
-//! gradient term) each pixel also pays w·c_p·Σ_k (|Δx_k(d̂ − d)_p| + |Δy_k(d̂ − d)_p|)/s, the
-//! differences to the pixels k to its right and k below where both are valid, over the
-//! strides k of `depth_gradient_strides` (VGGT's term is k = 1 alone, the default): the L1
-//! term alone is satisfied first by the smooth room and learns the steps at the objects'
-//! outlines last, and a stride of the size of an object (8–32 pixels at 128²) pairs the
-//! object's pixels with the wall beside it, so the term asks for how far the object stands in
-//! front of that wall, not only for the step at the one pixel of its outline. With
-//! `depth_shape_weight` k > 0 each pixel also pays k·c_p·|ŝ_v·d̂_p − d_p|/s, where
-//! ŝ_v = Σ d̂·d / Σ d̂² over view v's valid pixels is the least-squares scale that best fits
-//! the view's prediction to its ground truth (differentiated through, so the term is blind to
-//! the view's scale): the metric L1 alone hands every pixel of a view whose scale is off the
-//! same sign of gradient, which drowns the shape (objects in front of the wall) in the scale
-//! error of each room. With `depth_instance_balance` β > 0 the pixels are not weighed alike:
-//! each pays (1 − β)/|Ω| + β/(n·|Ω_i|), |Ω_i| the valid pixels of its instance i over all views
-//! and n the instances present, so that at β = 1 every instance counts as much as every other,
-//! a chair as much as the floor (as the contrastive L_sem is balanced). Uniform weights hand
-//! the room shell, about two thirds of the pixels, two thirds of the gradient, and the network
-//! learns a smooth room in which the furniture sits at the depth of the wall behind it. The L1
-//! term itself has no scale alignment: the ground truth is
+//! explode near zero as log-depth would. With `depth_instance_balance` β > 0 the pixels are
+//! not weighed alike: each pays (1 − β)/|Ω| + β/(n·|Ω_i|), |Ω_i| the valid pixels of its
+//! instance i over all views and n the instances present, so that at β = 1 every instance
+//! counts as much as every other, a chair as much as the floor (as the contrastive L_sem is
+//! balanced). Uniform weights hand the room shell, about two thirds of the pixels, two thirds
+//! of the gradient, and the network learns a smooth room in which the furniture sits at the
+//! depth of the wall behind it. The L1 term itself has no scale alignment: the ground truth is
 //! metric and the network predicts metric depth and translation, which the voxel size and
 //! every metric at inference rely on.
 //!
@@ -113,81 +97,11 @@ pub fn depth_loss(
     }
     let weights = depth_weights(target, ids, config.depth_instance_balance.unwrap_or(0.0));
     let shape = [v, 1, h, w];
-    let depth_in = depth.clone();
     let error = depth - constant(target.to_vec(), shape, &device);
-    let mut per_pixel = if config.depth_relative == Some(true) {
-        // 1 where there is no ground truth: those pixels weigh 0, and 0/0 would be NaN.
-        let divisor: Vec<f32> = target.iter().map(|&d| if d > 0.0 { d } else { 1.0 }).collect();
-        error.clone().abs() / constant(divisor, shape, &device)
-    } else {
-        error.clone().abs().div_scalar(scale)
-    };
-    if let Some(k) = config.depth_gradient_weight.filter(|&k| k > 0.0) {
-        let strides = config.depth_gradient_strides.as_deref().unwrap_or(&[1]);
-        per_pixel =
-            per_pixel + gradient_error(error, target, strides).div_scalar(scale).mul_scalar(k);
-    }
-    if let Some(k) = config.depth_shape_weight.filter(|&k| k > 0.0) {
-        let aligned = view_scaled(depth_in, target) - constant(target.to_vec(), shape, &device);
-        per_pixel = per_pixel + aligned.abs().div_scalar(scale).mul_scalar(k);
-    }
+    let per_pixel = error.abs().div_scalar(scale);
     let weights = constant(weights, shape, &device);
     let per_pixel = conf.clone() * per_pixel - conf.log().mul_scalar(config.depth_conf_alpha);
     Ok((per_pixel * weights).sum())
-}
-
-/// `depth` `[V, 1, H, W]` with each view multiplied by its least-squares scale onto `target`,
-/// ŝ_v = Σ d̂·d / Σ d̂² over the view's valid pixels (1 for a view without any).
-fn view_scaled(depth: Tensor<4>, target: &[f32]) -> Tensor<4> {
-    let [v, _, h, w] = depth.dims();
-    let device = depth.device();
-    let valid: Vec<f32> = target.iter().map(|&d| f32::from(d > 0.0)).collect();
-    let valid = constant(valid, [v, h * w], &device);
-    let flat = depth.clone().reshape([v, h * w]);
-    let dot = (flat.clone() * constant(target.to_vec(), [v, h * w], &device)).sum_dim(1);
-    let norm = (flat.clone() * flat * valid.clone()).sum_dim(1);
-    let empty = valid.sum_dim(1).equal_elem(0.0).float();
-    // An empty view has dot = norm = 0: ŝ = (0 + 1)/(0 + 1).
-    let scales = (dot + empty.clone()) / (norm + empty);
-    depth * scales.reshape([v, 1, 1, 1]).expand([v, 1, h, w])
-}
-
-/// Per pixel of `error` `[V, 1, H, W]` (prediction − ground truth), Σ_k |Δx_k| + |Δy_k| over
-/// `strides`: the differences to the pixels k to the right and k below, each counted only
-/// where both pixels have ground truth in `target`; the last k columns have no Δx_k and the
-/// last k rows no Δy_k.
-fn gradient_error(error: Tensor<4>, target: &[f32], strides: &[usize]) -> Tensor<4> {
-    let [v, _, h, w] = error.dims();
-    let device = error.device();
-    // One difference along `axis` (2 = rows, 3 = columns) at stride k, masked, padded back to
-    // [V, 1, H, W].
-    let along = |axis: usize, k: usize| {
-        let (dy, dx) = if axis == 2 { (k, 0) } else { (0, k) };
-        let (rows, cols) = (h - dy, w - dx);
-        let mask: Vec<f32> = (0..v * rows * cols)
-            .map(|i| {
-                let (view, y, x) = (i / (rows * cols), i / cols % rows, i % cols);
-                let p = (view * h + y) * w + x;
-                f32::from(target[p] > 0.0 && target[p + dy * w + dx] > 0.0)
-            })
-            .collect();
-        let len = if axis == 2 { h } else { w };
-        let diff = error.clone().narrow(axis, k, len - k) - error.clone().narrow(axis, 0, len - k);
-        let masked = diff.abs() * constant(mask, [v, 1, rows, cols], &device);
-        let mut pad = [v, 1, h, w];
-        pad[axis] = k;
-        Tensor::cat(vec![masked, Tensor::zeros(pad, &device)], axis)
-    };
-    let mut out = Tensor::zeros([v, 1, h, w], &device);
-    for &k in strides.iter().filter(|&&k| k > 0) {
-        if w > k {
-            out = out + along(3, k);
-        }
-        if h > k {
-            out = out + along(2, k);
-        }
-    }
-    out
 }
 
 /// L_cam of the predicted `camera` `[N, 9]` against `targets` (from [`camera_targets`]),

@@ -16,13 +16,7 @@
 //! - cross = (1/|G|) Σ_{(v,k)∈G} (1/n_vk) Σ_{p∈(v,k)} [1 − f_p·μ̂_k^(−v) − δ_pull]₊ over the
 //!   set G of (view, instance) pairs whose instance is also seen in another view (zero with
 //!   [`CrossView::Off`], or when no instance is seen twice);
-//! - assign = (1/K) Σ_k (1/N_k) Σ_{p∈k} −log softmax_j(f_p·μ̂_j / τ_assign)[k], each pixel's
-//!   cross-entropy of its own prototype among all of the sample's, τ_assign = 0.1 (zero unless
-//!   [`LossConfig::assign_weight`] is set, or with a single instance). Pull and push ask that
-//!   each pixel lie near its prototype and the prototypes apart; inference assigns each
-//!   Gaussian to its *nearest* prototype, and a pixel within the pull margin of its own can
-//!   still lie nearer another's. This term scores exactly that assignment;
-//! - L_ins = 2·pull + 1·push + 2·cross + w_assign·assign (weights from [`LossConfig`]).
+//! - L_ins = 2·pull + 1·push + 2·cross (weights from [`LossConfig`]).
 //!
 //! Background pixels (id 0: floor, walls, ceiling, nothing) take part as one more instance with
 //! its own prototype: they are pulled together and every object is pushed away from them, so
@@ -31,15 +25,12 @@
 
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
-use burn::tensor::activation::{log_softmax, relu};
+use burn::tensor::activation::relu;
 
 use super::{
     CrossView, HardNegatives, LossConfig, LossError, NORM_EPS, check_dims, check_len, constant,
     host, indices, normalize_rows, pixels_last, unit_pixel_vectors, zero,
 };
-
-/// τ_assign of the assignment term (the temperature the contrastive L_sem is trained at).
-const ASSIGN_TEMPERATURE: f64 = 0.1;
 
 /// The parts of L_ins, unweighted, each a one-element tensor.
 #[derive(Debug, Clone)]
@@ -47,16 +38,14 @@ pub struct InstanceTerms {
     pub pull: Tensor<1>,
     pub push: Tensor<1>,
     pub cross: Tensor<1>,
-    pub assign: Tensor<1>,
 }
 
 impl InstanceTerms {
-    /// pull_weight·pull + push_weight·push + cross_weight·cross + assign_weight·assign.
+    /// pull_weight·pull + push_weight·push + cross_weight·cross.
     pub fn total(&self, config: &LossConfig) -> Tensor<1> {
         self.pull.clone().mul_scalar(config.pull_weight)
             + self.push.clone().mul_scalar(config.push_weight)
             + self.cross.clone().mul_scalar(config.cross_weight)
-            + self.assign.clone().mul_scalar(config.assign_weight.unwrap_or(0.0))
     }
 }
 
@@ -114,7 +103,6 @@ pub fn instance_loss(
             pull: zero(&device),
             push: zero(&device),
             cross: zero(&device),
-            assign: zero(&device),
         });
     }
     let groups = Groups::new(ids, views);
@@ -147,19 +135,6 @@ pub fn instance_loss(
     let pull_hinge = relu(cos_own.neg().add_scalar(margin));
     let pull_weights: Vec<f32> =
         groups.k_from_pixel.iter().map(|&k| 1.0 / (kk as f32 * groups.total(k) as f32)).collect();
-    let assign = match config.assign_weight {
-        Some(weight) if weight > 0.0 && kk > 1 => {
-            // Each pixel's own column of [P, K], weighted as in pull.
-            let mut picks = vec![0.0f32; pixels * kk];
-            for (p, (&k, &share)) in groups.k_from_pixel.iter().zip(&pull_weights).enumerate() {
-                picks[p * kk + k] = share;
-            }
-            let logits =
-                f.clone().matmul(prototypes.clone().transpose()).div_scalar(ASSIGN_TEMPERATURE);
-            -(log_softmax(logits, 1) * constant(picks, [pixels, kk], &device)).sum()
-        }
-        _ => zero(&device),
-    };
     let pull = (pull_hinge * constant(pull_weights, [pixels], &device)).sum();
 
     let push = if kk < 2 {
@@ -214,7 +189,7 @@ pub fn instance_loss(
             }
         }
     };
-    Ok(InstanceTerms { pull, push, cross, assign })
+    Ok(InstanceTerms { pull, push, cross })
 }
 
 /// η_ab for every ordered pair, `[K][K]` row-major, from the semantic map `[V][D][H][W]`.

@@ -16,10 +16,6 @@
 //!   the sample's own labels named every object `chair` or `stool` (labels a bed never met in
 //!   its own scene cost it nothing, while inference picks from the whole vocabulary).
 //!
-//! The contrastive form can be logit-adjusted (Menon et al., 2021): each class's logit gains
-//! a·ln π_k, π_k its share of the training instances, so that frequent labels need no margin
-//! of their own and the unadjusted cosines, which inference reads, are balanced over labels.
-//!
 //! Both are zero when Ω is empty. The 384-d projections are never formed per pixel (at 4 views
 //! of 128×128 they cost about a second a step on two cores): with t̂ a unit teacher row,
 //! y·t̂ = l·(Wᵀt̂) + b·t̂ and |y|² = lᵀ(WᵀW)l + 2·l·(Wᵀb) + |b|², so every per-pixel quantity
@@ -72,11 +68,8 @@ pub fn semantic_loss(
             let cos = ((l * along).sum_dim(1) + offset) / norm;
             Ok(cos.neg().add_scalar(1.0).sum().div_scalar(q as f64))
         }
-        SemanticForm::Contrastive { temperature: tau, vocabulary, log_prior } => {
+        SemanticForm::Contrastive { temperature: tau, vocabulary } => {
             check_len("label vocabulary", vocabulary.len() / text * text, vocabulary.len())?;
-            if !log_prior.is_empty() {
-                check_len("label log prior", vocabulary.len() / text, log_prior.len())?;
-            }
             let classes =
                 Classes::of(&host("semantic teacher", &teacher)?, vocabulary, text, &labels);
             let q = labels.len();
@@ -84,13 +77,7 @@ pub fn semantic_loss(
             let table = normalize_rows(constant(classes.table, [k, text], &device)); // [K, 384]
             let (along, offset) = along_targets(table, weight, bias); // [K, d_s], [K, 1]
             let cos = (l.matmul(along.transpose()) + offset.transpose()) / norm; // [Q, K]
-            let mut logits = cos.div_scalar(tau);
-            if let Some(&least) = log_prior.iter().min_by(|a, b| a.total_cmp(b)) {
-                // Classes beyond the vocabulary (a sample's own labels) count as the rarest.
-                let prior = (0..k).map(|c| log_prior.get(c).copied().unwrap_or(least)).collect();
-                logits = logits + constant(prior, [1, k], &device);
-            }
-            let log_p = log_softmax(logits, 1);
+            let log_p = log_softmax(cos.div_scalar(tau), 1);
             let own = log_p.gather(1, indices(classes.of_pixel, &device).reshape([q, 1]));
             Ok((own * constant(classes.pixel_weight, [q, 1], &device)).sum().neg())
         }
@@ -123,9 +110,8 @@ pub enum SemanticForm<'a> {
     /// The paper's per-pixel 1 − cos to the pixel's own label.
     Cosine,
     /// Cross-entropy of cos/`temperature` over `vocabulary` (`[K][384]` label embeddings, row
-    /// major) and the sample's own labels, balanced per instance; `log_prior` (empty, or one
-    /// value per vocabulary row) is added to the logits: a·ln π of the logit-adjusted loss.
-    Contrastive { temperature: f64, vocabulary: &'a [f32], log_prior: &'a [f32] },
+    /// major) and the sample's own labels, balanced per instance.
+    Contrastive { temperature: f64, vocabulary: &'a [f32] },
 }
 
 /// The classes of the contrastive form: the distinct label embeddings of the vocabulary and

@@ -47,17 +47,11 @@ impl Block {
 
     /// `x`: `[batch, seq, dim]` → same shape; attention runs within each batch entry.
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        self.forward_with_keys(x, None).0
+        self.forward_pooled(x, None)
     }
 
-    /// [`Self::forward`], reading the keys and values through `pooling` when given, with the
-    /// layer's queries and (unpooled) keys, `[batch, heads, seq, head_dim]` each (what a loss
-    /// on the attention itself reads).
-    pub fn forward_with_keys(
-        &self,
-        x: Tensor<3>,
-        pooling: Option<KeyPooling>,
-    ) -> (Tensor<3>, Tensor<4>, Tensor<4>) {
+    /// [`Self::forward`], reading the keys and values through `pooling` when given.
+    pub fn forward_pooled(&self, x: Tensor<3>, pooling: Option<KeyPooling>) -> Tensor<3> {
         let [b, l, d] = x.dims();
         let hd = d / self.heads;
         let qkv = self
@@ -70,15 +64,14 @@ impl Block {
         let options =
             AttentionModuleOptions { scale: Some(1.0 / (hd as f64).sqrt()), ..Default::default() };
         let (keys, values) = match pooling {
-            Some(p) => (p.apply(k.clone()), p.apply(v)),
-            None => (k.clone(), v),
+            Some(p) => (p.apply(k), p.apply(v)),
+            None => (k, v),
         };
-        let ctx = attention(q.clone(), keys, values, None, None, options)
-            .swap_dims(1, 2)
-            .reshape([b, l, d]);
+        let ctx =
+            attention(q, keys, values, None, None, options).swap_dims(1, 2).reshape([b, l, d]);
         let x = x + self.proj.forward(ctx);
         let h = self.fc2.forward(gelu(self.fc1.forward(self.norm2.forward(x.clone()))));
-        (x + h, q, k)
+        x + h
     }
 }
 

@@ -84,36 +84,6 @@ pub struct Skip {
     pub(crate) inject: Conv2d,
 }
 
-/// A per-pixel head on the decoder's full-resolution features: a 1×1 layer of its own width
-/// with GELU, then a 1×1 output layer. Two heads have this shape:
-/// - the point-map head ([`ModelConfig::point_head`]), 3 channels scaled by
-///   [`ModelConfig::depth_scale`]: each pixel's point in view 0's camera frame, in metres. For
-///   view 0 that is its own depth along its rays; for every other view it needs that view's
-///   pose, which the decoder's features only hold if the global attention matched the views;
-/// - the descriptor head ([`ModelConfig::descriptor_head`]): a matching descriptor per pixel,
-///   compared after L2 normalization, which registration matches between the views.
-#[derive(Module, Debug)]
-pub struct PixelHead {
-    pub(crate) hidden: Conv2d,
-    pub(crate) out: Conv2d,
-}
-
-impl PixelHead {
-    fn new(input: usize, hidden: usize, out: usize, device: &Device) -> Self {
-        Self {
-            hidden: Conv2dConfig::new([input, hidden], [1, 1]).init(device),
-            out: Conv2dConfig::new([hidden, out], [1, 1]).init(device),
-        }
-    }
-
-    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.out.forward(gelu(self.hidden.forward(x)))
-    }
-}
-
-/// Hidden channels of the descriptor head.
-pub const DESCRIPTOR_HIDDEN: usize = 32;
-
 /// The dense maps of one forward pass (everything but the camera).
 #[derive(Debug, Clone)]
 pub struct DenseOutput {
@@ -122,8 +92,6 @@ pub struct DenseOutput {
     pub gaussians: Tensor<4>,
     pub instance: Tensor<4>,
     pub semantic: Tensor<4>,
-    pub point_map: Option<Tensor<4>>,
-    pub descriptors: Option<Tensor<4>>,
 }
 
 /// DPT-style dense decoder shared by the depth, Gaussian/semantic and instance heads.
@@ -141,10 +109,6 @@ pub struct DenseDecoder {
     pub(crate) mix: Conv2d,
     /// Fused 1×1 output layer: depth (2) | Gaussians (14) | semantic (d_s) | instance (8).
     pub(crate) out: Conv2d,
-    /// Only with [`ModelConfig::point_head`].
-    pub(crate) point: Option<PixelHead>,
-    /// Only with [`ModelConfig::descriptor_head`].
-    pub(crate) descriptor: Option<PixelHead>,
 }
 
 impl DenseDecoder {
@@ -187,10 +151,6 @@ impl DenseDecoder {
             skips,
             mix: Conv2dConfig::new([last + 3, last], [1, 1]).init(device),
             out: Conv2dConfig::new([last, Self::out_channels(c)], [1, 1]).init(device),
-            point: c.point_head.map(|hidden| PixelHead::new(last, hidden, 3, device)),
-            descriptor: c
-                .descriptor_head
-                .map(|dim| PixelHead::new(last, DESCRIPTOR_HIDDEN, dim, device)),
         }
     }
 
@@ -225,8 +185,6 @@ impl DenseDecoder {
             }
         }
         let x = gelu(self.mix.forward(Tensor::cat(vec![x, centred], 1)));
-        let point_map = self.point.as_ref().map(|head| head.forward(x.clone()) * c.depth_scale);
-        let descriptors = self.descriptor.as_ref().map(|head| head.forward(x.clone()));
         let raw = self.out.forward(x);
         let mut parts = raw
             .split_with_sizes(vec![1, 1, GAUSSIAN_AFFINE_CHANNELS, 3, c.sem_dim, OUT_INSTANCE], 1)
@@ -256,8 +214,6 @@ impl DenseDecoder {
             gaussians: Tensor::cat(vec![affine * mul + add, colour], 1),
             instance,
             semantic,
-            point_map,
-            descriptors,
         }
     }
 }

@@ -39,14 +39,8 @@ pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
     let hw = (c.image_size * c.image_size) as u64;
     let last = c.decoder_channels(c.stages()) as u64;
     f += 2 * n * hw * (last + 3) * last + 2 * n * hw * last * DenseDecoder::out_channels(c) as u64;
-    if let Some(hidden) = c.point_head {
-        f += 2 * n * hw * (last + 3) * hidden as u64;
-    }
     if let Some(k) = c.camera_rays {
         f += 2 * n * tokens * inssplat_proto::rays::ray_channels(k) as u64 * d;
-    }
-    if let Some(dim) = c.descriptor_head {
-        f += 2 * n * hw * (last + dim as u64) * super::DESCRIPTOR_HIDDEN as u64;
     }
     f
 }

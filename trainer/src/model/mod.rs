@@ -24,12 +24,14 @@ use inssplat_proto::signature::TEXT_DIM;
 
 pub use block::{Block, KeyPooling, LN_EPS};
 pub use decoder::{
-    CameraHead, DESCRIPTOR_HIDDEN, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH,
-    OUT_GAUSSIANS, OUT_INSTANCE, PixelHead, SH_C0, Skip, Stage, gaussian_affine,
+    CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
+    OUT_INSTANCE, SH_C0, Skip, Stage, gaussian_affine,
 };
 pub use gelu::gelu;
 
-/// Shape and output-scaling hyper-parameters of the network.
+/// Shape and output-scaling hyper-parameters of the network. Configurations saved with the
+/// heads of experiments since removed (`point_head`, `descriptor_head`; `null` in every file
+/// shipped) read without them: unknown keys are ignored.
 #[derive(Config, Debug, PartialEq)]
 pub struct ModelConfig {
     /// Square input resolution in pixels (H = W); a multiple of `patch`.
@@ -74,15 +76,6 @@ pub struct ModelConfig {
     /// image encoder, the image enters the decoder only through one 1×1 layer at full
     /// resolution (the architecture of the 0.5 release and earlier, whose files lack the key).
     pub image_skips: Option<usize>,
-    /// Hidden channels of a point-map head: every input pixel's 3D point in view 0's camera
-    /// frame, DUSt3R-style (see [`PointHead`]), a dense target that only matching the
-    /// views can meet; `None` (also what files saved before it existed read as): no such head.
-    pub point_head: Option<usize>,
-    /// Channels of a descriptor head: a per-pixel matching descriptor (see [`PixelHead`]),
-    /// trained so that the pixels of two views that see the same point match
-    /// ([`crate::loss::descriptor_loss`]), which registration matches between the views;
-    /// `None` (also what files saved before it existed read as): no such head.
-    pub descriptor_head: Option<usize>,
     /// Side of the square of patch tokens whose keys and values the global layers average
     /// into one (the spatial-reduction attention of PVT, without its learned reduction):
     /// every token still asks its query, but of each view it reads the camera token and
@@ -145,11 +138,12 @@ impl ModelConfig {
             || self.decoder_min_dim == 0
             || self.mlp_ratio == 0
             || self.image_skips == Some(0)
-            || self.point_head == Some(0)
-            || self.descriptor_head == Some(0)
             || self.camera_rays == Some(0)
         {
-            return bad("sem_dim, decoder_min_dim, mlp_ratio, image_skips, point_head, descriptor_head and camera_rays must be positive".into());
+            return bad(
+                "sem_dim, decoder_min_dim, mlp_ratio, image_skips and camera_rays must be positive"
+                    .into(),
+            );
         }
         if let Some(p) = self.global_kv_pool
             && (p < 2 || !self.grid().is_multiple_of(p))
@@ -240,17 +234,6 @@ pub struct ModelOutput {
     pub instance: Tensor<4>,
     /// `[N, d_s, H, W]`: compact semantic feature L.
     pub semantic: Tensor<4>,
-    /// `[N, 3, H, W]`: each pixel's point in view 0's camera frame, metres; only with
-    /// [`ModelConfig::point_head`].
-    pub point_map: Option<Tensor<4>>,
-    /// `[N, D, H, W]`: each pixel's matching descriptor; only with
-    /// [`ModelConfig::descriptor_head`].
-    pub descriptors: Option<Tensor<4>>,
-    /// `[N, tokens, head_dim]`: the patch tokens' queries and keys of the last global layer's
-    /// first head, for a loss on where that attention looks
-    /// ([`crate::loss::attention_match_loss`]); not exported.
-    pub global_queries: Tensor<3>,
-    pub global_keys: Tensor<3>,
 }
 
 impl InsSplatNet {
@@ -345,25 +328,15 @@ impl InsSplatNet {
         let mut x = self.embed(images.clone(), rays);
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
-        let mut keys = None;
         let pooling = c.global_kv_pool.map(|pool| KeyPooling { views: n, grid: c.grid(), pool });
         for (i, block) in self.blocks.iter().enumerate() {
             if i % 2 == 0 {
                 x = block.forward(x);
             } else {
-                let (y, q, k) = block.forward_with_keys(x.reshape([1, n * s, d]), pooling);
-                x = y.reshape([n, s, d]);
+                x = block.forward_pooled(x.reshape([1, n * s, d]), pooling).reshape([n, s, d]);
                 levels.push(x.clone().slice([0..n, 1..s]));
-                keys = Some((q, k));
             }
         }
-        let (q, k) = keys.expect("depth ≥ 2 has a global layer");
-        let hd = d / c.heads;
-        // Head 0 of the last global layer, patch tokens only: [N, tokens, head_dim].
-        let patch_rows = |t: Tensor<4>| {
-            t.slice([0..1, 0..1, 0..n * s, 0..hd]).reshape([n, s, hd]).slice([0..n, 1..s])
-        };
-        let (global_queries, global_keys) = (patch_rows(q), patch_rows(k));
         let camera = self.camera_head.forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
         let dense = self.decoder.forward(levels, images, c);
         Ok(ModelOutput {
@@ -373,10 +346,6 @@ impl InsSplatNet {
             gaussians: dense.gaussians,
             instance: dense.instance,
             semantic: dense.semantic,
-            point_map: dense.point_map,
-            descriptors: dense.descriptors,
-            global_queries,
-            global_keys,
         })
     }
 

@@ -1,5 +1,5 @@
 //! Growing a trained network into a larger shape that starts by computing exactly what it
-//! did: an image encoder, point-map, descriptor and ray layers joined at zero, wider MLPs
+//! did: an image encoder and ray layers joined at zero, wider MLPs
 //! whose new hidden units write through zeros, and a wider semantic feature whose new channels
 //! Φ_sem reads through zeros. `--init-from` fine-tunes start from here.
 
@@ -13,13 +13,10 @@ use super::{TrainError, seeded_init};
 use crate::model::{InsSplatNet, ModelConfig, OUT_DEPTH, OUT_GAUSSIANS};
 
 /// `net` grown to `shape`, which may add an image encoder
-/// ([`crate::model::ModelConfig::image_skips`]), a point-map head
-/// ([`crate::model::ModelConfig::point_head`]), a descriptor head
-/// ([`crate::model::ModelConfig::descriptor_head`]) or camera rays
+/// ([`crate::model::ModelConfig::image_skips`]) or camera rays
 /// ([`crate::model::ModelConfig::camera_rays`]) that `net` lacks: every weight of `net` is
 /// kept and the new parts are drawn from `seed`. The image encoder and the rays join through
-/// layers that start at zero and each head has an output of its own, so the grown network
-/// computes exactly what `net` did. A larger [`crate::model::ModelConfig::mlp_ratio`] widens
+/// layers that start at zero, so the grown network computes exactly what `net` did. A larger [`crate::model::ModelConfig::mlp_ratio`] widens
 /// every block's MLP the same way (Net2Net's function-preserving widening, with zeros in
 /// place of its split weights): the new hidden units read the tokens through fresh weights
 /// and write nothing until training moves their output weights, which start at zero. A larger
@@ -45,12 +42,6 @@ pub fn grow(
     let mut new_parts = Vec::new();
     if old.image_skips.is_none() && shape.image_skips.is_some() {
         new_parts.push("decoder.skips.");
-    }
-    if old.point_head.is_none() && shape.point_head.is_some() {
-        new_parts.push("decoder.point.");
-    }
-    if old.descriptor_head.is_none() && shape.descriptor_head.is_some() {
-        new_parts.push("decoder.descriptor.");
     }
     if old.camera_rays.is_none() && shape.camera_rays.is_some() {
         new_parts.push("ray_embed.");

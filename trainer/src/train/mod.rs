@@ -1,5 +1,4 @@
-//! The training loop: AdamW with warm-up + cosine learning rate (optionally a smaller one for
-//! the transformer backbone), one or more samples per step (side by side on threads, see
+//! The training loop: AdamW with warm-up + cosine learning rate, one or more samples per step (side by side on threads, see
 //! [`batch`]) of 2–8 input views plus held-out target views each, data from a folder of scenes
 //! or synthesized on the fly (prefetched on background threads, one per sample of a step), a
 //! validation loss on fixed val samples ([`validation`]), checkpoints every few minutes with exact
@@ -15,7 +14,7 @@ pub mod checkpoint;
 mod grow;
 pub mod labels;
 pub mod log;
-mod ray_errors;
+mod ray_dropout;
 pub mod sample;
 pub mod schedule;
 pub mod step;
@@ -39,18 +38,17 @@ use crate::loss::{GaussianTraining, LossConfig};
 use crate::model::{InsSplatNet, ModelConfig};
 use checkpoint::{CHECKPOINT_FORMAT, CheckpointError, CheckpointState};
 use log::{CsvLog, TRAIN_HEADER, VAL_HEADER, loss_cells};
-pub use ray_errors::RayPlan;
+pub use ray_dropout::RayPlan;
 use sample::{DataSpec, Prefetcher, SampleError, Sampler, Source, ViewPlan};
 use schedule::Schedule;
 use step::{LossValues, StepError};
-pub use validation::{CheckpointScores, Matching, ValidationSet, mean_loss, score_checkpoint};
+pub use validation::{CheckpointScores, DepthScores, ValidationSet, mean_loss, score_checkpoint};
 use validation::{val_samples, validate};
 
-/// Scenes whose furniture gives the label prior of the logit-adjusted L_sem: enough that the
-/// rarest label counts in the hundreds.
-const LABEL_PRIOR_SCENES: u64 = 4000;
-
-/// Everything that defines a run; saved in every checkpoint.
+/// Everything that defines a run; saved in every checkpoint. A saved configuration with
+/// fields of experiments since removed (a backbone learning-rate factor, ray noise, the ray
+/// layer trained alone, loss terms and heads that never shipped) reads without them: unknown
+/// keys are ignored.
 #[derive(Config, Debug)]
 pub struct TrainConfig {
     pub model: ModelConfig,
@@ -66,10 +64,6 @@ pub struct TrainConfig {
     /// Final learning rate as a fraction of the peak.
     #[config(default = 0.05)]
     pub lr_floor: f64,
-    /// Learning-rate factor of the transformer blocks (the paper's 0.1 fine-tunes a pretrained
-    /// VGGT; trained from scratch the backbone needs the full rate).
-    #[config(default = 1.0)]
-    pub backbone_lr_scale: f64,
     #[config(default = 0.05)]
     pub weight_decay: f64,
     /// Gradient clipping by norm, per parameter tensor (0 = off).
@@ -100,10 +94,6 @@ pub struct TrainConfig {
     /// The rays a network that reads its cameras gets ([`RayPlan`]); `None` (also what configs
     /// saved before this existed read as): always the true cameras'.
     pub rays: Option<RayPlan>,
-    /// Train the ray layer alone ([`crate::model::ModelConfig::camera_rays`]), every other
-    /// weight kept, so that with zero rays the network stays its source. `None` (also what
-    /// configs saved before this existed read as): every weight trains.
-    pub rays_only: Option<bool>,
 }
 
 impl TrainConfig {
@@ -135,42 +125,18 @@ impl TrainConfig {
                 self.min_views, self.max_views
             )));
         }
-        if self.loss.point_map_weight.is_some_and(|w| w > 0.0) && self.model.point_head.is_none() {
-            return Err(TrainError::Config(
-                "a point-map weight needs a network with a point-map head".into(),
-            ));
-        }
-        if self.loss.descriptor_weight.is_some_and(|w| w > 0.0)
-            && self.model.descriptor_head.is_none()
-        {
-            return Err(TrainError::Config(
-                "a descriptor weight needs a network with a descriptor head".into(),
-            ));
-        }
-        if self.rays_only == Some(true) && self.model.camera_rays.is_none() {
-            return Err(TrainError::Config("training the ray layer alone needs a network that reads camera rays (--camera-rays)".into()));
-        }
         if let Some(plan) = self.rays {
             if self.model.camera_rays.is_none() {
                 return Err(TrainError::Config(
-                    "ray dropout or noise needs a network that reads camera rays (--camera-rays)"
-                        .into(),
+                    "ray dropout needs a network that reads camera rays (--camera-rays)".into(),
                 ));
             }
-            if !(0.0..=1.0).contains(&plan.dropout) || !(0.0..=180.0).contains(&plan.noise_deg) {
+            if !(0.0..=1.0).contains(&plan.dropout) {
                 return Err(TrainError::Config(format!(
-                    "ray dropout {} must be in 0..=1 and ray noise {}° in 0..=180",
-                    plan.dropout, plan.noise_deg
+                    "ray dropout {} must be in 0..=1",
+                    plan.dropout
                 )));
             }
-        }
-        if self.loss.logit_adjustment().is_some()
-            && (self.loss.semantic_temperature.is_none()
-                || self.loss.semantic_objects_only != Some(true))
-        {
-            return Err(TrainError::Config(
-                "the logit-adjusted L_sem needs the contrastive form on the furniture alone (--semantic-temperature, --semantic-objects-only)".into(),
-            ));
         }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
@@ -325,8 +291,8 @@ pub fn train(
 /// Starts a new run in `run` from the weights of the newest checkpoint of `from` (a run or a
 /// checkpoint folder, or an exported ONNX file) with a fresh optimizer and schedule: a
 /// fine-tune, or one arm of an ablation that all start from the same network. The network
-/// shape is the source's; `config.model` is replaced by it, except that an image encoder or a
-/// point-map head asked for by `config.model` is added to a source without one and a wider
+/// shape is the source's; `config.model` is replaced by it, except that an image encoder or
+/// camera rays asked for by `config.model` are added to a source without them and a wider
 /// MLP than the source's widens its blocks' (see [`grow`]; never narrowed), and that a key
 /// pooling it asks for replaces the source's (`Some(1)`: every token, for a source that
 /// pools; `None` keeps the source's).
@@ -356,8 +322,6 @@ pub fn fine_tune(
     shape.sem_dim = shape.sem_dim.max(config.model.sem_dim);
     for (part, asked, has) in [
         ("an image encoder", config.model.image_skips, &mut shape.image_skips),
-        ("a point-map head", config.model.point_head, &mut shape.point_head),
-        ("a descriptor head", config.model.descriptor_head, &mut shape.descriptor_head),
         ("camera rays", config.model.camera_rays, &mut shape.camera_rays),
     ] {
         match (asked, *has) {
@@ -446,10 +410,8 @@ fn io_error(path: &Path, e: impl std::fmt::Display) -> TrainError {
     TrainError::Io { path: path.to_path_buf(), problem: e.to_string() }
 }
 
-/// One optimizer update of `net` with `grads` (see [`batch::gradients`]): the transformer
-/// blocks at `backbone_scale`·lr, everything else at lr; in the frozen-3DGS ablation only the
-/// output layer of the dense decoder and Φ_sem move, and with [`TrainConfig::rays_only`] only
-/// the ray layer.
+/// One optimizer update of `net` with `grads` (see [`batch::gradients`]) at `lr`; in the
+/// frozen-3DGS ablation only the output layer of the dense decoder and Φ_sem move.
 pub fn update(
     net: InsSplatNet,
     optim: &mut ModuleOptimizer,
@@ -457,23 +419,12 @@ pub fn update(
     lr: f64,
     config: &TrainConfig,
 ) -> InsSplatNet {
-    if let (Some(true), Some(layer)) = (config.rays_only, &net.ray_embed) {
-        let mut rays = GradientsParams::new();
-        batch::move_gradients(layer, &mut grads, &mut rays);
-        return optim.step(lr, net, rays);
-    }
     if config.loss.gaussians == GaussianTraining::Frozen {
         let mut heads = GradientsParams::new();
         batch::move_gradients(&net.decoder.out, &mut grads, &mut heads);
         batch::move_gradients(&net.sem_proj, &mut grads, &mut heads);
         return optim.step(lr, net, heads);
     }
-    if (config.backbone_lr_scale - 1.0).abs() < f64::EPSILON {
-        return optim.step(lr, net, grads);
-    }
-    let mut backbone = GradientsParams::new();
-    batch::move_gradients(&net.blocks, &mut grads, &mut backbone);
-    let net = optim.step(lr * config.backbone_lr_scale, net, backbone);
     optim.step(lr, net, grads)
 }
 
@@ -505,23 +456,6 @@ fn run_loop(
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let source = Source::open(&state.data)?;
-    if state.config.loss.logit_adjustment().is_some()
-        && state.config.loss.semantic_label_counts.is_none()
-    {
-        let counts = source.label_counts(state.config.first_scene, LABEL_PRIOR_SCENES)?;
-        if session.progress {
-            let total: u64 = counts.values().sum();
-            let shares: Vec<String> = counts
-                .iter()
-                .map(|(l, n)| format!("{l} {:.1}%", 100.0 * *n as f64 / total.max(1) as f64))
-                .collect();
-            eprintln!(
-                "label prior of the logit-adjusted L_sem, {total} instances of {LABEL_PRIOR_SCENES} scenes: {}",
-                shares.join(", ")
-            );
-        }
-        state.config.loss.semantic_label_counts = Some(counts);
-    }
     let sampler = Sampler {
         source,
         plan: state.config.plan(),

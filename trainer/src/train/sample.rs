@@ -9,20 +9,18 @@
 //! uninterrupted run would have seen. [`Prefetcher`] builds the samples of the coming steps on
 //! background threads, so data never stalls the step.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
 use inssplat_proto::Camera;
-use inssplat_proto::dataset::{Scene, TransformsJson};
+use inssplat_proto::dataset::Scene;
 use inssplat_proto::signature::TEXT_DIM;
 use inssplat_text::LabelCache;
 use rand::seq::index::sample as sample_indices;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::loss::camera_targets;
@@ -111,41 +109,6 @@ impl Source {
         }
     }
 
-    /// Instances per label of scenes `first..first + count` (folders: at most each folder
-    /// once), the room's shell left out: for a synthesized split the furniture its layouts
-    /// place ([`synth::furniture_labels`], nothing rendered), for folders what their
-    /// `transforms.json` list (no frame read).
-    pub fn label_counts(
-        &self,
-        first: u64,
-        count: u64,
-    ) -> Result<BTreeMap<String, u64>, SampleError> {
-        let labels: Vec<Vec<String>> = match self {
-            Source::Folder(paths) => (first..first + count.min(paths.len() as u64))
-                .into_par_iter()
-                .map(|i| {
-                    let json = wrapped(paths, i).join("transforms.json");
-                    Ok(TransformsJson::read(&json)?
-                        .instances
-                        .into_iter()
-                        .map(|inst| inst.label)
-                        .collect())
-                })
-                .collect::<Result<_, SampleError>>()?,
-            Source::Synth(cfg) => (first..first + count)
-                .into_par_iter()
-                .map(|i| {
-                    Ok(synth::furniture_labels(i, cfg)?.into_iter().map(String::from).collect())
-                })
-                .collect::<Result<_, SampleError>>()?,
-        };
-        let mut counts = BTreeMap::new();
-        for label in labels.into_iter().flatten().filter(|l| !SHELL_LABELS.contains(&l.as_str())) {
-            *counts.entry(label).or_default() += 1;
-        }
-        Ok(counts)
-    }
-
     /// Scene number `index` (folders wrap around).
     pub fn scene(&self, index: u64) -> Result<Scene, SampleError> {
         match self {
@@ -203,7 +166,7 @@ pub struct Sample {
     /// Instance ids labelled as the room's shell (`wall`, `floor`, `ceiling`).
     pub shell: Vec<u32>,
     /// The input views' cameras that a network trained with `--camera-rays` reads
-    /// ([`super::ray_errors`]).
+    /// ([`super::ray_dropout`]).
     pub ray_cameras: RayCameras,
 }
 
@@ -213,8 +176,6 @@ pub enum RayCameras {
     /// The true ones, [`Sample::cameras`].
     #[default]
     True,
-    /// The input views' cameras, erring as given.
-    Given(Vec<Camera>),
     /// None: every ray zero, the network's input before registration.
     Dropped,
 }

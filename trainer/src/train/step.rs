@@ -1,8 +1,8 @@
 //! One training objective evaluation: the network's forward pass on a sample's input views,
 //! its per-pixel Gaussians placed in the world with the ground-truth cameras, rendered by the
 //! differentiable rasterizer into every view of the sample (inputs and held-out targets), and
-//! the five InstanceSplat terms on the renders (and, if asked, L_ins and L_sem on the input
-//! views' own per-pixel embeddings and semantic features too).
+//! the five InstanceSplat terms on the renders (and, if asked, L_ins on the input views' own
+//! per-pixel embeddings too).
 //!
 //! Gaussians are placed with the ground-truth cameras (in view 0's frame, as the network
 //! predicts them) rather than the predicted ones: the camera head is supervised directly by
@@ -22,12 +22,9 @@ use inssplat_proto::signature::TEXT_DIM;
 use inssplat_raster::render::RenderOptions;
 
 use super::sample::{RayCameras, Sample};
-use crate::loss::descriptor::DEFAULT_SAMPLES as DESCRIPTOR_SAMPLES;
 use crate::loss::{
-    GaussianTraining, LossConfig, LossError, LossTerms, SemanticForm, attention_match_loss,
-    boundary_rgb_loss, camera_targets, descriptor_grid_loss, descriptor_loss, descriptor_matches,
-    geometry_loss, instance_loss, match_targets, median_depth, pixel_rays, point_map_loss,
-    point_map_targets, rgb_loss, semantic_loss,
+    GaussianTraining, LossConfig, LossError, LossTerms, SemanticForm, boundary_rgb_loss,
+    camera_targets, geometry_loss, instance_loss, median_depth, rgb_loss, semantic_loss,
 };
 use crate::model::{InsSplatNet, ModelError, ModelOutput, SH_C0};
 use crate::render_op::{BackwardMeter, RenderOpError, SplatTensors, render_metered};
@@ -122,14 +119,12 @@ pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option
     let k = net.config().camera_rays?;
     let (inputs, size, patch) = (sample.inputs, sample.size, net.config().patch);
     let shape = [inputs, (size / patch) * (size / patch), rays::ray_channels(k)];
-    let cameras = match &sample.ray_cameras {
-        RayCameras::Dropped => return Some(Tensor::zeros(shape, device)),
-        RayCameras::Given(cameras) => cameras,
-        RayCameras::True => &sample.cameras,
-    };
+    if sample.ray_cameras == RayCameras::Dropped {
+        return Some(Tensor::zeros(shape, device));
+    }
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
     Some(Tensor::from_data(
-        TensorData::new(rays::patch_rays(&cameras[..inputs], size, patch, k, scale), shape),
+        TensorData::new(rays::patch_rays(&sample.cameras[..inputs], size, patch, k, scale), shape),
         device,
     ))
 }
@@ -158,13 +153,7 @@ pub fn objective(
 
     let t1 = Instant::now();
     let input_cameras = &sample.cameras[..inputs];
-    let splats = match config.render_depth_gradient {
-        Some(k) if k != 1.0 => {
-            let depth = scale_gradient(out.depth.clone(), k);
-            splats_from_outputs(&ModelOutput { depth, ..out.clone() }, input_cameras)
-        }
-        _ => splats_from_outputs(&out, input_cameras),
-    };
+    let splats = splats_from_outputs(&out, input_cameras);
     let channels = splats.features.dims()[1];
     let meter = BackwardMeter::default();
     let renders = sample
@@ -185,67 +174,24 @@ pub fn objective(
     let semantic = rendered.narrow(1, 11, sem_dim);
     debug_assert_eq!(channels, 11 + sem_dim);
     let targets = camera_targets(input_cameras);
-    let input_depth = &sample.depth[..inputs * pixels];
-    let mut geometry = geometry_loss(
+    let geometry = geometry_loss(
         out.depth.clone(),
         out.depth_conf.clone(),
-        input_depth,
+        &sample.depth[..inputs * pixels],
         &sample.ids[..inputs * pixels],
         out.camera.clone(),
         &targets,
         config,
     )?;
-    if let (Some(points), Some(weight)) =
-        (out.point_map.clone(), config.point_map_weight.filter(|&w| w > 0.0))
-    {
-        let target = point_map_targets(
-            input_cameras,
-            input_depth,
-            size,
-            size,
-            config.point_map_offsets == Some(true),
-        )?;
-        let scale = median_depth(input_depth).unwrap_or(1.0);
-        geometry =
-            geometry + point_map_loss(points, &target, input_depth, scale)?.mul_scalar(weight);
-    }
-    if let Some(weight) = config.attention_match_weight.filter(|&w| w > 0.0 && inputs > 1) {
-        let targets = match_targets(input_cameras, input_depth, size, net.config().patch)?;
-        let matching =
-            attention_match_loss(out.global_queries.clone(), out.global_keys.clone(), &targets)?;
-        geometry = geometry + matching.mul_scalar(weight);
-    }
-    if let (Some(descriptors), Some(weight)) =
-        (out.descriptors.clone(), config.descriptor_weight.filter(|&w| w > 0.0 && inputs > 1))
-    {
-        let mut matches = descriptor_matches(
-            input_cameras,
-            input_depth,
-            size,
-            config.descriptor_samples.unwrap_or(DESCRIPTOR_SAMPLES),
-        )?;
-        if let Some(degrees) = config.descriptor_min_angle {
-            matches = matches.turned_at_least(input_cameras, (degrees as f32).to_radians());
-        }
-        let term = match config.descriptor_grid {
-            Some(stride) => descriptor_grid_loss(descriptors, &matches, stride)?,
-            None => descriptor_loss(descriptors, &matches)?,
-        };
-        geometry = geometry + term.mul_scalar(weight);
-    }
     let teacher = Tensor::from_data(
         TensorData::new(sample.teacher.clone(), [sample.teacher_rows(), TEXT_DIM]),
         device,
     );
     let (weight, bias) = net.sem_proj();
-    let vocabulary_labels: Vec<&str> = inssplat_synth::all_labels().into_iter().collect();
-    let log_prior = config.semantic_log_prior(&vocabulary_labels);
     let semantic_form = match config.semantic_temperature {
-        Some(temperature) => SemanticForm::Contrastive {
-            temperature,
-            vocabulary: &sample.vocabulary,
-            log_prior: &log_prior,
-        },
+        Some(temperature) => {
+            SemanticForm::Contrastive { temperature, vocabulary: &sample.vocabulary }
+        }
         None => SemanticForm::Cosine,
     };
     let own_ids = &sample.ids[..inputs * pixels];
@@ -262,25 +208,7 @@ pub fn objective(
         }
         _ => Cow::Borrowed(&sample.ids),
     };
-    let mut semantic = semantic_loss(
-        semantic,
-        &semantic_ids,
-        teacher.clone(),
-        weight.clone(),
-        bias.clone(),
-        semantic_form,
-    )?;
-    if let Some(direct) = config.direct_semantic_weight.filter(|&w| w > 0.0) {
-        let own = semantic_loss(
-            out.semantic.clone(),
-            &semantic_ids[..inputs * pixels],
-            teacher,
-            weight,
-            bias,
-            semantic_form,
-        )?;
-        semantic = semantic + own.mul_scalar(direct);
-    }
+    let semantic = semantic_loss(semantic, &semantic_ids, teacher, weight, bias, semantic_form)?;
     let terms = LossTerms {
         rgb: rgb_loss(rgb.clone(), images)?,
         geometry,
@@ -305,10 +233,17 @@ pub fn objective(
     })
 }
 
-/// `x` unchanged, with its gradient multiplied by `k` on the way back.
-fn scale_gradient(x: Tensor<4>, k: f64) -> Tensor<4> {
-    let fixed = x.clone().detach();
-    x.mul_scalar(k) + fixed.mul_scalar(1.0 - k)
+/// `[V][3][H][W]`: per pixel centre the camera-frame ray with z = 1, ((u − cx)/fx, (v − cy)/fy, 1),
+/// of each camera's intrinsics scaled to `w`×`h`.
+pub fn pixel_rays(cameras: &[Camera], h: usize, w: usize) -> Vec<f32> {
+    let mut rays = Vec::with_capacity(cameras.len() * 3 * h * w);
+    for cam in cameras {
+        let k = cam.intrinsics.scaled_to(w as u32, h as u32);
+        rays.extend((0..h * w).map(|p| ((p % w) as f32 + 0.5 - k.cx) / k.fx));
+        rays.extend((0..h * w).map(|p| ((p / w) as f32 + 0.5 - k.cy) / k.fy));
+        rays.extend(std::iter::repeat_n(1.0, h * w));
+    }
+    rays
 }
 
 /// The per-pixel Gaussians of every input view in the world frame of `cameras` (one per
@@ -368,23 +303,6 @@ fn left_product_matrix(a: Quat) -> [f32; 16] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn scale_gradient_keeps_the_value_and_scales_the_gradient() {
-        let device = Device::flex().autodiff();
-        let values = vec![0.5f32, -1.25, 2.0, 3.5];
-        let x = Tensor::<4>::from_data(TensorData::new(values.clone(), [1, 1, 2, 2]), &device)
-            .require_grad();
-        for k in [0.0, 0.25, 1.0] {
-            let y = scale_gradient(x.clone(), k);
-            assert_eq!(y.clone().into_data().try_to_vec::<f32>().unwrap(), values);
-            let grads = (y.clone() * y).sum().backward();
-            let got = x.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
-            for (g, v) in got.iter().zip(&values) {
-                assert!((g - 2.0 * k as f32 * v).abs() < 1e-6, "k {k}: {got:?}");
-            }
-        }
-    }
 
     #[test]
     fn left_product_matrix_matches_quaternion_product() {

@@ -1,8 +1,7 @@
 //! Validation: the fixed val-split samples a run validates on, their mean loss without
 //! gradients, and the scores of a saved checkpoint on them (its validation loss sample by
-//! sample, whether its global attention matches the views, and its depth's AbsRel; on views
-//! that overlap, and with the cameras a `--camera-rays` network reads turned, if asked), for
-//! choosing between runs and checkpoints.
+//! sample, and its depth's AbsRel; on views that overlap, if asked), for choosing between runs
+//! and checkpoints.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -11,8 +10,7 @@ use burn::prelude::*;
 use inssplat_text::LabelCache;
 
 use super::checkpoint::{self, CheckpointState};
-use super::ray_errors::turned;
-use super::sample::{DataSpec, RayCameras, Sample, Sampler, Source, ViewPlan};
+use super::sample::{DataSpec, Sample, Sampler, Source, ViewPlan};
 use super::step::{LossValues, StepError, objective};
 use super::{Session, TrainError, label_cache};
 use crate::loss::LossConfig;
@@ -21,14 +19,12 @@ use crate::model::InsSplatNet;
 /// Which fixed samples [`score_checkpoint`] scores: the first
 /// `samples` of `data` (default: the val split at the run's size), 4 views each, drawn from
 /// `window` consecutive frames ([`ViewPlan::window`]; `None`: the whole trajectory, as a run
-/// validates), the cameras a network trained with `--camera-rays` reads turned by
-/// `ray_noise_deg` ([`turned`]).
+/// validates).
 #[derive(Debug, Clone, Default)]
 pub struct ValidationSet {
     pub samples: usize,
     pub data: Option<DataSpec>,
     pub window: Option<usize>,
-    pub ray_noise_deg: f32,
 }
 
 /// What [`score_checkpoint`] measured of one checkpoint.
@@ -38,30 +34,30 @@ pub struct CheckpointScores {
     pub step: u64,
     /// Each sample's validation loss (their mean: [`mean_loss`]).
     pub losses: Vec<LossValues>,
-    /// With `matching`: whether the network matches the views ([`Matching`]).
-    pub matching: Option<Matching>,
+    /// With `depth`: the depth's AbsRel ([`DepthScores`]).
+    pub depth: Option<DepthScores>,
 }
 
 /// The validation loss of the newest checkpoint of `from` (a run or a checkpoint folder) on
 /// `set` — by default the samples a run validates on while it trains, and as many more as
 /// asked: model selection between runs and checkpoints on more samples than a run spends
-/// while training — and, with `matching`, on the same samples and weights (loaded and
-/// synthesized once), whether it matches the views ([`Matching`]).
+/// while training — and, with `depth`, on the same samples and weights (loaded and
+/// synthesized once), the depth's AbsRel ([`DepthScores`]).
 pub fn score_checkpoint(
     from: &Path,
     set: &ValidationSet,
-    matching: bool,
+    depth: bool,
 ) -> Result<CheckpointScores, TrainError> {
     let device = Device::flex();
     let (dir, state, net, val) = checkpoint_with_samples(from, set, &device)?;
     let losses = validate_each(&net, &val, &state.config.loss, &device).map_err(|source| {
         TrainError::Step { step: state.step, scene: "validation".into(), source }
     })?;
-    let matching =
-        matching.then(|| matching_scores(&net, &val, &device)).transpose().map_err(|source| {
-            TrainError::Step { step: state.step, scene: "matching".into(), source }
-        })?;
-    Ok(CheckpointScores { dir, step: state.step, losses, matching })
+    let depth = depth
+        .then(|| depth_scores(&net, &val, &device))
+        .transpose()
+        .map_err(|source| TrainError::Step { step: state.step, scene: "depth".into(), source })?;
+    Ok(CheckpointScores { dir, step: state.step, losses, depth })
 }
 
 /// The mean of per-sample losses (zero for none).
@@ -70,21 +66,13 @@ pub fn mean_loss(losses: &[LossValues]) -> LossValues {
         * (1.0 / losses.len().max(1) as f32)
 }
 
-/// Whether `net` matches the views of `val`:
-/// whether the last global layer's first attention head looks, from each patch token of a
-/// view, at the token of view 0 that sees the same point ([`crate::loss::match_scores`]),
-/// whether or not it was trained with `--attention-match-weight`; and, for a network with a
-/// descriptor head, whether each pixel's most alike descriptor in another view is the one that
-/// sees the same point ([`crate::loss::descriptor_scores`], on registration's grid); and the
-/// depth's AbsRel, beside them.
-fn matching_scores(
+/// The depth's AbsRel of `net` on each sample of `val` ([`DepthScores`]).
+fn depth_scores(
     net: &InsSplatNet,
     val: &[Sample],
     device: &Device,
-) -> Result<Matching, StepError> {
-    let mut scores = crate::loss::MatchScores::default();
-    let mut descriptor_scores: Option<crate::loss::DescriptorScores> = None;
-    let mut depth_abs_rel = Vec::with_capacity(val.len());
+) -> Result<DepthScores, StepError> {
+    let mut abs_rel = Vec::with_capacity(val.len());
     for s in val {
         let pixels = s.size * s.size;
         let images = Tensor::<4>::from_data(
@@ -97,65 +85,34 @@ fn matching_scores(
         let out = net
             .forward_with_rays(images, super::step::input_rays(net, s, device))
             .map_err(StepError::from)?;
-        let (cameras, depth) = (&s.cameras[..s.inputs], &s.depth[..s.inputs * pixels]);
         let predicted = crate::loss::host("depth", &out.depth).map_err(StepError::from)?;
-        let depth_scores =
-            inssplat_metrics::image::depth_abs_rel(&predicted, depth).map_err(|e| {
-                StepError::from(crate::loss::LossError::Read {
-                    what: "depth",
-                    message: e.to_string(),
-                })
-            })?;
-        depth_abs_rel.push(depth_scores.map(|d| d.abs_rel));
-        let targets = crate::loss::match_targets(cameras, depth, s.size, net.config().patch)
-            .map_err(StepError::from)?;
-        let sample = crate::loss::match_scores(out.global_queries, out.global_keys, &targets)
-            .map_err(StepError::from)?;
-        scores = scores.merge(sample);
-        if let Some(descriptors) = out.descriptors {
-            let matches = crate::loss::descriptor_matches(
-                cameras,
-                depth,
-                s.size,
-                VALIDATION_DESCRIPTOR_SAMPLES,
-            )
-            .map_err(StepError::from)?;
-            let dims = descriptors.dims();
-            let host = descriptors.into_data().try_to_vec::<f32>().map_err(|e| {
-                StepError::from(crate::loss::LossError::Read {
-                    what: "descriptors",
-                    message: format!("{e:?}"),
-                })
-            })?;
-            let sample = crate::loss::descriptor_scores(&host, dims, &matches, REGISTRATION_STRIDE);
-            descriptor_scores = Some(descriptor_scores.map_or(sample, |d| d.merge(sample)));
-        }
+        let scores =
+            inssplat_metrics::image::depth_abs_rel(&predicted, &s.depth[..s.inputs * pixels])
+                .map_err(|e| {
+                    StepError::from(crate::loss::LossError::Read {
+                        what: "depth",
+                        message: e.to_string(),
+                    })
+                })?;
+        abs_rel.push(scores.map(|d| d.abs_rel));
     }
-    Ok(Matching { attention: scores, descriptors: descriptor_scores, depth_abs_rel })
+    Ok(DepthScores { abs_rel })
 }
 
-/// What [`score_checkpoint`] measures of the matching.
-pub struct Matching {
-    pub attention: crate::loss::MatchScores,
-    pub descriptors: Option<crate::loss::DescriptorScores>,
+/// What [`score_checkpoint`] measures of the depth.
+pub struct DepthScores {
     /// The network's depth AbsRel at each sample's median scale (all its input views at one
-    /// scale), sample by sample (`None`: no pixel with a true depth): what matching the views
-    /// should lower.
-    pub depth_abs_rel: Vec<Option<f64>>,
+    /// scale), sample by sample (`None`: no pixel with a true depth).
+    pub abs_rel: Vec<Option<f64>>,
 }
 
-impl Matching {
-    /// The mean of [`Matching::depth_abs_rel`] over the samples that have one.
-    pub fn mean_depth_abs_rel(&self) -> Option<f64> {
-        let scored: Vec<f64> = self.depth_abs_rel.iter().flatten().copied().collect();
+impl DepthScores {
+    /// The mean of [`DepthScores::abs_rel`] over the samples that have one.
+    pub fn mean_abs_rel(&self) -> Option<f64> {
+        let scored: Vec<f64> = self.abs_rel.iter().flatten().copied().collect();
         (!scored.is_empty()).then(|| scored.iter().sum::<f64>() / scored.len() as f64)
     }
 }
-
-/// Matches per pair of views that validation scores the descriptors on.
-const VALIDATION_DESCRIPTOR_SAMPLES: usize = 64;
-/// The grid registration compares descriptors on, in pixels.
-const REGISTRATION_STRIDE: usize = 4;
 
 /// The newest checkpoint of `from` (a run or a checkpoint folder) on `device`, with the
 /// samples of `set`.
@@ -174,13 +131,7 @@ fn checkpoint_with_samples(
         val_data: set.data.clone(),
         ..Session::default()
     };
-    let mut val = val_samples(&state, &session, &label_cache()?, set.window)?;
-    if set.ray_noise_deg != 0.0 {
-        for (i, s) in val.iter_mut().enumerate() {
-            s.ray_cameras =
-                RayCameras::Given(turned(&s.cameras[..s.inputs], set.ray_noise_deg, i as u64));
-        }
-    }
+    let val = val_samples(&state, &session, &label_cache()?, set.window)?;
     if val.is_empty() {
         return Err(TrainError::Config(format!(
             "{}: no validation samples (a folder-trained run needs --val-data)",
