@@ -88,23 +88,6 @@ pub const OUTPUT_SEM_PROJ_WEIGHT: TensorSpec =
     f32_tensor("sem_proj_weight", "[384, d_s]", 2, "Φ_sem weight: text-space feature = W·L + b");
 pub const OUTPUT_SEM_PROJ_BIAS: TensorSpec = f32_tensor("sem_proj_bias", "[384]", 1, "Φ_sem bias");
 
-/// Optional: written only by networks with a point-map head; the server does not read it.
-pub const OUTPUT_POINT_MAP: TensorSpec = f32_tensor(
-    "point_map",
-    "[N, 3, H, W]",
-    4,
-    "each pixel's point in the world frame (view 0's camera), metres",
-);
-
-/// Optional: written only by networks with a descriptor head; registration matches the views
-/// on it beside its keypoints when present.
-pub const OUTPUT_DESCRIPTORS: TensorSpec = f32_tensor(
-    "descriptors",
-    "[N, D, H, W]",
-    4,
-    "per-pixel matching descriptor (compared after L2 normalization)",
-);
-
 pub const INPUTS: [TensorSpec; 1] = [INPUT_IMAGES];
 pub const OUTPUTS: [TensorSpec; 8] = [
     OUTPUT_CAMERA,

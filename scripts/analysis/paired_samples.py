@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Paired per-sample differences between checkpoints scored on the same samples by
-`inssplat-train validate --csv F` (with `--matching` for the depth's AbsRel).
+`inssplat-train validate --csv F` (with `--depth-abs-rel` for the depth's AbsRel).
 
     python3 scripts/analysis/paired_samples.py F.csv BASE NEW [column ...]
 

@@ -271,14 +271,6 @@ pub fn generate_split(index: u64, cfg: &SynthConfig) -> Result<Synthesized, Synt
     generate_scene(cfg.split.seed(index)?, cfg)
 }
 
-/// The labels of the furniture that scene `index` of `cfg.split` places (visible in its frames
-/// or not), from its layout alone: nothing is rendered, so counting labels over thousands of
-/// scenes takes seconds.
-pub fn furniture_labels(index: u64, cfg: &SynthConfig) -> Result<Vec<&'static str>, SynthError> {
-    let (_, _, furnished) = furnished(cfg.split.seed(index)?, cfg)?;
-    Ok(furnished.objects.iter().map(|o| o.model.label).collect())
-}
-
 /// The random stream of `seed` after its room and furniture are drawn, with both.
 fn furnished(
     seed: u64,

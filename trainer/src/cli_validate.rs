@@ -1,5 +1,5 @@
 //! The `validate` subcommand of `inssplat-train`: a run's (or checkpoint's) loss on fixed
-//! validation samples, with `--matching` its depth's AbsRel, and with `--csv` every sample's
+//! validation samples, with `--depth-abs-rel` its depth's AbsRel, and with `--csv` every sample's
 //! scores, to pair checkpoints.
 
 use std::path::PathBuf;
@@ -23,11 +23,10 @@ pub struct ValidateArgs {
     /// `train --view-window`; default: from the whole trajectory, as a run validates).
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     view_window: Option<u16>,
-    /// Also score the depth's AbsRel at each sample's median scale (what matching the views
-    /// should lower).
+    /// Also score the depth's AbsRel at each sample's median scale.
     #[arg(long)]
-    matching: bool,
-    /// Write each sample's loss terms (and its depth AbsRel, with --matching) to this CSV, to
+    depth_abs_rel: bool,
+    /// Write each sample's loss terms (and its depth AbsRel, with --depth-abs-rel) to this CSV, to
     /// pair checkpoints sample by sample (`scripts/analysis/paired_samples.py`).
     #[arg(long)]
     csv: Option<PathBuf>,
@@ -47,7 +46,7 @@ pub fn run_validate(args: ValidateArgs) -> Result<()> {
     );
     for path in &args.checkpoints {
         let train::CheckpointScores { dir, step, losses, depth } =
-            train::score_checkpoint(path, &set, args.matching)
+            train::score_checkpoint(path, &set, args.depth_abs_rel)
                 .with_context(|| format!("validating {}", path.display()))?;
         let v = train::mean_loss(&losses);
         println!(
