@@ -1,4 +1,5 @@
-//! `inssplat bench`: the pipeline's speed on one test scene, per stage, at several view counts:
+//! `inssplat-eval bench`: the pipeline's speed on one test scene, per stage, at several view
+//! counts:
 //! median milliseconds of each stage over repeated runs, Gaussians in and kept, and the ratios
 //! that say how cost grows with views (16 vs 8 views per stage) and how post-processing compares
 //! with the network; and the paper's per-view 2D clustering timed on the same views against

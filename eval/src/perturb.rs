@@ -1,4 +1,5 @@
-//! Robustness perturbations for `inssplat eval --perturb`: what happens to the scores when the
+//! Robustness perturbations for `inssplat-eval score --perturb`: what happens to the scores when
+//! the
 //! input photos get worse or the views change. Image perturbations act on the context photos
 //! before the pipeline sees them (seeded, so runs repeat); `overlap` changes which frames are
 //! the context (consecutive frames `stride` apart: stride 1 = the most overlap); `repeats`

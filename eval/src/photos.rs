@@ -1,4 +1,4 @@
-//! `inssplat eval --photos DIR`: the context photos come from the same scenes synthesized at
+//! `inssplat-eval score --photos DIR`: the context photos come from the same scenes synthesized at
 //! another size (`inssplat-train synth --size 512`: the same seeds give the same rooms and
 //! cameras), as a user's camera would give them, larger than the network's input; every ground
 //! truth stays the evaluated scene's, at the model resolution. What that measures is what the

@@ -1,6 +1,6 @@
 //! How far a long evaluation has got, on stderr: indicatif's bar where stderr is a terminal,
 //! and one plain line per finished run where it is a file or a pipe, so that an evaluation
-//! left running in the background (`inssplat eval … 2> eval.log`) says in its log how far it
+//! left running in the background (`inssplat-eval score … 2> eval.log`) says in its log how far it
 //! is and about how long it has left. Standard output stays the report's alone.
 
 use std::io::IsTerminal;

@@ -1,6 +1,6 @@
 //! Text-query scoring: each label present on a scene's target views is asked as a query, and
 //! the union of the instances a [`QueryRule`] returns is compared, pooled over the views, with
-//! that label's true pixels. `inssplat eval --query-rules` scores a grid of rules (minimum
+//! that label's true pixels. `inssplat-eval score --query-rules` scores a grid of rules (minimum
 //! score × margin to the best × margin to the instance's own label) in the same pass, for
 //! choosing [`QueryRule::default`] on val: the rule is a threshold on cosines, and what names
 //! an instance (its features, the shape classifier's weight) moves those cosines.

@@ -124,7 +124,7 @@ fn true_labels(scene: &Scene, ids: &[u16], vocabulary: &[String]) -> Vec<u32> {
 }
 
 /// What an evaluation swaps for the truth, leaves out or adds to the protocol; recorded in
-/// the report as it was run (`inssplat eval`'s switches of the same names).
+/// the report as it was run (`inssplat-eval score`'s switches of the same names).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct EvalSwitches {
     /// Reconstruct with the true context cameras instead of the predicted ones: what the rest

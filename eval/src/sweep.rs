@@ -1,4 +1,4 @@
-//! `inssplat eval --sweep`: every knob of the pipeline that trades speed for accuracy (views,
+//! `inssplat-eval score --sweep`: every knob of the pipeline that trades speed for accuracy (views,
 //! voxel size, clustering subsample) run through the evaluation, and a speed–accuracy chart
 //! (PNG and SVG): median seconds per scene against instance mIoU and against PSNR, one point
 //! per configuration, the Pareto front (no other point both faster and better) joined by a line.

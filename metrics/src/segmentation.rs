@@ -170,7 +170,7 @@ pub fn instance_scores(pred: &[u32], gt: &[u32]) -> Result<Option<InstanceScores
 }
 
 /// Instance scores of several views pooled: mIoU and Acc@0.25 over every view's true
-/// instances, PQ over the views' summed counts. `inssplat eval` and `fit-scene` both pool
+/// instances, PQ over the views' summed counts. `inssplat-eval score` and `fit-scene` both pool
 /// their target views with it, so that they score alike.
 #[derive(Debug, Clone, Default)]
 pub struct InstancePool {

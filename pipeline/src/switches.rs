@@ -1,5 +1,5 @@
-//! The pipeline switches that `reconstruct`, `serve` and `eval` share, declared once as
-//! flags with their environment variables.
+//! The pipeline switches that `reconstruct`, `serve` and `inssplat-eval score` share, declared
+//! once as flags with their environment variables.
 
 use super::reconstruct::PipelineConfig;
 
@@ -15,7 +15,7 @@ pub struct PipelineSwitches {
     /// With a network that reads its cameras as rays (the shipped one since 0.12): keep its
     /// first pass (every ray zero) instead of running it again on the registered cameras,
     /// for about 0.7× the time and the instances of that pass (stage "rays" left out; in
-    /// `eval`, the ablation of that stage).
+    /// `inssplat-eval score`, the ablation of that stage).
     #[arg(long, env = "INSSPLAT_NO_RAY_PASS")]
     pub no_ray_pass: bool,
 }

@@ -208,7 +208,7 @@ pub struct JobSceneStatus {
     pub state: JobState,
     pub scene_id: Option<String>,
     pub error: Option<String>,
-    /// Evaluation metrics when the scene carried ground truth (the `inssplat eval` scene
+    /// Evaluation metrics when the scene carried ground truth (the `inssplat-eval score` scene
     /// record: semantic/instance mIoU, query IoU, T-mIoU, PSNR, SSIM, depth, cameras, time).
     #[cfg_attr(feature = "openapi", schema(value_type = Option<Object>))]
     pub metrics: Option<serde_json::Value>,

@@ -154,7 +154,8 @@ pub struct SynthConfig {
     pub reserved: Reserved,
     /// Probability of a catalog mesh where both a mesh and a primitive exist for a label.
     pub mesh_share: f32,
-    /// Mark context/target views (`eval` in transforms.json) for `inssplat eval`: test always,
+    /// Mark context/target views (`eval` in transforms.json) for `inssplat-eval score`: test
+    /// always,
     /// val when asked (to choose between models on val scenes).
     pub eval_views: bool,
     /// Rays per pixel side for the colour (1: one ray through the pixel's centre, which

@@ -1,4 +1,4 @@
-//! Synthesized scenes as the trainer and `inssplat eval` will read them: every written
+//! Synthesized scenes as the trainer and `inssplat-eval score` will read them: every written
 //! scene passes `Scene::load`, the same seed gives a byte-identical folder, test scenes (and
 //! val scenes when asked) carry a valid evaluation split, reserved furniture stays out of
 //! train/val, and a missing
@@ -86,7 +86,7 @@ fn synth_test_split_marks_context_and_target_views_and_may_show_the_shell() {
     s.write(tmp.path()).unwrap();
     assert_eq!(Scene::load(tmp.path()).unwrap().eval, Some(eval));
 
-    // Val scenes carry the same split only when asked (model selection with `inssplat eval`).
+    // Val scenes carry the same split only when asked (model selection with `inssplat-eval score`).
     let mut val = small(Split::Val, Furniture::from_env());
     val.frames = (24, 24);
     assert!(synth::generate_split(0, &val).unwrap().scene.eval.is_none());

@@ -5,7 +5,8 @@
 //! chains to view 0 must land on their true poses relative to view 0, most views must be
 //! chained, and the views that no pair links must land closer to their poses than the
 //! identity; so too with the keypoints found in 512² photos of the same scenes, as a user's
-//! camera gives them. The predicted depth's effect is measured by `inssplat eval` (see the model card).
+//! camera gives them. The predicted depth's effect is measured by `inssplat-eval score` (see the
+//! model card).
 
 use glam::Quat;
 use inssplat_geometry::register::{KeypointImage, RegisterParams, RegisterView, register};

@@ -21,12 +21,12 @@ pub struct FitShapesArgs {
     /// Where to write the model with the classifier (may be --model itself).
     #[arg(long)]
     out: PathBuf,
-    /// Fit on these examples (JSON from `inssplat eval --shape-examples` on train-split
+    /// Fit on these examples (JSON from `inssplat-eval score --shape-examples` on train-split
     /// scenes: the pipeline's own instances) instead of synthesizing rooms; repeat the flag
     /// for several files (taken in order).
     #[arg(long)]
     examples: Vec<PathBuf>,
-    /// Report held-out accuracy on these examples (`inssplat eval --shape-examples` on val
+    /// Report held-out accuracy on these examples (`inssplat-eval score --shape-examples` on val
     /// scenes) instead of synthesizing val rooms.
     #[arg(long)]
     held_out: Option<PathBuf>,

@@ -151,7 +151,7 @@ pub struct TrainArgs {
     camera_weight: f64,
     /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
     /// tokens (grown onto an --init-from network at zero). Its exported file has a `rays`
-    /// input, which `inssplat eval --known-poses` fills from the true cameras.
+    /// input, which `inssplat-eval score --known-poses` fills from the true cameras.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     camera_rays: Option<u16>,
     /// With --camera-rays: the share of samples whose rays are all zero, so that the network

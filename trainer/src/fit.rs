@@ -6,10 +6,10 @@
 //! the loss stops falling. The fitted scene is then clustered in 3D exactly as the pipeline
 //! clusters a network's output (instances split into their parts apart in 3D included),
 //! rendered at the scene's target cameras (what no Gaussian covers taking the nearest covered
-//! pixel's id, as `inssplat eval` fills a new view), and scored with the evaluation's
+//! pixel's id, as `inssplat-eval score` fills a new view), and scored with the evaluation's
 //! instance metric (pooled over target views and visible instances), so its time and instance mIoU
 //! stand
-//! next to `inssplat eval`'s numbers for the feed-forward model. Scored also along the way
+//! next to `inssplat-eval score`'s numbers for the feed-forward model. Scored also along the way
 //! (`score_at`), it gives its accuracy against its optimization time.
 
 use std::time::Instant;
@@ -128,10 +128,10 @@ pub struct FitReport {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitScores {
     pub instances_found: usize,
-    /// Pooled over target views and their visible true instances, as `inssplat eval` does.
+    /// Pooled over target views and their visible true instances, as `inssplat-eval score` does.
     pub instance_miou: Option<f64>,
     pub instance_acc25: Option<f64>,
-    /// Panoptic quality, pooled over the target views as `inssplat eval` pools it.
+    /// Panoptic quality, pooled over the target views as `inssplat-eval score` pools it.
     pub instance_pq: Option<f64>,
 }
 
@@ -363,7 +363,8 @@ fn score(fitted: &Fitted, scene: &Scene, targets: &[usize]) -> Result<FitScores,
         let Some(gt) = &frame.instances else { continue };
         let mut pred =
             render_instance_ids(&fitted_scene, &frame.camera, k).map_err(|e| e.to_string())?;
-        // Filled as `inssplat eval` fills a target view's ids, so that both sides score alike.
+        // Filled as `inssplat-eval score` fills a target view's ids, so that both sides score
+        // alike.
         let (w, h) =
             (frame.camera.intrinsics.width as usize, frame.camera.intrinsics.height as usize);
         fill_uncovered(&mut pred, None, w, h);

@@ -152,7 +152,7 @@ struct SynthArgs {
     #[arg(long, default_value_t = 0.6)]
     mesh_share: f32,
     /// Mark context/target views in every scene, as the test split always does (for choosing
-    /// between models with `inssplat eval` on val scenes).
+    /// between models with `inssplat-eval score` on val scenes).
     #[arg(long)]
     eval_views: bool,
     /// Rays per pixel side for the colour: 1 casts one ray through each pixel's centre (sharp,

@@ -154,7 +154,7 @@ fn example_input(
     if let Some(texts) = texts {
         if e.prototype.is_empty() {
             return Err(format!(
-                "example {i} ({}) has no prototype: a semantic classifier fits on `inssplat eval --shape-examples` files",
+                "example {i} ({}) has no prototype: a semantic classifier fits on `inssplat-eval score --shape-examples` files",
                 e.label
             ));
         }

@@ -225,7 +225,8 @@ fn loss_semantic_hand_values() {
     );
 }
 
-/// The contrastive L_sem of a 1×5 view, and its value by hand. Ids [0, 1, 2, 3, 1]; ids 1 and 3 share a label (same teacher row), id
+/// The contrastive L_sem of a 1×5 view, and its value by hand. Ids [0, 1, 2, 3, 1]; ids 1 and 3
+/// share a label (same teacher row), id
 /// 2 has another: A = (1, 0, 0), B = (0, 2, 0) (unit (0, 1, 0)). The vocabulary holds B again
 /// (one class) and C = (0, 0, 3), a label the view does not show: three classes, A (the
 /// sample's own, beyond the vocabulary) last. Φ_sem embeds (l0, l1) as (l0, l1, 1) with

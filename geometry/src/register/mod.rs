@@ -71,9 +71,9 @@ pub struct RegisterParams {
     /// Long side, in pixels, of the copy of each photo that keypoints are found in when the
     /// photo is larger than the model's input (see [`RegisterView::detail`]); no larger than
     /// the input finds them in the input. 512 against the input (128) on 120 val scenes
-    /// photographed at 512² (8 views, `inssplat eval --photos`): rotation error −1.19 ±
+    /// photographed at 512² (8 views, `inssplat-eval score --photos`): rotation error −1.19 ±
     /// 0.36°, instance mIoU +0.84 ± 0.56, PSNR +0.37 ± 0.15 dB, for 17 ms more registration
-    /// (`inssplat bench`, 8 views; the model card); 256 gained about half as much.
+    /// (`inssplat-eval bench`, 8 views; the model card); 256 gained about half as much.
     pub photo_size: u32,
 }
 

@@ -1,5 +1,5 @@
 //! One job scene on a model worker: a dataset scene with an evaluation split is reconstructed
-//! from its largest context set and scored by the `inssplat eval` protocol (the metrics go
+//! from its largest context set and scored by the `inssplat-eval score` protocol (the metrics go
 //! into the job's result); any other scene (a photo folder, a dataset scene without a split)
 //! is reconstructed from its photos as `inssplat reconstruct` would. Either way the
 //! reconstruction is written to the scene store under the task's scene id.

@@ -16,7 +16,8 @@ use crate::model::{InsSplatNet, ModelConfig, OUT_DEPTH, OUT_GAUSSIANS};
 /// ([`crate::model::ModelConfig::image_skips`]) or camera rays
 /// ([`crate::model::ModelConfig::camera_rays`]) that `net` lacks: every weight of `net` is
 /// kept and the new parts are drawn from `seed`. The image encoder and the rays join through
-/// layers that start at zero, so the grown network computes exactly what `net` did. A larger [`crate::model::ModelConfig::mlp_ratio`] widens
+/// layers that start at zero, so the grown network computes exactly what `net` did. A larger
+/// [`crate::model::ModelConfig::mlp_ratio`] widens
 /// every block's MLP the same way (Net2Net's function-preserving widening, with zeros in
 /// place of its split weights): the new hidden units read the tokens through fresh weights
 /// and write nothing until training moves their output weights, which start at zero. A larger

@@ -1,4 +1,5 @@
-//! The training loop: AdamW with warm-up + cosine learning rate, one or more samples per step (side by side on threads, see
+//! The training loop: AdamW with warm-up + cosine learning rate, one or more samples per step (side
+//! by side on threads, see
 //! [`batch`]) of 2–8 input views plus held-out target views each, data from a folder of scenes
 //! or synthesized on the fly (prefetched on background threads, one per sample of a step), a
 //! validation loss on fixed val samples ([`validation`]), checkpoints every few minutes with exact

@@ -30,7 +30,7 @@ pub struct ClusterParams {
     /// At most this many points go into HDBSCAN (weighted sampling without replacement).
     /// HDBSCAN's cost grows with the square of it and not with the views; the default, 1500,
     /// takes 12 ms on this machine's CPU (4000: 74 ms) and scored the test split as well
-    /// (`inssplat eval --sweep`, see the model card).
+    /// (`inssplat-eval score --sweep`, see the model card).
     pub max_samples: usize,
     /// HDBSCAN: smallest cluster, as a share of the sampled points (at least 2 points); a share
     /// rather than a count keeps what an instance must cover the same whatever the sample size.
@@ -40,7 +40,7 @@ pub struct ClusterParams {
     /// find about as many instances as there are (14.9 per scene for 9.5 true objects plus the
     /// room shell's parts) and score the context views' instance mIoU 22.9 against 15.8; 0.5%
     /// and 3 scored 25.1 but split scenes into 22 instances (see the model card). Re-swept with
-    /// 0.8 (`inssplat eval --min-cluster-share S --min-samples M`): 0.3% lifts target-view
+    /// 0.8 (`inssplat-eval score --min-cluster-share S --min-samples M`): 0.3% lifts target-view
     /// instance mIoU by 0.3 ± 0.2 on 300 train rooms but costs query IoU 0.45 ± 0.17 and finds
     /// 21 instances where 0.5% finds 14 for 9.5 objects, so 0.5% stays.
     pub min_cluster_share: f32,
