@@ -34,15 +34,31 @@ pub struct TrainArgs {
     /// Continue the newest checkpoint in --out with its own configuration and data.
     #[arg(long)]
     resume: bool,
-    /// Folder of training scenes (docs/DATASET.md format), instead of synthesizing them.
-    #[arg(long, conflicts_with = "resume")]
-    data: Option<PathBuf>,
     /// Start from the weights of this run's newest checkpoint (or this checkpoint folder, or an
     /// ONNX file this trainer exported, such as a shipped model), with a fresh optimizer and
     /// schedule; the network shape flags are then ignored, but for --image-skips, a larger
     /// --mlp-ratio or --sem-dim, --global-kv-pool and --camera-rays.
     #[arg(long, conflicts_with = "resume")]
     init_from: Option<PathBuf>,
+    #[command(flatten)]
+    input: DataArgs,
+    #[command(flatten)]
+    schedule: ScheduleArgs,
+    #[command(flatten)]
+    network: NetworkArgs,
+    #[command(flatten)]
+    loss: LossArgs,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+/// The scenes a run trains and validates on, and how each step draws its views.
+#[derive(clap::Args)]
+#[command(next_help_heading = "Data")]
+struct DataArgs {
+    /// Folder of training scenes (docs/DATASET.md format), instead of synthesizing them.
+    #[arg(long, conflicts_with = "resume")]
+    data: Option<PathBuf>,
     /// Folder of validation scenes (default: the val split, synthesized).
     #[arg(long)]
     val_data: Option<PathBuf>,
@@ -60,14 +76,6 @@ pub struct TrainArgs {
     /// 2 renders edges as a camera or a downscaled photo has them.
     #[arg(long, default_value_t = 1, conflicts_with_all = ["data", "resume"], value_parser = clap::value_parser!(u32).range(1..=synth::MAX_ANTIALIAS as i64))]
     antialias: u32,
-    /// Optimizer steps of the whole run (with --resume: extends or shortens it).
-    #[arg(long)]
-    steps: Option<u64>,
-    #[arg(long, default_value_t = 200)]
-    warmup: u64,
-    /// Peak learning rate.
-    #[arg(long, default_value_t = 5e-4)]
-    lr: f64,
     #[arg(long, default_value_t = 2)]
     min_views: usize,
     #[arg(long, default_value_t = 8)]
@@ -88,10 +96,30 @@ pub struct TrainArgs {
     view_window: Option<u16>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+}
+
+/// How long and how fast the run learns.
+#[derive(clap::Args)]
+#[command(next_help_heading = "Schedule")]
+struct ScheduleArgs {
+    /// Optimizer steps of the whole run (with --resume: extends or shortens it).
+    #[arg(long)]
+    steps: Option<u64>,
+    #[arg(long, default_value_t = 200)]
+    warmup: u64,
+    /// Peak learning rate.
+    #[arg(long, default_value_t = 5e-4)]
+    lr: f64,
     /// Samples per optimizer step, evaluated side by side on threads (one per core is what a
     /// CPU step leaves idle), their gradients averaged.
     #[arg(long, default_value_t = 1)]
     samples_per_step: usize,
+}
+
+/// The network's shape (for a new network; with --init-from, what may be grown onto it) and its camera input.
+#[derive(clap::Args)]
+#[command(next_help_heading = "Network")]
+struct NetworkArgs {
     /// Square input resolution.
     #[arg(long, default_value_t = 128)]
     image_size: usize,
@@ -129,6 +157,21 @@ pub struct TrainArgs {
     /// left out, the source's own pooling stays.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     global_kv_pool: Option<u16>,
+    /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
+    /// tokens (grown onto an --init-from network at zero). Its exported file has a `rays`
+    /// input, which `inssplat-eval score --known-poses` fills from the true cameras.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    camera_rays: Option<u16>,
+    /// With --camera-rays: the share of samples whose rays are all zero, so that the network
+    /// also runs before any camera is known.
+    #[arg(long, default_value_t = 0.0)]
+    ray_dropout: f32,
+}
+
+/// The loss terms' weights and forms, and the ablation switches.
+#[derive(clap::Args)]
+#[command(next_help_heading = "Losses")]
+struct LossArgs {
     /// w_rgb, the weight of L_rgb in the total (the paper's 1).
     #[arg(long, default_value_t = 1.0)]
     rgb_weight: f64,
@@ -149,15 +192,6 @@ pub struct TrainArgs {
     /// Weight of the camera term inside L_geom.
     #[arg(long, default_value_t = 1.0)]
     camera_weight: f64,
-    /// Give the network the true cameras as input: K × K Plücker rays a patch, added to its
-    /// tokens (grown onto an --init-from network at zero). Its exported file has a `rays`
-    /// input, which `inssplat-eval score --known-poses` fills from the true cameras.
-    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
-    camera_rays: Option<u16>,
-    /// With --camera-rays: the share of samples whose rays are all zero, so that the network
-    /// also runs before any camera is known.
-    #[arg(long, default_value_t = 0.0)]
-    ray_dropout: f32,
     /// w_sem, the weight of L_sem in the total (the paper's 0.02).
     #[arg(long, default_value_t = 0.02)]
     semantic_weight: f64,
@@ -185,6 +219,12 @@ pub struct TrainArgs {
     /// Ablation: train only the instance and semantic heads.
     #[arg(long)]
     frozen_gaussians: bool,
+}
+
+/// Checkpoints, validation, time limit and device of the session.
+#[derive(clap::Args)]
+#[command(next_help_heading = "Run")]
+struct RunArgs {
     /// Minutes between checkpoints.
     #[arg(long, default_value_t = 5.0)]
     checkpoint_minutes: f64,
@@ -231,66 +271,76 @@ fn minutes(m: f64, flag: &str) -> Result<Duration> {
 impl TrainArgs {
     fn config(&self) -> TrainConfig {
         let model = ModelConfig::new()
-            .with_image_size(self.image_size)
-            .with_patch(self.patch)
-            .with_dim(self.dim)
-            .with_depth(self.depth)
-            .with_heads(self.heads)
-            .with_mlp_ratio(usize::from(self.mlp_ratio))
-            .with_decoder_dim(self.decoder_dim)
-            .with_sem_dim(self.sem_dim)
-            .with_image_skips(self.image_skips)
+            .with_image_size(self.network.image_size)
+            .with_patch(self.network.patch)
+            .with_dim(self.network.dim)
+            .with_depth(self.network.depth)
+            .with_heads(self.network.heads)
+            .with_mlp_ratio(usize::from(self.network.mlp_ratio))
+            .with_decoder_dim(self.network.decoder_dim)
+            .with_sem_dim(self.network.sem_dim)
+            .with_image_skips(self.network.image_skips)
             // A new network pools or not; --init-from passes 1 on to undo a source's pooling.
             .with_global_kv_pool(
-                self.global_kv_pool.map(usize::from).filter(|&p| p > 1 || self.init_from.is_some()),
+                self.network
+                    .global_kv_pool
+                    .map(usize::from)
+                    .filter(|&p| p > 1 || self.init_from.is_some()),
             )
-            .with_camera_rays(self.camera_rays.map(usize::from));
+            .with_camera_rays(self.network.camera_rays.map(usize::from));
         let loss = LossConfig::new()
-            .with_rgb_weight(self.rgb_weight)
-            .with_geometry_weight(self.geometry_weight)
+            .with_rgb_weight(self.loss.rgb_weight)
+            .with_geometry_weight(self.loss.geometry_weight)
             .with_depth_instance_balance(
-                (self.depth_instance_balance > 0.0).then_some(self.depth_instance_balance),
+                (self.loss.depth_instance_balance > 0.0)
+                    .then_some(self.loss.depth_instance_balance),
             )
-            .with_instance_weight(self.instance_weight)
-            .with_pull_margin(self.pull_margin)
-            .with_camera_weight(self.camera_weight)
-            .with_semantic_weight(self.semantic_weight)
+            .with_instance_weight(self.loss.instance_weight)
+            .with_pull_margin(self.loss.pull_margin)
+            .with_camera_weight(self.loss.camera_weight)
+            .with_semantic_weight(self.loss.semantic_weight)
             .with_semantic_temperature(
-                (self.semantic_temperature > 0.0).then_some(self.semantic_temperature),
+                (self.loss.semantic_temperature > 0.0).then_some(self.loss.semantic_temperature),
             )
             .with_direct_instance_weight(
-                (self.direct_instance_weight > 0.0).then_some(self.direct_instance_weight),
+                (self.loss.direct_instance_weight > 0.0)
+                    .then_some(self.loss.direct_instance_weight),
             )
-            .with_semantic_objects_only(self.semantic_objects_only.then_some(true))
+            .with_semantic_objects_only(self.loss.semantic_objects_only.then_some(true))
             .with_hard_negatives(pick(
-                self.no_hard_negatives,
+                self.loss.no_hard_negatives,
                 HardNegatives::SemanticWeighted,
                 HardNegatives::Uniform,
             ))
-            .with_cross_view(pick(self.no_cross_view, CrossView::On, CrossView::Off))
-            .with_boundary(pick(self.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
+            .with_cross_view(pick(self.loss.no_cross_view, CrossView::On, CrossView::Off))
+            .with_boundary(pick(self.loss.no_boundary, BoundaryTerm::On, BoundaryTerm::Off))
             .with_gaussians(pick(
-                self.frozen_gaussians,
+                self.loss.frozen_gaussians,
                 GaussianTraining::Trained,
                 GaussianTraining::Frozen,
             ));
         TrainConfig::new(model, loss)
-            .with_steps(self.steps.unwrap_or(20_000))
-            .with_warmup(self.warmup)
-            .with_lr(self.lr)
-            .with_min_views(self.min_views)
-            .with_max_views(self.max_views)
-            .with_targets(self.targets)
-            .with_scene_reuse(self.scene_reuse)
-            .with_first_scene(self.first_scene)
-            .with_view_window(self.view_window.map(usize::from))
-            .with_seed(self.seed)
-            .with_samples_per_step((self.samples_per_step != 1).then_some(self.samples_per_step))
-            .with_rays((self.ray_dropout > 0.0).then_some(RayPlan { dropout: self.ray_dropout }))
+            .with_steps(self.schedule.steps.unwrap_or(20_000))
+            .with_warmup(self.schedule.warmup)
+            .with_lr(self.schedule.lr)
+            .with_min_views(self.input.min_views)
+            .with_max_views(self.input.max_views)
+            .with_targets(self.input.targets)
+            .with_scene_reuse(self.input.scene_reuse)
+            .with_first_scene(self.input.first_scene)
+            .with_view_window(self.input.view_window.map(usize::from))
+            .with_seed(self.input.seed)
+            .with_samples_per_step(
+                (self.schedule.samples_per_step != 1).then_some(self.schedule.samples_per_step),
+            )
+            .with_rays(
+                (self.network.ray_dropout > 0.0)
+                    .then_some(RayPlan { dropout: self.network.ray_dropout }),
+            )
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {
-        Ok(match crate::furniture(self.primitives_only, &self.furniture_dir)? {
+        Ok(match crate::furniture(self.input.primitives_only, &self.input.furniture_dir)? {
             Furniture::Catalog(dir) => Some(dir),
             Furniture::Primitives => None,
         })
@@ -298,15 +348,15 @@ impl TrainArgs {
 
     fn session(&self) -> Result<Session> {
         Ok(Session {
-            checkpoint_every: minutes(self.checkpoint_minutes, "--checkpoint-minutes")?,
-            keep: self.keep,
-            val_every: self.val_every,
-            val_samples: self.val_samples,
-            val_data: self.val_data.clone().map(DataSpec::Folder),
-            time_limit: self.time_limit.map(|m| minutes(m, "--time-limit")).transpose()?,
+            checkpoint_every: minutes(self.run.checkpoint_minutes, "--checkpoint-minutes")?,
+            keep: self.run.keep,
+            val_every: self.run.val_every,
+            val_samples: self.run.val_samples,
+            val_data: self.input.val_data.clone().map(DataSpec::Folder),
+            time_limit: self.run.time_limit.map(|m| minutes(m, "--time-limit")).transpose()?,
             stop: None,
-            progress: !self.quiet,
-            compute: self.device,
+            progress: !self.run.quiet,
+            compute: self.run.device,
         })
     }
 }
@@ -324,23 +374,23 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
             "resuming {} at step {} of {} ({})",
             dir.display(),
             state.step,
-            args.steps.unwrap_or(state.config.steps),
+            args.schedule.steps.unwrap_or(state.config.steps),
             describe(&state.data)
         );
-        train::resume(&args.out, args.steps, &session)?
+        train::resume(&args.out, args.schedule.steps, &session)?
     } else {
-        let data = match &args.data {
+        let data = match &args.input.data {
             Some(dir) => DataSpec::Folder(dir.clone()),
             None => DataSpec::Synth {
                 split: Split::Train,
                 furniture_dir: args.furniture()?,
-                size: args.image_size as u32,
-                structure: if args.shell_background {
+                size: args.network.image_size as u32,
+                structure: if args.input.shell_background {
                     Structure::Background
                 } else {
                     Structure::Instances
                 },
-                antialias: args.antialias,
+                antialias: args.input.antialias,
             },
         };
         let config = args.config();
