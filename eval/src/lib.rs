@@ -16,6 +16,7 @@ mod progress;
 pub mod query_rules;
 pub mod scene;
 pub mod sweep;
+mod targets;
 pub mod views;
 
 use std::collections::BTreeMap;

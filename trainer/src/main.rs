@@ -37,16 +37,16 @@ enum Command {
     /// for choosing between runs and checkpoints.
     Validate(cli_validate::ValidateArgs),
     /// Export a checkpoint's network to ONNX for the server.
-    Export(cli_train::ExportArgs),
+    Export(cli_export::ExportArgs),
     /// Write an exported model with int8 weights in its linear layers (ONNX Runtime's dynamic
     /// quantization: a smaller file and a faster CPU forward), its metadata kept.
-    Quantize(cli_train::QuantizeArgs),
+    Quantize(cli_export::QuantizeArgs),
     /// Write an exported model whose global layers read keys and values averaged over squares
     /// of patches (the same weights, a cheaper global attention), its metadata kept.
-    PoolKeys(cli_train::PoolKeysArgs),
+    PoolKeys(cli_export::PoolKeysArgs),
     /// Write the mean of several checkpoints' weights (weight averaging) into a copy of a
     /// model file, its metadata kept.
-    Average(cli_train::AverageArgs),
+    Average(cli_export::AverageArgs),
     /// The per-scene baseline: optimize Gaussians and instance features on each test scene's
     /// context views (true cameras), then score instance mIoU on its target views.
     FitScene(cli_fit::FitArgs),
@@ -62,6 +62,7 @@ enum Command {
     },
 }
 
+mod cli_export;
 mod cli_fit;
 mod cli_shapes;
 mod cli_train;
@@ -199,10 +200,10 @@ fn main() -> Result<()> {
         Command::Synth(args) => run_synth(args),
         Command::Train(args) => cli_train::run_train(*args),
         Command::Validate(args) => cli_validate::run_validate(args),
-        Command::Export(args) => cli_train::run_export(args),
-        Command::Quantize(args) => cli_train::run_quantize(args),
-        Command::PoolKeys(args) => cli_train::run_pool_keys(args),
-        Command::Average(args) => cli_train::run_average(args),
+        Command::Export(args) => cli_export::run_export(args),
+        Command::Quantize(args) => cli_export::run_quantize(args),
+        Command::PoolKeys(args) => cli_export::run_pool_keys(args),
+        Command::Average(args) => cli_export::run_average(args),
         Command::FitScene(args) => cli_fit::run_fit(args),
         Command::FitShapes(args) => cli_shapes::run_fit_shapes(args),
         Command::LabelTable { out } => {
