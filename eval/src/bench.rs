@@ -182,11 +182,11 @@ pub fn compare(
     views: &[usize],
     runs: usize,
     vocabulary: &[String],
+    config: &PipelineConfig,
 ) -> anyhow::Result<Vec<CompareRow>> {
-    let config = PipelineConfig::default();
     let [a, b] = models;
     let time = |model: &mut Model, images: &[InputImage]| -> anyhow::Result<[f64; 2]> {
-        let rec = reconstruct(model, labels, images, vocabulary, &config)?;
+        let rec = reconstruct(model, labels, images, vocabulary, config)?;
         let stage =
             |name: &str| rec.timings.iter().filter(|t| t.stage == name).map(|t| t.ms).sum::<f64>();
         Ok([stage("model"), rec.timings.iter().map(|t| t.ms).sum()])

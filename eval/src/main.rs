@@ -13,7 +13,7 @@ use inssplat_geometry::voxel::{OpacityMerge, VoxelParams};
 use inssplat_pipeline::backend::{Model, threads_or_all};
 use inssplat_pipeline::output::write_atomic;
 use inssplat_pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, VoteScope};
-use inssplat_pipeline::switches::PipelineSwitches;
+use inssplat_pipeline::switches::{MatcherSwitches, PipelineSwitches};
 use inssplat_pipeline::vocab::{label_cache, vocabulary};
 use inssplat_raster::render::GpuRenderer;
 use inssplat_understand::cluster::ClusterParams;
@@ -227,6 +227,8 @@ struct BenchArgs {
     /// in, when the scene's photos are larger than the network's input.
     #[arg(long, default_value_t = RegisterParams::default().photo_size, value_name = "PIXELS", conflicts_with = "against")]
     register_photo_size: u32,
+    #[command(flatten)]
+    matcher: MatcherSwitches,
     /// Print JSON instead of the table.
     #[arg(long, env = "INSSPLAT_JSON")]
     json: bool,
@@ -325,7 +327,7 @@ fn score(args: ScoreArgs) -> anyhow::Result<()> {
             "--known-names names the instances; --no-aggregation names each pixel by its own features instead"
         );
     }
-    let pipeline = switches.apply(post.pipeline(&ablations)?);
+    let pipeline = switches.apply(post.pipeline(&ablations)?, threads_or_all(model.threads))?;
     let mut dirs = inssplat_eval::scene_dirs(&data)?;
     dirs.truncate(max_scenes.unwrap_or(usize::MAX));
     let extra = match vocab.as_deref() {
@@ -385,8 +387,17 @@ fn score(args: ScoreArgs) -> anyhow::Result<()> {
 }
 
 fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
-    let BenchArgs { data, views, runs, model, against, refine_steps, register_photo_size, json } =
-        args;
+    let BenchArgs {
+        data,
+        views,
+        runs,
+        model,
+        against,
+        refine_steps,
+        register_photo_size,
+        matcher,
+        json,
+    } = args;
     check_views(&views)?;
     let dir = inssplat_eval::scene_dirs(&data)?.remove(0);
     let scene = inssplat_proto::dataset::Scene::load(&dir)
@@ -395,10 +406,12 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     let mut network = Model::load(&model.model, threads)?;
     let labels = label_cache()?;
     let vocabulary = vocabulary(None)?;
+    let matcher = matcher.load(threads)?;
     if let Some(other) = against {
         let mut other = Model::load(&other, threads)?;
-        let rows =
-            bench::compare([&mut network, &mut other], &labels, &scene, &views, runs, &vocabulary)?;
+        let config = PipelineConfig { matcher, ..PipelineConfig::default() };
+        let models = [&mut network, &mut other];
+        let rows = bench::compare(models, &labels, &scene, &views, runs, &vocabulary, &config)?;
         if json {
             println!("{}", serde_json::to_string_pretty(&rows)?);
         } else {
@@ -414,6 +427,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
             photo_size: register_photo_size,
             ..RegisterParams::default()
         }),
+        matcher,
         ..PipelineConfig::default()
     };
     let plan = bench::BenchPlan { views: &views, runs, vocabulary: &vocabulary, config: &config };

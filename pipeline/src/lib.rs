@@ -7,6 +7,7 @@
 
 pub mod backend;
 pub mod inputs;
+pub mod matcher;
 pub mod output;
 pub mod query;
 pub mod reconstruct;

