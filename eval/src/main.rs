@@ -327,7 +327,8 @@ fn score(args: ScoreArgs) -> anyhow::Result<()> {
             "--known-names names the instances; --no-aggregation names each pixel by its own features instead"
         );
     }
-    let pipeline = switches.apply(post.pipeline(&ablations)?, threads_or_all(model.threads))?;
+    let pipeline =
+        switches.apply(post.pipeline(&ablations)?, &model.model, threads_or_all(model.threads))?;
     let mut dirs = inssplat_eval::scene_dirs(&data)?;
     dirs.truncate(max_scenes.unwrap_or(usize::MAX));
     let extra = match vocab.as_deref() {
@@ -406,7 +407,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     let mut network = Model::load(&model.model, threads)?;
     let labels = label_cache()?;
     let vocabulary = vocabulary(None)?;
-    let matcher = matcher.load(threads)?;
+    let matcher = matcher.load(&model.model, threads)?;
     if let Some(other) = against {
         let mut other = Model::load(&other, threads)?;
         let config = PipelineConfig { matcher, ..PipelineConfig::default() };

@@ -16,3 +16,4 @@ pub mod saved;
 pub mod stages;
 pub mod switches;
 pub mod vocab;
+pub mod warnings;

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use image::{Rgb, RgbImage};
 use inssplat_proto::api::{
-    CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut,
+    CameraFit, CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut,
 };
 use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::masks::NO_LABEL;
@@ -129,6 +129,10 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
                 h: k.height,
                 placement: Some(v.placement),
                 focal: Some(rec.focal),
+                fit: v.fit.map(|f| CameraFit {
+                    reprojection_px: f.reprojection_px.map(|e| e / v.letterbox.scale),
+                    ..f
+                }),
             }
         })
         .collect()
@@ -231,9 +235,11 @@ pub fn write_reconstruction(
 
 /// The result as the CLI's `--json` prints it (the HTTP response shape without a scene id).
 pub fn summary(rec: &Reconstruction) -> ReconstructResponse {
+    let cameras = cameras_out(rec);
     ReconstructResponse {
         scene_id: String::new(),
-        cameras: cameras_out(rec),
+        warnings: crate::warnings::warnings(rec, &cameras),
+        cameras,
         instances: rec.instances.clone(),
         timings: rec.timings.clone(),
         gaussians_in: rec.voxel.gaussians_in,
@@ -266,6 +272,9 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
         ));
     }
     text.push_str(&describe_cameras(&s.cameras));
+    for w in &s.warnings {
+        text.push_str(&format!("warning: {w}\n"));
+    }
     if let Some(r) = &s.refinement {
         text.push_str(&format!(
             "refined against the photos for {} steps: input views {:.2} → {:.2} dB PSNR; photos' gains {}\n",

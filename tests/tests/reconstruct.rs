@@ -231,7 +231,8 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
     let (ok, stdout, stderr) =
         run(&["render", s(&out), "--camera", s(&out.join("transforms.json")), "-o", s(&again)]);
     assert!(ok && stdout.contains("12 images from 4 camera"), "{stdout}{stderr}");
-    // The first camera turned 60° about its own up axis sees past what the photos saw: raw,
+    // The first camera turned 30° about its own up axis (half its field of view) sees past
+    // what the photos saw: raw,
     // those pixels carry no instance; filled, every pixel takes the nearest one's, and the
     // covered pixels keep theirs.
     let mut transforms: serde_json::Value =
@@ -239,7 +240,7 @@ fn renders_a_saved_reconstruction_from_new_cameras() {
             .unwrap();
     let frame = transforms["frames"][0].clone();
     let m: Vec<Vec<f64>> = serde_json::from_value(frame["transform_matrix"].clone()).unwrap();
-    let (c, sn) = (60f64.to_radians().cos(), 60f64.to_radians().sin());
+    let (c, sn) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
     let turn = [[c, 0.0, sn], [0.0, 1.0, 0.0], [-sn, 0.0, c]];
     let mut turned = m.clone();
     for (r, row) in turned.iter_mut().enumerate().take(3) {

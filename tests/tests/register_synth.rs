@@ -79,7 +79,7 @@ fn registered_with(
             detail: details.map(|d| &d[v]),
         })
         .collect();
-    let reg = register(&views, &brief_matches(&views, params), params);
+    let reg = register(&views, &brief_matches(&views, params).0, params);
     (reg.cameras, reg.component, reg.focal_scale)
 }
 

@@ -131,6 +131,8 @@ pub struct Registration {
     /// reference view; any other root is placed by continuing the motion before it, or by the
     /// camera head for view 1).
     pub component: Vec<usize>,
+    /// How well each view's matches fit its registered pose.
+    pub fit: Vec<ViewFit>,
     /// The multiplier applied to every view's focal lengths; `None` when the given
     /// intrinsics stand ([`RegisterParams::estimate_focal`] off, or the matched pairs do not
     /// pin the focal length down: [`MIN_FOCAL_PRECISION`]).
@@ -151,8 +153,12 @@ pub fn view_pairs(n: usize) -> Vec<(usize, usize)> {
     (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect()
 }
 
-/// FAST + BRIEF matches of every pair of `views` ([`features`]), in [`view_pairs`] order.
-pub fn brief_matches(views: &[RegisterView<'_>], params: &RegisterParams) -> Vec<PairMatches> {
+/// FAST + BRIEF matches of every pair of `views` ([`features`]), in [`view_pairs`] order;
+/// with each view's keypoint count.
+pub fn brief_matches(
+    views: &[RegisterView<'_>],
+    params: &RegisterParams,
+) -> (Vec<PairMatches>, Vec<usize>) {
     let brief_tests = features::test_pairs();
     let feats: Vec<features::Features> = views
         .par_iter()
@@ -169,7 +175,7 @@ pub fn brief_matches(views: &[RegisterView<'_>], params: &RegisterParams) -> Vec
             features::detect(image, &brief_tests, params)
         })
         .collect();
-    view_pairs(views.len())
+    let pairs = view_pairs(views.len())
         .par_iter()
         .map(|&(i, j)| {
             let (a, b) = (&feats[i], &feats[j]);
@@ -179,7 +185,21 @@ pub fn brief_matches(views: &[RegisterView<'_>], params: &RegisterParams) -> Vec
                 .collect();
             PairMatches { i, j, pixels }
         })
-        .collect()
+        .collect();
+    (pairs, feats.iter().map(features::Features::len).collect())
+}
+
+/// How well one view's matches fit the registered poses: what tells a user which photo to
+/// retake.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ViewFit {
+    /// Matches that agree with the view's pose, over all the pairs linking it to views of its
+    /// component.
+    pub matches: usize,
+    /// Median distance, in view pixels, between the view's keypoints and where the matched
+    /// keypoints of the other views, lifted by their depth, land in it under the registered
+    /// poses; `None` without matches.
+    pub reprojection_px: Option<f32>,
 }
 
 /// Registers `views`, in the order they were taken (see the module documentation), from the
@@ -251,10 +271,11 @@ pub fn register(
         component.into_iter().map(|c| c.expect("every view is placed")).collect();
     let focal = Focal { scale: 1.0, free: measured.is_some() };
     let polish = refine_jointly(&mut cameras, &component, &pairs, focal, params);
+    let fit = view_fits(&cameras, &component, &pairs, polish);
     for cam in &mut cameras {
         scale_focal(cam, polish);
     }
-    Registration { cameras, component, focal_scale: measured.map(|scale| scale * polish) }
+    Registration { cameras, component, fit, focal_scale: measured.map(|scale| scale * polish) }
 }
 
 /// Every pair's relative pose from its `matches` (in the order of `jobs`), at the intrinsics of
@@ -381,6 +402,36 @@ fn refine_jointly(
         cam.translation = pose.t.as_vec3();
     }
     focal.scale
+}
+
+/// Each view's [`ViewFit`] over the pairs within its component, under `cameras` and the focal
+/// multiplier `focal` that the joint refinement left.
+fn view_fits(
+    cameras: &[Camera],
+    component: &[usize],
+    pairs: &[PairPose],
+    focal: f64,
+) -> Vec<ViewFit> {
+    let pose = |c: &Camera| (DMat3::from_quat(c.rotation.as_dquat()), c.translation.as_dvec3());
+    let mut errors: Vec<Vec<f64>> = vec![Vec::new(); cameras.len()];
+    for p in pairs.iter().filter(|p| p.pose.is_some() && component[p.i] == component[p.j]) {
+        let ((ri, ti), (rj, tj)) = (pose(&cameras[p.i]), pose(&cameras[p.j]));
+        let model = Model::of_cameras(ri, ti, rj, tj);
+        let (ki, kj) = (&cameras[p.i].intrinsics, &cameras[p.j].intrinsics);
+        for c in &p.inliers {
+            if let Some(r) = relative::reprojection(ki, kj, &model, c, focal) {
+                errors[p.j].push(r[0].hypot(r[1]));
+                errors[p.i].push(r[2].hypot(r[3]));
+            }
+        }
+    }
+    errors
+        .into_iter()
+        .map(|mut e| {
+            e.sort_by(f64::total_cmp);
+            ViewFit { matches: e.len(), reprojection_px: e.get(e.len() / 2).map(|&m| m as f32) }
+        })
+        .collect()
 }
 
 /// Pixel matches of views a and b whose pixels both have depth, lifted into each camera.

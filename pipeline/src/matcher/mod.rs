@@ -41,11 +41,23 @@ pub struct MatcherParams {
     pub max_keypoints: usize,
     /// Smallest matching probability LighterGlue's match must have (its own default 0.1).
     pub min_confidence: f32,
+    /// Pairs of photos at most this far apart in the order given are matched by LighterGlue;
+    /// the others, by mutual nearest neighbours of their descriptors (cosine ≥
+    /// [`MatcherParams::min_cosine`]), which cost a fraction of a LighterGlue pass.
+    pub glue_span: usize,
+    /// Smallest cosine of a nearest-neighbour match (XFeat's own default 0.82).
+    pub min_cosine: f32,
 }
 
 impl Default for MatcherParams {
     fn default() -> Self {
-        Self { long_side: 512, max_keypoints: 1024, min_confidence: 0.1 }
+        Self {
+            long_side: 256,
+            max_keypoints: 512,
+            min_confidence: 0.1,
+            glue_span: 1,
+            min_cosine: 0.82,
+        }
     }
 }
 
@@ -242,8 +254,12 @@ impl LearnedMatcher {
             .into_iter()
             .map(|(i, j)| {
                 let (a, b) = (&keypoints[i], &keypoints[j]);
-                let pixels = self
-                    .matches(a, b)?
+                let found = if j - i <= params.glue_span {
+                    self.matches(a, b)?
+                } else {
+                    nearest_neighbours(a, b, params.min_cosine)
+                };
+                let pixels = found
                     .into_iter()
                     .map(|(ia, ib, _)| (in_view(i, a.points[ia]), in_view(j, b.points[ib])))
                     .collect();
@@ -252,6 +268,49 @@ impl LearnedMatcher {
             .collect::<Result<Vec<_>, RuntimeError>>()?;
         Ok((pairs, keypoints.iter().map(Keypoints::len).collect()))
     }
+}
+
+/// Mutual nearest neighbours of `a`'s and `b`'s descriptors with cosine ≥ `min_cosine`, as
+/// XFeat's own `match`.
+pub fn nearest_neighbours(
+    a: &Keypoints,
+    b: &Keypoints,
+    min_cosine: f32,
+) -> Vec<(usize, usize, f32)> {
+    let (m, n) = (a.len(), b.len());
+    if m == 0 || n == 0 {
+        return Vec::new();
+    }
+    fn desc(k: &Keypoints, i: usize) -> &[f32] {
+        &k.descriptors[i * DESCRIPTOR..(i + 1) * DESCRIPTOR]
+    }
+    let mut sim = vec![0.0; m * n];
+    sim.par_chunks_mut(n).enumerate().for_each(|(i, row)| {
+        let da = desc(a, i);
+        row.iter_mut().enumerate().for_each(|(j, s)| *s = dot(da, desc(b, j)));
+    });
+    let best = |it: &mut dyn Iterator<Item = (usize, f32)>| {
+        it.fold((0, f32::NEG_INFINITY), |best, (k, v)| if v > best.1 { (k, v) } else { best })
+    };
+    let best_in_a: Vec<usize> =
+        (0..n).map(|j| best(&mut (0..m).map(|i| (i, sim[i * n + j]))).0).collect();
+    (0..m)
+        .filter_map(|i| {
+            let (j, c) = best(&mut (0..n).map(|j| (j, sim[i * n + j])));
+            (best_in_a[j] == i && c >= min_cosine).then_some((i, j, c))
+        })
+        .collect()
+}
+
+/// A dot product in eight lanes (a float sum in one order would not vectorize).
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut lanes = [0.0f32; 8];
+    for (x, y) in a.chunks_exact(8).zip(b.chunks_exact(8)) {
+        for k in 0..8 {
+            lanes[k] += x[k] * y[k];
+        }
+    }
+    lanes.iter().sum()
 }
 
 /// Keypoints as LightGlue takes them: centred, over half the long side.

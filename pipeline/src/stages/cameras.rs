@@ -8,7 +8,7 @@ use image::RgbImage;
 use inssplat_geometry::register::{
     KeypointImage, PairMatches, RegisterParams, RegisterView, brief_matches, register,
 };
-use inssplat_proto::api::{FocalSource, Placement};
+use inssplat_proto::api::{CameraFit, FocalSource, Placement};
 use inssplat_proto::signature::CAMERA_CHANNELS;
 use inssplat_proto::{Camera, Intrinsics};
 
@@ -27,6 +27,8 @@ pub struct Cameras {
     /// ([`inssplat_geometry::register::Registration::component`]);
     /// `None` when registration did not run.
     pub component: Option<Vec<usize>>,
+    /// Registration's fit of each view, in model pixels (`None` where it did not run).
+    pub fit: Option<Vec<CameraFit>>,
 }
 
 /// Cameras predicted by the network (model resolution, world = view 0's camera).
@@ -101,7 +103,7 @@ pub fn run(
                 detail: details[v].as_ref(),
             })
             .collect();
-        let matches = match matcher {
+        let (matches, keypoints) = match matcher {
             Some(matcher) => learned_matches(matcher, decoded, out.width as u32)?,
             None => brief_matches(&views, params),
         };
@@ -122,6 +124,18 @@ pub fn run(
             placements,
             focal,
             component: Some(registration.component),
+            fit: Some(
+                registration
+                    .fit
+                    .iter()
+                    .zip(keypoints)
+                    .map(|(f, keypoints)| CameraFit {
+                        keypoints,
+                        matches: f.matches,
+                        reprojection_px: f.reprojection_px,
+                    })
+                    .collect(),
+            ),
         })
     })
 }
@@ -132,7 +146,7 @@ fn learned_matches(
     matcher: &LearnedMatcher,
     decoded: &[ModelImage],
     res: u32,
-) -> Result<Vec<PairMatches>, RuntimeError> {
+) -> Result<(Vec<PairMatches>, Vec<usize>), RuntimeError> {
     let own: Vec<Option<RgbImage>> =
         decoded.iter().map(|d| d.detail.is_none().then(|| photo_of_input(d, res))).collect();
     let photos: Vec<ViewPhoto<'_>> = decoded
@@ -149,7 +163,7 @@ fn learned_matches(
             (None, None) => unreachable!("a view without a detail has its own photo"),
         })
         .collect();
-    Ok(matcher.pair_matches(&photos)?.0)
+    matcher.pair_matches(&photos)
 }
 
 /// The photo's rectangle of a view's `res`² planar input, 8-bit.
@@ -174,6 +188,7 @@ fn given(poses: &[Camera], views: usize) -> Result<Cameras, PipelineError> {
         placements: vec![Placement::Given; poses.len()],
         focal: FocalSource::Given,
         component: None,
+        fit: None,
     })
 }
 
@@ -181,5 +196,11 @@ fn camera_head(predicted: Vec<Camera>) -> Cameras {
     let placements = (0..predicted.len())
         .map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead })
         .collect();
-    Cameras { cameras: predicted, placements, focal: FocalSource::CameraHead, component: None }
+    Cameras {
+        cameras: predicted,
+        placements,
+        focal: FocalSource::CameraHead,
+        component: None,
+        fit: None,
+    }
 }

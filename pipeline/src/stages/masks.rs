@@ -7,7 +7,7 @@
 use inssplat_geometry::backproject::BackProjected;
 use inssplat_geometry::voxel::{DROPPED, Voxelized};
 use inssplat_proto::Camera;
-use inssplat_proto::api::Placement;
+use inssplat_proto::api::{CameraFit, Placement};
 use inssplat_raster::masks::label_map;
 
 use super::decode::ModelImage;
@@ -35,6 +35,8 @@ pub struct ViewParts<'a> {
     pub out: &'a ModelOutput,
     pub cameras: &'a [Camera],
     pub placements: &'a [Placement],
+    /// Registration's fit of each view (`None` where it did not run).
+    pub fit: Option<&'a [CameraFit]>,
     pub voxelized: &'a Voxelized,
     pub per_pixel: &'a BackProjected,
     /// Vocabulary index of each instance id's label at index id − 1.
@@ -59,6 +61,7 @@ pub fn views(
         .map(|(v, ((d, ids), gaussians))| ViewResult {
             camera: parts.cameras[v],
             placement: parts.placements[v],
+            fit: parts.fit.map(|f| f[v]),
             letterbox: d.letterbox,
             labels: label_map(&ids, parts.label_of_id),
             instance_ids: ids,

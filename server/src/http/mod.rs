@@ -130,7 +130,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
         Arc::new(Shared { scenes, jobs, metrics: Arc::new(Metrics::default()), job_events });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let threads = args.threads.unwrap_or((cores / args.workers).max(1));
-    let pipeline = args.pipeline.apply(PipelineConfig::default(), threads)?;
+    let pipeline = args.pipeline.apply(PipelineConfig::default(), &args.model, threads)?;
     let config = WorkerConfig {
         model: args.model.clone(),
         threads,
