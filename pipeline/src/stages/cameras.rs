@@ -107,6 +107,10 @@ pub fn run(
             Some(matcher) => learned_matches(matcher, decoded, out.width as u32)?,
             None => brief_matches(&views, params),
         };
+        let params = match matcher {
+            Some(m) => &RegisterParams { min_inliers: m.params.min_inliers, ..params.clone() },
+            None => params,
+        };
         let registration = register(&views, &matches, params);
         let placements = registration
             .component
