@@ -41,6 +41,12 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     let rec = reconstruct(&server, &photos[..4], ("vocab", b"chair, table\nlamp,wall,floor"));
     assert_eq!(rec.scene_id.len(), 32);
     assert_eq!(rec.cameras.len(), 4);
+    // The server registers on the shipped learned matcher and says how well each photo fit.
+    assert!(
+        rec.cameras.iter().all(|c| c.fit.is_some_and(|f| f.keypoints > 0)),
+        "{:?}",
+        rec.cameras
+    );
     assert!(rec.gaussians_kept > 0 && rec.gaussians_kept <= rec.gaussians_in);
     assert!(
         rec.refinement.is_none() && rec.timings.iter().all(|t| t.stage != "refine"),
