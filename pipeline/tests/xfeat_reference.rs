@@ -87,5 +87,6 @@ fn keypoints_descriptors_and_matches_agree_with_the_torch_reference() {
 fn a_missing_matcher_file_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let err = LearnedMatcher::load(dir.path(), 1, MatcherParams::default()).unwrap_err();
-    assert!(err.to_string().contains("xfeat.onnx"), "{err}");
+    let text = err.to_string();
+    assert!(text.contains("xfeat.onnx") && text.contains("--brief-matches"), "{text}");
 }

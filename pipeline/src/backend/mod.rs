@@ -51,6 +51,10 @@ pub enum RuntimeError {
     Library { path: PathBuf, message: String },
     #[error("model file {path} not found")]
     ModelMissing { path: PathBuf },
+    #[error(
+        "keypoint matcher file {path} not found: pass --matcher DIR (a folder with xfeat.onnx and lighterglue.onnx, as models/matcher) or --brief-matches"
+    )]
+    MatcherMissing { path: PathBuf },
     #[error("cannot load model {path}: {message}")]
     Load { path: PathBuf, message: String },
     #[error("model {path}: tensor `{tensor}`: {problem}")]

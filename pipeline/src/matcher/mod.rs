@@ -138,8 +138,13 @@ impl Grey {
 impl LearnedMatcher {
     /// Loads `xfeat.onnx` and `lighterglue.onnx` from `dir` (an error names the missing file).
     pub fn load(dir: &Path, threads: usize, params: MatcherParams) -> Result<Self, RuntimeError> {
-        let extractor = session(&dir.join(EXTRACTOR_FILE), threads)?;
-        let matcher = session(&dir.join(MATCHER_FILE), threads)?;
+        let open = |name: &str| {
+            session(&dir.join(name), threads).map_err(|e| match e {
+                RuntimeError::ModelMissing { path } => RuntimeError::MatcherMissing { path },
+                other => other,
+            })
+        };
+        let (extractor, matcher) = (open(EXTRACTOR_FILE)?, open(MATCHER_FILE)?);
         Ok(Self {
             extractor: Mutex::new(extractor),
             matcher: Mutex::new(matcher),
