@@ -1,8 +1,9 @@
 //! Camera registration from the photos and the network's depth: the test-time pose stage that
-//! VGGT follows with bundle adjustment, here in its cheapest form. Every view's keypoints
-//! ([`features`]; found in the photo at up to [`RegisterParams::photo_size`] pixels where it is
-//! larger than the network's input) are matched with every other view's; each pair with enough
-//! matches gets a relative pose ([`relative`]). The views are chained to view 0 along the
+//! VGGT follows with bundle adjustment, here in its cheapest form. The keypoint matches of
+//! every pair of views come from outside ([`PairMatches`]: the pipeline's learned matcher, or
+//! FAST + BRIEF here, [`brief_matches`], found in the photo at up to
+//! [`RegisterParams::photo_size`] pixels where it is larger than the network's input); each
+//! pair with enough matches gets a relative pose ([`relative`]). The views are chained to view 0 along the
 //! maximum spanning tree of the pairs' inlier counts, each view through its best-supported
 //! path; then
 //! all chained poses are refined at once on every pair's matches ([`joint`]), so that errors do
