@@ -5,8 +5,8 @@
 //! [`RegisterParams::photo_size`] pixels where it is larger than the network's input); each
 //! pair with enough matches gets a relative pose ([`relative`]). The views are chained to
 //! view 0 along the maximum spanning tree of the pairs' inlier counts, each view through its
-//! best-supported path; then all chained poses are refined at once on every pair's matches ([`joint`]), so that errors do
-//! not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms shot
+//! best-supported path; then all chained poses are refined at once on every pair's matches
+//! ([`joint`]), so that errors do not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms shot
 //! at 50–80°), so one focal-length multiplier for all views is measured first: each matched
 //! pair's pose is refined with a free focal length, the pairs' estimates are pooled by their
 //! precision-weighted median (a pair with little rotation cannot see the focal length and
