@@ -1,28 +1,27 @@
-//! Camera registration from the photos and the network's depth: the test-time pose stage that
-//! VGGT follows with bundle adjustment, here in its cheapest form. The keypoint matches of
-//! every pair of views come from outside ([`PairMatches`]: the pipeline's learned matcher, or
-//! FAST + BRIEF here, [`brief_matches`], found in the photo at up to
-//! [`RegisterParams::photo_size`] pixels where it is larger than the network's input); each
-//! pair with enough matches gets a relative pose ([`relative`]). The views are chained to
-//! view 0 along the maximum spanning tree of the pairs' inlier counts, each view through its
-//! best-supported path; then all chained poses are refined at once on every pair's matches
-//! ([`joint`]), so that errors do not add up along a chain. The camera head's field of view is a guess (65° ± 2° on rooms shot
-//! at 50–80°), so one focal-length multiplier for all views is measured first: each matched
-//! pair's pose is refined with a free focal length, the pairs' estimates are pooled by their
-//! precision-weighted median (a pair with little rotation cannot see the focal length and
-//! counts for little), every pair is solved again at that focal length (RANSAC included:
-//! inliers chosen through a wrong focal length favour the matches it fits), and the joint
-//! refinement refines it once more with all poses. When the pairs together pin it down less
-//! than [`MIN_FOCAL_PRECISION`] asks (few pairs, little rotation), the head's guess stays.
-//! Views that no chain reaches from view 0 (no overlap, or too little for a match) form
-//! components of their own, and then the photos' order is the best evidence left: the first
-//! view of each such component continues the motion of the two views before it (the step from
+//! Camera registration from the photos and the network's depth: the test-time pose stage that VGGT
+//! follows with bundle adjustment, here in its cheapest form. The keypoint matches of every pair of
+//! views come from outside ([`PairMatches`]: the pipeline's learned matcher, or FAST + BRIEF here,
+//! [`brief_matches`], found in the photo at up to [`RegisterParams::photo_size`] pixels where it is
+//! larger than the network's input); each pair with enough matches gets a relative pose
+//! ([`relative`]). The views are chained to view 0 along the maximum spanning tree of the pairs'
+//! inlier counts, each view through its best-supported path; then all chained poses are refined at
+//! once on every pair's matches ([`joint`]), so that errors do not add up along a chain. The camera
+//! head's field of view is a guess (65° ± 2° on rooms shot at 50–80°), so one focal-length
+//! multiplier for all views is measured first: each matched pair's pose is refined with a free
+//! focal length, the pairs' estimates are pooled by their precision-weighted median (a pair with
+//! little rotation cannot see the focal length and counts for little), every pair is solved again
+//! at that focal length (RANSAC included: inliers chosen through a wrong focal length favour the
+//! matches it fits), and the joint refinement refines it once more with all poses. When the pairs
+//! together pin it down less than [`MIN_FOCAL_PRECISION`] asks (few pairs, little rotation), the
+//! head's guess stays. Views that no chain reaches from view 0 (no overlap, or too little for a
+//! match) form components of their own, and then the photos' order is the best evidence left: the
+//! first view of each such component continues the motion of the two views before it (the step from
 //! the second-last to the last, applied once more; view 1, with nothing before it to continue,
-//! keeps the camera head's pose), and the rest are chained to it. On the 40 test scenes with
-//! their true depth this places such views far better than the camera head's near-identity
-//! poses did (8 views: rotation error 13.2° → 8.4°). The result is in the network's frame
-//! (world = view 0's camera), with the measured focal length and the depth's metric scale, so
-//! it replaces the predicted cameras one for one.
+//! keeps the camera head's pose), and the rest are chained to it. On the 40 test scenes with their
+//! true depth this places such views far better than the camera head's near-identity poses did (8
+//! views: rotation error 13.2° → 8.4°). The result is in the network's frame (world = view 0's
+//! camera), with the measured focal length and the depth's metric scale, so it replaces the
+//! predicted cameras one for one.
 
 pub mod features;
 mod joint;
