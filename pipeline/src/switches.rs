@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::backend::RuntimeError;
+use super::backend::onnx::search_folders;
 use super::matcher::{LearnedMatcher, MatcherParams};
 use super::reconstruct::PipelineConfig;
 
@@ -83,10 +84,7 @@ impl MatcherSwitches {
 fn default_dir(model: &Path) -> PathBuf {
     let has = |dir: &Path| dir.join(crate::matcher::EXTRACTOR_FILE).is_file();
     let beside = model.parent().map(|p| p.join(DEFAULT_DIR));
-    let roots = [std::env::current_dir().ok(), std::env::current_exe().ok()];
-    let above = roots.into_iter().flatten().flat_map(|r| {
-        r.ancestors().map(|a| a.join("models").join(DEFAULT_DIR)).collect::<Vec<_>>()
-    });
+    let above = search_folders().into_iter().map(|a| a.join("models").join(DEFAULT_DIR));
     beside
         .into_iter()
         .chain(above)

@@ -22,33 +22,38 @@ pub struct Model {
     pub network: Network,
 }
 
-/// Default place of the library unpacked by scripts/setup, relative to the workspace.
-fn default_library() -> Option<PathBuf> {
+/// The folders a workspace file with no path given is looked for in, nearest first: the working
+/// directory and every folder above it, then the binary's folder and every folder above it.
+pub(crate) fn search_folders() -> Vec<PathBuf> {
     let roots = [
         std::env::current_dir().ok(),
         std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf)),
     ];
-    for root in roots.into_iter().flatten() {
-        for dir in root.ancestors() {
-            let Ok(entries) = std::fs::read_dir(dir.join(".deps")) else { continue };
-            let mut found: Vec<PathBuf> = entries
-                .flatten()
-                .map(|e| e.path())
-                .filter(|p| {
-                    p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("onnxruntime-"))
-                })
-                .flat_map(|d| {
-                    std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path())
-                })
-                .filter(|p| {
-                    p.file_name()
-                        .is_some_and(|n| n.to_string_lossy().starts_with("libonnxruntime.so."))
-                })
-                .collect();
-            found.sort();
-            if let Some(p) = found.pop() {
-                return Some(p);
-            }
+    roots
+        .into_iter()
+        .flatten()
+        .flat_map(|r| r.ancestors().map(Path::to_path_buf).collect::<Vec<_>>())
+        .collect()
+}
+
+/// Default place of the library unpacked by scripts/setup, relative to the workspace.
+fn default_library() -> Option<PathBuf> {
+    for dir in search_folders() {
+        let Ok(entries) = std::fs::read_dir(dir.join(".deps")) else { continue };
+        let mut found: Vec<PathBuf> = entries
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| {
+                p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("onnxruntime-"))
+            })
+            .flat_map(|d| std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("libonnxruntime.so."))
+            })
+            .collect();
+        found.sort();
+        if let Some(p) = found.pop() {
+            return Some(p);
         }
     }
     None

@@ -301,17 +301,25 @@ pub fn nearest_neighbours(
         let da = desc(a, i);
         row.iter_mut().enumerate().for_each(|(j, s)| *s = dot(da, desc(b, j)));
     });
-    let best = |it: &mut dyn Iterator<Item = (usize, f32)>| {
+    mutual_best(m, n, |i, j| sim[i * n + j]).filter(|&(_, _, c)| c >= min_cosine).collect()
+}
+
+/// The pairs `(i, j, score(i, j))` of an `m` × `n` score whose score is the best (the first
+/// best) of both its row and its column.
+fn mutual_best(
+    m: usize,
+    n: usize,
+    score: impl Fn(usize, usize) -> f32,
+) -> impl Iterator<Item = (usize, usize, f32)> {
+    let argmax = |it: &mut dyn Iterator<Item = (usize, f32)>| {
         it.fold((0, f32::NEG_INFINITY), |best, (k, v)| if v > best.1 { (k, v) } else { best })
     };
     let best_in_a: Vec<usize> =
-        (0..n).map(|j| best(&mut (0..m).map(|i| (i, sim[i * n + j]))).0).collect();
-    (0..m)
-        .filter_map(|i| {
-            let (j, c) = best(&mut (0..n).map(|j| (j, sim[i * n + j])));
-            (best_in_a[j] == i && c >= min_cosine).then_some((i, j, c))
-        })
-        .collect()
+        (0..n).map(|j| argmax(&mut (0..m).map(|i| (i, score(i, j)))).0).collect();
+    (0..m).filter_map(move |i| {
+        let (j, v) = argmax(&mut (0..n).map(|j| (j, score(i, j))));
+        (best_in_a[j] == i).then_some((i, j, v))
+    })
 }
 
 /// A dot product in eight lanes (a float sum in one order would not vectorize).
@@ -335,18 +343,9 @@ fn normalized(k: &Keypoints) -> Vec<f32> {
 /// The mutual best pairs of an `[m+1][n+1]` log assignment (the last row and column are
 /// "unmatched") whose probability exceeds `threshold`, as kornia's `filter_matches`.
 fn mutual_matches(scores: &[f32], m: usize, n: usize, threshold: f32) -> Vec<(usize, usize, f32)> {
-    let at = |i: usize, j: usize| scores[i * (n + 1) + j];
-    let argmax = |it: &mut dyn Iterator<Item = (usize, f32)>| {
-        it.fold((0, f32::NEG_INFINITY), |best, (k, v)| if v > best.1 { (k, v) } else { best })
-    };
-    let best_in_a: Vec<usize> =
-        (0..n).map(|j| argmax(&mut (0..m).map(|i| (i, at(i, j)))).0).collect();
-    (0..m)
-        .filter_map(|i| {
-            let (j, v) = argmax(&mut (0..n).map(|j| (j, at(i, j))));
-            let p = v.exp();
-            (best_in_a[j] == i && p > threshold).then_some((i, j, p))
-        })
+    mutual_best(m, n, |i, j| scores[i * (n + 1) + j])
+        .map(|(i, j, v)| (i, j, v.exp()))
+        .filter(|&(_, _, p)| p > threshold)
         .collect()
 }
 
