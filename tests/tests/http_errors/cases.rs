@@ -1,88 +1,18 @@
-//! `inssplat serve` under bad input: more than 40 malformed requests (wrong content types,
-//! truncated multipart, non-images, 1 and 17 images, 0×0 and huge images, bad JSON, wrong
-//! types, unknown and traversal ids, oversized bodies, bad API keys, hostile archives), each
-//! answered with the right 4xx and the one JSON error shape, against the real binary on
-//! loopback with a tiny exported network; the service stays up and a valid request succeeds
-//! afterwards.
+//! The malformed requests, each with the status and error type it must get: content types,
+//! multipart, images, form fields, queries, ids, archives, methods and API keys.
 
-use crate::support;
-use crate::support::http::{Server, multipart, png};
-use inssplat_proto::api::{QueryResponse, ReconstructResponse};
+use super::inputs::{png_header, tar_of, traversal_tar};
+use super::{AUTH, KEY, UNKNOWN};
+use crate::support::http::{multipart, png};
 
-const KEY: &str = "test-key-3c1f";
-const AUTH: (&str, &str) = ("Authorization", "Bearer test-key-3c1f");
-const UNKNOWN: &str = "0123456789abcdef0123456789abcdef";
-
-/// A PNG header claiming `w`×`h` (with a valid CRC), followed by nothing.
-fn png_header(w: u32, h: u32) -> Vec<u8> {
-    let mut bytes = png(1, 1, 0);
-    bytes[16..20].copy_from_slice(&w.to_be_bytes());
-    bytes[20..24].copy_from_slice(&h.to_be_bytes());
-    let crc = crc(&bytes[12..29]);
-    bytes[29..33].copy_from_slice(&crc.to_be_bytes());
-    bytes
-}
-
-fn crc(data: &[u8]) -> u32 {
-    let mut c = 0xffff_ffffu32;
-    for &b in data {
-        c ^= u32::from(b);
-        for _ in 0..8 {
-            c = if c & 1 == 1 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
-        }
-    }
-    !c
-}
-
-/// A tar archive (made by the system's `tar`) of `files` (path, bytes) under a temp folder.
-fn tar_of(files: &[(&str, &[u8])]) -> Vec<u8> {
-    let dir = tempfile::tempdir().unwrap();
-    for (path, bytes) in files {
-        let p = dir.path().join("root").join(path);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::write(p, bytes).unwrap();
-    }
-    let out = dir.path().join("a.tar");
-    let ok = std::process::Command::new("tar")
-        .args(["-cf", out.to_str().unwrap(), "-C", dir.path().join("root").to_str().unwrap(), "."])
-        .status()
-        .unwrap();
-    assert!(ok.success());
-    std::fs::read(out).unwrap()
-}
-
-/// A tar whose only entry is named `../escape.png` (written by hand: tools refuse to).
-fn traversal_tar() -> Vec<u8> {
-    let mut header = [0u8; 512];
-    let name = b"../escape.png";
-    header[..name.len()].copy_from_slice(name);
-    header[100..108].copy_from_slice(b"0000644\0");
-    header[108..116].copy_from_slice(b"0000000\0");
-    header[116..124].copy_from_slice(b"0000000\0");
-    header[124..136].copy_from_slice(b"00000000004\0");
-    header[136..148].copy_from_slice(b"00000000000\0");
-    header[156] = b'0';
-    header[257..263].copy_from_slice(b"ustar\0");
-    header[263..265].copy_from_slice(b"00");
-    header[148..156].copy_from_slice(b"        ");
-    let sum: u32 = header.iter().map(|&b| u32::from(b)).sum();
-    header[148..156].copy_from_slice(format!("{sum:06o}\0 ").as_bytes());
-    let mut out = header.to_vec();
-    let mut data = [0u8; 512];
-    data[..4].copy_from_slice(b"evil");
-    out.extend_from_slice(&data);
-    out.extend_from_slice(&[0u8; 1024]);
-    out
-}
-
-struct Case {
-    what: &'static str,
-    method: &'static str,
-    path: String,
-    headers: Vec<(&'static str, String)>,
-    body: Vec<u8>,
-    status: u16,
-    error_type: &'static str,
+pub(super) struct Case {
+    pub(super) what: &'static str,
+    pub(super) method: &'static str,
+    pub(super) path: String,
+    pub(super) headers: Vec<(&'static str, String)>,
+    pub(super) body: Vec<u8>,
+    pub(super) status: u16,
+    pub(super) error_type: &'static str,
 }
 
 fn case(
@@ -112,22 +42,8 @@ fn form(
     case(what, "POST", path, Some(&ct), body, status, error_type)
 }
 
-#[test]
-fn malformed_requests_get_json_4xx_and_the_service_stays_up() {
-    let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let mut server =
-        Server::start(&model, &dir.path().join("data"), &["--api-key", KEY, "--max-body-mb", "1"]);
-
-    // A valid scene first, so artefact and query routes have something to miss.
-    let photos: Vec<Vec<u8>> = (0..3).map(|i| png(40, 30, i)).collect();
-    let parts: Vec<(&str, Option<&str>, &[u8])> =
-        photos.iter().map(|p| ("images", Some("p.png"), p.as_slice())).collect();
-    let (ct, body) = multipart(&parts);
-    let ok = server.send("POST", "/v1/reconstruct", &[AUTH, ("Content-Type", &ct)], &body);
-    assert_eq!(ok.status, 200, "{}", ok.text());
-    let scene = ok.json::<ReconstructResponse>().scene_id;
-
+/// Every case, against the scene `scene` that the server holds.
+pub(super) fn all(scene: &str) -> Vec<Case> {
     let img = png(16, 16, 1);
     let one: Vec<(&str, Option<&str>, &[u8])> = vec![("images", Some("a.png"), &img)];
     let seventeen: Vec<(&str, Option<&str>, &[u8])> =
@@ -650,94 +566,5 @@ fn malformed_requests_get_json_4xx_and_the_service_stays_up() {
     );
     prefix.headers[0].1 = "Bearer test-key".into();
     cases.extend([no_key, wrong_key, basic, prefix]);
-    assert!(cases.len() >= 40, "{} cases", cases.len());
-
-    let mut failures = Vec::new();
-    for c in &cases {
-        let headers: Vec<(&str, &str)> = c.headers.iter().map(|(k, v)| (*k, v.as_str())).collect();
-        let r = server.send(c.method, &c.path, &headers, &c.body);
-        if r.status != c.status || r.header("content-type") != Some("application/json") {
-            failures.push(format!(
-                "{}: {} {} → {} {}",
-                c.what,
-                c.method,
-                c.path,
-                r.status,
-                r.text()
-            ));
-            continue;
-        }
-        let e = r.error();
-        if e.error_type != c.error_type {
-            failures.push(format!(
-                "{}: error_type {} (expected {}): {}",
-                c.what, e.error_type, c.error_type, e.error
-            ));
-        }
-        if c.status == 401 {
-            assert_eq!(r.header("www-authenticate"), Some("Bearer"));
-            assert!(
-                !e.error.contains(KEY) && !e.error.contains("3c1e"),
-                "the key is echoed: {}",
-                e.error
-            );
-        }
-        assert!(server.alive(), "the service died on: {}", c.what);
-    }
-    assert!(
-        failures.is_empty(),
-        "{} of {} cases wrong:\n{}",
-        failures.len(),
-        cases.len(),
-        failures.join("\n")
-    );
-    assert!(!server.log_text().contains(KEY), "the API key was logged");
-    assert!(
-        !dir.path().join("data").join("escape.png").exists()
-            && !dir.path().join("escape.png").exists()
-    );
-
-    // Still up: a valid reconstruction and query succeed, artefacts are served.
-    let again = server.send("POST", "/v1/reconstruct", &[AUTH, ("Content-Type", &ct)], &body);
-    assert_eq!(again.status, 200, "{}", again.text());
-    let again = again.json::<ReconstructResponse>();
-    assert_eq!(again.cameras.len(), 3);
-    let answer = server.send(
-        "POST",
-        &format!("/v1/scenes/{}/query", again.scene_id),
-        &[AUTH, ("Content-Type", "application/json")],
-        br#"{"text": "lamp"}"#,
-    );
-    assert_eq!(answer.status, 200, "{}", answer.text());
-    assert_eq!(answer.json::<QueryResponse>().text, "lamp");
-    let ply = server.send("GET", &format!("/v1/scenes/{}/scene.ply", again.scene_id), &[AUTH], b"");
-    assert_eq!(ply.status, 200);
-    assert!(ply.body.starts_with(b"ply\n"));
-    let health = server.get("/health");
-    assert_eq!(health.status, 200, "health is open without the key");
-}
-
-#[test]
-fn a_request_over_the_timeout_gets_504_and_the_service_goes_on() {
-    let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let server = Server::start(&model, &dir.path().join("data"), &["--request-timeout-s", "1"]);
-    // A client that announces a body and sends only part of it holds the handler past the limit.
-    let (ct, body) = multipart(&[
-        ("images", Some("a.png"), &png(16, 16, 0)),
-        ("images", Some("b.png"), &png(16, 16, 1)),
-    ]);
-    let head = format!(
-        "POST /v1/reconstruct HTTP/1.1\r\nHost: x\r\nContent-Type: {ct}\r\nContent-Length: {}\r\n\r\n",
-        body.len()
-    );
-    let mut raw = head.into_bytes();
-    raw.extend_from_slice(&body[..body.len() / 2]);
-    let start = std::time::Instant::now();
-    let r = server.try_raw(&raw).unwrap();
-    assert_eq!(r.status, 504, "{}", r.text());
-    assert_eq!(r.error().error_type, "timeout");
-    assert!(start.elapsed() < std::time::Duration::from_secs(10));
-    let ok = server.send("POST", "/v1/reconstruct", &[("Content-Type", &ct)], &body);
-    assert_eq!(ok.status, 200, "{}", ok.text());
+    cases
 }
