@@ -1,5 +1,6 @@
 //! The trainer's integration tests, one test binary (one link) for all of them: the synth
-//! command, training recipes, the model, losses and their gradients, the training loop, export
+//! command, training recipes, the model, losses and their gradients, the training loop, its
+//! checkpoints and configurations, export
 //! parity, fit-scene and the
 //! shape classifier.
 
@@ -14,5 +15,6 @@ mod render_op_grad;
 mod shapes;
 mod synth_cli;
 mod synth_stats;
+mod train_checkpoints;
 mod train_loop;
 mod train_resume;
