@@ -1,8 +1,6 @@
 //! The trainer's integration tests, one test binary (one link) for all of them: the synth
 //! command, training recipes, the model, losses and their gradients, the training loop, its
-//! checkpoints and configurations, export
-//! parity, fit-scene and the
-//! shape classifier.
+//! checkpoints and configurations, export parity, fit-scene and the shape classifier.
 
 mod average;
 mod export_parity;
