@@ -429,7 +429,7 @@ fn worst_scenes(
             let preview = match &req.out {
                 Some(out) => {
                     let dir = out.join("failures").join(&scores[i].scene);
-                    let (rec, names) = scene::reconstruct_context(
+                    let (rec, photos) = scene::reconstruct_context(
                         model,
                         labels,
                         &scenes[i],
@@ -437,7 +437,7 @@ fn worst_scenes(
                         vocabulary,
                         &req.pipeline,
                     )?;
-                    inssplat_pipeline::output::write_reconstruction(&rec, &names, &dir)?;
+                    inssplat_pipeline::output::write_reconstruction(&rec, &photos, &dir)?;
                     Some(dir.join("preview.png"))
                 }
                 None => None,

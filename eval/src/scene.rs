@@ -221,12 +221,11 @@ pub fn reconstruct_context(
     views: usize,
     vocabulary: &[String],
     config: &PipelineConfig,
-) -> anyhow::Result<(Reconstruction, Vec<String>)> {
+) -> anyhow::Result<(Reconstruction, Vec<InputImage>)> {
     let context =
         context_frames(scene, views, None, model.network.resolution).map_err(anyhow::Error::msg)?;
     let images = context_images(scene, &context, None);
-    let names = images.iter().map(|i| i.name.clone()).collect();
-    Ok((reconstruct(model, labels, &images, vocabulary, config)?, names))
+    Ok((reconstruct(model, labels, &images, vocabulary, config)?, images))
 }
 
 /// Scores `scene` reconstructed from its `views`-view context set.
@@ -240,7 +239,7 @@ pub fn evaluate_scene(
     evaluate_scene_keeping(model, labels, scene, views, settings).map(|(scores, _, _)| scores)
 }
 
-/// [`evaluate_scene`], also returning the reconstruction and its input names (a batch job
+/// [`evaluate_scene`], also returning the reconstruction and its input photos (a batch job
 /// keeps it as the scene's result).
 pub fn evaluate_scene_keeping(
     model: &mut Model,
@@ -248,7 +247,7 @@ pub fn evaluate_scene_keeping(
     scene: &Scene,
     views: usize,
     settings: &Settings<'_>,
-) -> Result<(SceneScores, Reconstruction, Vec<String>), SceneEvalError> {
+) -> Result<(SceneScores, Reconstruction, Vec<InputImage>), SceneEvalError> {
     let name = scene.name();
     let bad = |problem: String| SceneEvalError::Scene { scene: name.clone(), problem };
     let context = context_frames(scene, views, settings.perturbation, model.network.resolution)
@@ -318,8 +317,7 @@ pub fn evaluate_scene_keeping(
     if let Some(to_pred) = align_cameras(&mut s, scene, &context, &rec, scale).map_err(&bad)? {
         target_scores(&mut s, scene, &targets, &rec, labels, settings, &to_pred).map_err(&bad)?;
     }
-    let names = images.into_iter().map(|i| i.name).collect();
-    Ok((s, rec, names))
+    Ok((s, rec, images))
 }
 
 /// The median of the true depth over the surface pixels of the `context` frames, the scale

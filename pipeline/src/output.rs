@@ -1,6 +1,7 @@
-//! Writes a reconstruction to a folder: `scene.ply` (standard 3DGS + extras),
-//! `transforms.json` (predicted cameras, nerfstudio convention, so the folder opens in
-//! nerfstudio-compatible tools), `instances/NNN.png` and `labels/NNN.png` (a colour per
+//! Writes a reconstruction to a folder: `scene.ply` (standard 3DGS + extras), `images/NNN.*`
+//! (the photos it was made from, upright) and `transforms.json` (the cameras, nerfstudio
+//! convention, naming those photos relative to itself, so the folder opens as it is in
+//! nerfstudio-style tools, gsplat's and brush's loaders), `instances/NNN.png` and `labels/NNN.png` (a colour per
 //! instance / label), `instances.json` and `preview.png` (input | depth | instances | labels
 //! per view). Each file is written to a temporary name and renamed, so a crash never leaves a
 //! half-written artefact.
@@ -16,7 +17,8 @@ use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::masks::NO_LABEL;
 use serde::{Deserialize, Serialize};
 
-use crate::reconstruct::Reconstruction;
+use crate::reconstruct::{InputImage, Reconstruction};
+use crate::stages::decode::portable_photo;
 
 /// A distinct colour for index `i` (golden-angle hues); index 0 is black ("none").
 pub fn palette(i: u32) -> [u8; 3] {
@@ -128,7 +130,7 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
                 w: k.width,
                 h: k.height,
                 placement: Some(v.placement),
-                focal: Some(rec.focal),
+                focal: Some(v.focal),
                 fit: v.fit.map(|f| CameraFit {
                     reprojection_px: f.reprojection_px.map(|e| e / v.letterbox.scale),
                     ..f
@@ -138,14 +140,13 @@ pub fn cameras_out(rec: &Reconstruction) -> Vec<CameraOut> {
         .collect()
 }
 
-/// Writes every artefact of `rec` into `out`; `names` are the input files (for
-/// `transforms.json`). Returns the paths written.
+/// Writes every artefact of `rec`, made from `photos`, into `out`. Returns the paths written.
 pub fn write_reconstruction(
     rec: &Reconstruction,
-    names: &[String],
+    photos: &[InputImage],
     out: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
-    for sub in ["instances", "labels"] {
+    for sub in ["images", "instances", "labels"] {
         std::fs::create_dir_all(out.join(sub))
             .with_context(|| format!("cannot create {}", out.join(sub).display()))?;
     }
@@ -156,11 +157,20 @@ pub fn write_reconstruction(
     write_atomic(&path, &ply)?;
     written.push(path);
 
+    let mut names = Vec::with_capacity(photos.len());
+    for (i, photo) in photos.iter().enumerate() {
+        let (bytes, ext) = portable_photo(&photo.name, &photo.bytes)?;
+        let name = format!("images/{i:03}.{ext}");
+        let path = out.join(&name);
+        write_atomic(&path, &bytes)?;
+        written.push(path);
+        names.push(name);
+    }
     let frames = cameras_out(rec)
         .into_iter()
         .zip(names)
-        .map(|(c, name)| FrameJson {
-            file_path: name.clone(),
+        .map(|(c, file_path)| FrameJson {
+            file_path,
             depth_file_path: None,
             instance_file_path: None,
             transform_matrix: c.transform_matrix,
@@ -288,7 +298,7 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
     let stages: Vec<String> =
         s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
-    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, instances/, labels/, instances.json, preview.png)", out.display()));
+    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, images/, instances/, labels/, instances.json, preview.png)", out.display()));
     text
 }
 
@@ -327,6 +337,7 @@ fn describe_cameras(cameras: &[CameraOut]) -> String {
                 " (the camera head's guess: the matches do not pin it down)"
             }
             Some(FocalSource::Given) => " (given)",
+            Some(FocalSource::Exif) => " (from the photo's EXIF)",
             None => "",
         };
         parts.push(format!(

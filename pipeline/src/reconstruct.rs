@@ -155,6 +155,8 @@ pub struct ViewResult {
     pub camera: Camera,
     /// How [`ViewResult::camera`]'s pose was found.
     pub placement: Placement,
+    /// Where its focal length came from.
+    pub focal: FocalSource,
     /// How well registration fit it, in model pixels (`None` where it did not run).
     pub fit: Option<CameraFit>,
     pub letterbox: Letterbox,
@@ -188,8 +190,6 @@ pub struct Reconstruction {
     pub sem_proj_bias: Vec<f32>,
     pub voxel: VoxelReport,
     pub timings: Vec<StageTiming>,
-    /// Where every view's focal length came from.
-    pub focal: FocalSource,
     /// What the test-time refinement did (`None` without one).
     pub refinement: Option<SceneRefinement>,
 }
@@ -287,6 +287,7 @@ pub fn reconstruct_with(
         out,
         cameras: &cameras,
         placements: &placements,
+        focal: &focal,
         fit: fit.as_deref(),
         voxelized: &voxelized,
         per_pixel: &per_pixel,
@@ -306,7 +307,6 @@ pub fn reconstruct_with(
         sem_proj_bias: pass.out.sem_proj_bias.clone(),
         voxel: voxelized.report,
         timings: clock.timings,
-        focal,
         refinement,
     })
 }

@@ -65,6 +65,9 @@ pub enum FocalSource {
     CameraHead,
     /// Given by the caller with the poses.
     Given,
+    /// From the photo's EXIF: its 35 mm-equivalent focal length, or its focal length and the
+    /// sensor's resolution.
+    Exif,
 }
 
 /// How a camera's pose was found: how far to trust it.

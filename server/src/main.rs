@@ -159,8 +159,7 @@ fn main() -> anyhow::Result<()> {
                 });
             bar.finish_and_clear();
             let rec = rec?;
-            let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-            output::write_reconstruction(&rec, &names, &out)?;
+            output::write_reconstruction(&rec, &photos, &out)?;
             let summary = output::summary(&rec);
             if json {
                 println!("{}", serde_json::to_string_pretty(&summary)?);

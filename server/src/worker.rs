@@ -344,9 +344,8 @@ impl Worker {
         )?;
         self.shared.metrics.record_stages(&rec.timings);
         let id = SceneId::new();
-        let names: Vec<String> = images.iter().map(|i| i.name.clone()).collect();
         let dir = self.shared.scenes.staging(&id).map_err(internal)?;
-        output::write_reconstruction(&rec, &names, &dir).map_err(|e| internal(format!("{e:#}")))?;
+        output::write_reconstruction(&rec, images, &dir).map_err(|e| internal(format!("{e:#}")))?;
         self.shared.scenes.commit(&id).map_err(|e| internal(format!("{e:#}")))?;
         Ok(ReconstructResponse { scene_id: id.to_string(), ..output::summary(&rec) })
     }

@@ -84,6 +84,23 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!((preview.status, preview.header("content-type")), (200, Some("image/png")));
     image::load_from_memory(&preview.body).unwrap();
 
+    // The whole scene as one zip: unpacked anywhere, its transforms.json opens with the photos
+    // beside it (the uploads themselves), as nerfstudio-style loaders want.
+    let zip = server.get(&format!("{base}/archive"));
+    assert_eq!((zip.status, zip.header("content-type")), (200, Some("application/zip")));
+    let unpacked = dir.path().join("unpacked");
+    zip::ZipArchive::new(std::io::Cursor::new(&zip.body)).unwrap().extract(&unpacked).unwrap();
+    let folder = unpacked.join(&rec.scene_id);
+    let opened = inssplat_proto::dataset::Scene::load(&folder).unwrap();
+    assert_eq!(opened.frames.len(), 4);
+    for (v, photo) in photos[..4].iter().enumerate() {
+        assert_eq!(&std::fs::read(folder.join(format!("images/{v:03}.png"))).unwrap(), photo);
+    }
+    assert!(folder.join("scene.ply").is_file() && folder.join("instances.json").is_file());
+    assert!(!folder.join(".used").exists(), "the store's marker stays out");
+    let unknown = server.get(&format!("/v1/scenes/{}/archive", "0".repeat(32)));
+    assert_eq!(unknown.status, 404, "{}", unknown.text());
+
     // The label of the instance that fits its label best answers with a mask per view.
     let best = rec.instances.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("instances");
     let body = format!(r#"{{"text": "{}"}}"#, best.label);

@@ -83,8 +83,24 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
         serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap())
             .unwrap();
     assert_eq!(t.frames.len(), 4);
-    assert!(t.frames[0].file_path.ends_with("images/000.png"));
     assert!(out.join("preview.png").is_file() && out.join("instances.json").is_file());
+    // The folder is self-contained: each frame names its photo's copy relative to the json
+    // (as nerfstudio-style loaders require), the copy is the input photo, and the folder loads
+    // as a dataset scene with every photo at its frame's size.
+    for (i, f) in t.frames.iter().enumerate() {
+        assert_eq!(f.file_path, format!("images/{i:03}.png"));
+    }
+    let copy = image::open(out.join(&t.frames[1].file_path)).unwrap().into_rgb8();
+    let given = inssplat_proto::dataset::Scene::load(scene).unwrap();
+    let context: Vec<&[u8]> = given.frames.iter().map(|f| f.rgb.as_slice()).collect();
+    assert!(context.contains(&copy.as_raw().as_slice()), "the copy is one of the input photos");
+    let opened = inssplat_proto::dataset::Scene::load(&out).unwrap();
+    assert_eq!(opened.frames.len(), 4);
+    // Moved elsewhere, it still opens: nothing in it points outside.
+    let moved = dir.path().join("moved");
+    std::fs::rename(&out, &moved).unwrap();
+    assert_eq!(inssplat_proto::dataset::Scene::load(&moved).unwrap().frames.len(), 4);
+    std::fs::rename(&moved, &out).unwrap();
 }
 
 /// A network that reads its cameras as rays runs again on the registered cameras (stage

@@ -22,7 +22,8 @@ use crate::reconstruct::PipelineError;
 pub struct Cameras {
     pub cameras: Vec<Camera>,
     pub placements: Vec<Placement>,
-    pub focal: FocalSource,
+    /// Where each view's focal length came from.
+    pub focal: Vec<FocalSource>,
     /// Registration's component root of every view
     /// ([`inssplat_geometry::register::Registration::component`]);
     /// `None` when registration did not run.
@@ -54,6 +55,28 @@ pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
         .collect()
 }
 
+/// The cameras predicted by the network, each view's focal length replaced by its photo's
+/// EXIF where it has one; with where each came from (`otherwise` where not from EXIF).
+fn with_exif(
+    mut cameras: Vec<Camera>,
+    decoded: &[ModelImage],
+    otherwise: FocalSource,
+) -> (Vec<Camera>, Vec<FocalSource>) {
+    let sources = cameras
+        .iter_mut()
+        .zip(decoded)
+        .map(|(cam, d)| match d.exif_focal {
+            Some(f) => {
+                let model_px = f * d.letterbox.scale;
+                (cam.intrinsics.fx, cam.intrinsics.fy) = (model_px, model_px);
+                FocalSource::Exif
+            }
+            None => otherwise,
+        })
+        .collect();
+    (cameras, sources)
+}
+
 /// How registration placed view `v`, given the root of its component.
 fn placement(v: usize, root: usize) -> Placement {
     match (v, root) {
@@ -77,10 +100,17 @@ pub fn run(
 ) -> Result<Cameras, PipelineError> {
     let params = match (known, params) {
         (Some(poses), _) => return given(poses, decoded.len()),
-        (None, None) => return Ok(camera_head(predicted_cameras(out))),
+        (None, None) => {
+            let (predicted, focal) =
+                with_exif(predicted_cameras(out), decoded, FocalSource::CameraHead);
+            return Ok(camera_head(predicted, focal));
+        }
         (None, Some(params)) => params,
     };
-    let predicted = predicted_cameras(out);
+    // A focal length from EXIF is the photo's own: the one measured from the matches, shared by
+    // every view, is not sought when any view has one.
+    let (predicted, exif) = with_exif(predicted_cameras(out), decoded, FocalSource::CameraHead);
+    let any_exif = exif.contains(&FocalSource::Exif);
     clock.time("register", || -> Result<Cameras, PipelineError> {
         let pixels = out.height * out.width;
         let details: Vec<Option<KeypointImage>> = match matcher {
@@ -107,9 +137,10 @@ pub fn run(
             Some(matcher) => learned_matches(matcher, decoded, out.width as u32)?,
             None => brief_matches(&views, params),
         };
-        let params = match matcher {
-            Some(m) => &RegisterParams { min_inliers: m.params.min_inliers, ..params.clone() },
-            None => params,
+        let params = &RegisterParams {
+            min_inliers: matcher.map_or(params.min_inliers, |m| m.params.min_inliers),
+            estimate_focal: params.estimate_focal && !any_exif,
+            ..params.clone()
         };
         let registration = register(&views, &matches, params);
         let placements = registration
@@ -118,10 +149,9 @@ pub fn run(
             .enumerate()
             .map(|(v, &root)| placement(v, root))
             .collect();
-        let focal = if registration.focal_scale.is_some() {
-            FocalSource::Measured
-        } else {
-            FocalSource::CameraHead
+        let focal = match registration.focal_scale {
+            Some(_) => vec![FocalSource::Measured; exif.len()],
+            None => exif,
         };
         Ok(Cameras {
             cameras: registration.cameras,
@@ -190,21 +220,15 @@ fn given(poses: &[Camera], views: usize) -> Result<Cameras, PipelineError> {
     Ok(Cameras {
         cameras: poses.to_vec(),
         placements: vec![Placement::Given; poses.len()],
-        focal: FocalSource::Given,
+        focal: vec![FocalSource::Given; poses.len()],
         component: None,
         fit: None,
     })
 }
 
-fn camera_head(predicted: Vec<Camera>) -> Cameras {
+fn camera_head(predicted: Vec<Camera>, focal: Vec<FocalSource>) -> Cameras {
     let placements = (0..predicted.len())
         .map(|v| if v == 0 { Placement::Reference } else { Placement::CameraHead })
         .collect();
-    Cameras {
-        cameras: predicted,
-        placements,
-        focal: FocalSource::CameraHead,
-        component: None,
-        fit: None,
-    }
+    Cameras { cameras: predicted, placements, focal, component: None, fit: None }
 }

@@ -9,6 +9,8 @@ use std::io::Cursor;
 use image::{DynamicImage, ImageDecoder, ImageReader, RgbImage};
 use inssplat_proto::Intrinsics;
 
+use super::exif;
+
 /// Largest accepted image, in pixels (a 40-megapixel photo).
 pub const MAX_PIXELS: u64 = 40_000_000;
 
@@ -74,6 +76,8 @@ pub struct ModelImage {
     /// The photo at a finer scale than the model's input, for registration to find keypoints
     /// in (`None` when the photo is no larger than the input or none was asked).
     pub detail: Option<Detail>,
+    /// The focal length its EXIF gives, in the photo's pixels ([`super::exif`]).
+    pub exif_focal: Option<f32>,
 }
 
 /// A copy of a photo and its pixels per original pixel.
@@ -94,14 +98,16 @@ impl ModelImage {
 /// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`; with
 /// `detail` > `res`, also keeps a copy whose long side is at most `detail`.
 pub fn decode(name: &str, bytes: &[u8], res: u32, detail: u32) -> Result<ModelImage, DecodeError> {
-    let rgb = decode_rgb(name, bytes)?;
+    let (rgb, exif_focal) = decode_rgb(name, bytes)?;
     let mut image = letterbox(&rgb, res);
     image.detail = detail_copy(rgb, res, detail);
+    image.exif_focal = exif_focal;
     Ok(image)
 }
 
-/// Decodes to RGB with EXIF orientation applied.
-pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<RgbImage, DecodeError> {
+/// Decodes to RGB with EXIF orientation applied; with the focal length in pixels that its
+/// EXIF gives, if any.
+pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<(RgbImage, Option<f32>), DecodeError> {
     if bytes.is_empty() {
         return Err(DecodeError::Empty { name: name.into() });
     }
@@ -120,10 +126,38 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<RgbImage, DecodeError> {
         return Err(DecodeError::Size { name: name.into(), width, height });
     }
     let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
+    let focal =
+        decoder.exif_metadata().ok().flatten().and_then(|raw| exif::focal_px(raw, width, height));
     let mut img = DynamicImage::from_decoder(decoder)
         .map_err(|e| DecodeError::Corrupt { name: name.into(), message: e.to_string() })?;
     img.apply_orientation(orientation);
-    Ok(img.into_rgb8())
+    Ok((img.into_rgb8(), focal))
+}
+
+/// A photo as an output folder keeps it, for other tools to open beside `transforms.json`:
+/// its own bytes when it is a JPEG or PNG that needs no EXIF turning (nothing re-encoded), else
+/// its pixels as `decode_rgb` reads them (turned upright) in a PNG. Returns the bytes and their
+/// file extension.
+pub fn portable_photo(name: &str, bytes: &[u8]) -> Result<(Vec<u8>, &'static str), DecodeError> {
+    let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format();
+    let format = reader.as_ref().ok().and_then(|r| r.format());
+    let upright = || -> Option<bool> {
+        let mut decoder = reader.ok()?.into_decoder().ok()?;
+        Some(matches!(decoder.orientation().ok()?, image::metadata::Orientation::NoTransforms))
+    };
+    let ext = match format {
+        Some(image::ImageFormat::Jpeg) => "jpg",
+        Some(image::ImageFormat::Png) => "png",
+        _ => "",
+    };
+    if !ext.is_empty() && upright() == Some(true) {
+        return Ok((bytes.to_vec(), ext));
+    }
+    let (rgb, _) = decode_rgb(name, bytes)?;
+    let mut png = Cursor::new(Vec::new());
+    rgb.write_to(&mut png, image::ImageFormat::Png)
+        .map_err(|e| DecodeError::Corrupt { name: name.into(), message: e.to_string() })?;
+    Ok((png.into_inner(), "png"))
 }
 
 /// `rgb`, its long side scaled down to `detail` if longer; `None` when it is no longer than
@@ -184,6 +218,7 @@ pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
             pad_y: oy as f32,
         },
         detail: None,
+        exif_focal: None,
     }
 }
 
@@ -255,5 +290,46 @@ mod tests {
         let mut cut = png(16, 16);
         cut.truncate(cut.len() - 30);
         assert!(matches!(decode("cut.png", &cut, 8, 0), Err(DecodeError::Corrupt { .. })));
+    }
+
+    /// A 40×20 JPEG whose EXIF says to turn it a quarter clockwise (orientation 6) and that a
+    /// 35 mm-equivalent 30 mm lens took it.
+    fn turned_jpeg() -> Vec<u8> {
+        use crate::stages::exif::tests::{field, raw_exif};
+        use ::exif::{Tag, Value};
+        use image::ImageEncoder;
+        let img = RgbImage::from_fn(40, 20, |x, _| image::Rgb([if x < 20 { 250 } else { 5 }; 3]));
+        let raw = raw_exif(&[
+            field(Tag::Orientation, Value::Short(vec![6])),
+            field(Tag::FocalLengthIn35mmFilm, Value::Short(vec![30])),
+        ]);
+        let mut out = Cursor::new(Vec::new());
+        let mut jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
+        jpeg.set_exif_metadata(raw).unwrap();
+        jpeg.write_image(img.as_raw(), 40, 20, image::ExtendedColorType::Rgb8).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn turns_a_photo_upright_and_reads_its_focal_length() {
+        let m = decode("t.jpg", &turned_jpeg(), 10, 0).unwrap();
+        assert_eq!((m.letterbox.width, m.letterbox.height), (20, 40), "turned upright");
+        // 30 / 43.27 of the 44.7 px diagonal.
+        let f = m.exif_focal.unwrap();
+        assert!((f - 31.0).abs() < 0.1, "{f}");
+        assert_eq!(decode("a.png", &png(40, 20), 10, 0).unwrap().exif_focal, None);
+    }
+
+    #[test]
+    fn a_portable_copy_is_the_photo_itself_or_its_upright_pixels() {
+        let plain = png(40, 20);
+        assert_eq!(portable_photo("a.png", &plain).unwrap(), (plain, "png"));
+        // A turned JPEG is written upright as PNG: the bright half, left in the stored image,
+        // is on top once turned clockwise.
+        let (bytes, ext) = portable_photo("t.jpg", &turned_jpeg()).unwrap();
+        let copy = image::load_from_memory(&bytes).unwrap().into_rgb8();
+        assert_eq!((ext, copy.dimensions()), ("png", (20, 40)));
+        assert!(copy.get_pixel(10, 5)[0] > 200 && copy.get_pixel(10, 35)[0] < 50);
+        assert!(matches!(portable_photo("j.jpg", b"junk"), Err(DecodeError::Format { .. })));
     }
 }

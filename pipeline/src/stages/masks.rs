@@ -7,7 +7,7 @@
 use inssplat_geometry::backproject::BackProjected;
 use inssplat_geometry::voxel::{DROPPED, Voxelized};
 use inssplat_proto::Camera;
-use inssplat_proto::api::{CameraFit, Placement};
+use inssplat_proto::api::{CameraFit, FocalSource, Placement};
 use inssplat_raster::masks::label_map;
 
 use super::decode::ModelImage;
@@ -35,6 +35,8 @@ pub struct ViewParts<'a> {
     pub out: &'a ModelOutput,
     pub cameras: &'a [Camera],
     pub placements: &'a [Placement],
+    /// Where each view's focal length came from.
+    pub focal: &'a [FocalSource],
     /// Registration's fit of each view (`None` where it did not run).
     pub fit: Option<&'a [CameraFit]>,
     pub voxelized: &'a Voxelized,
@@ -61,6 +63,7 @@ pub fn views(
         .map(|(v, ((d, ids), gaussians))| ViewResult {
             camera: parts.cameras[v],
             placement: parts.placements[v],
+            focal: parts.focal[v],
             fit: parts.fit.map(|f| f[v]),
             letterbox: d.letterbox,
             labels: label_map(&ids, parts.label_of_id),

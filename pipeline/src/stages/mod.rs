@@ -8,6 +8,7 @@ pub mod backproject;
 pub mod cameras;
 pub mod cluster;
 pub mod decode;
+pub mod exif;
 pub mod heading;
 pub mod label;
 pub mod masks;

@@ -5,6 +5,7 @@
 //! model itself runs on the `worker` threads; the service binds first (printing its address,
 //! so port 0 works), answers `/health` at once and `/ready` once the model is warm.
 
+mod archive;
 mod error;
 mod jobs;
 mod layers;
@@ -251,6 +252,7 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/reconstruct", post(reconstruct::reconstruct))
         .route("/v1/scenes/{id}/scene.ply", get(scenes::ply))
         .route("/v1/scenes/{id}/preview.png", get(scenes::preview))
+        .route("/v1/scenes/{id}/archive", get(archive::archive))
         .route("/v1/scenes/{id}/views/{view}/instances.png", get(scenes::instances_png))
         .route("/v1/scenes/{id}/views/{view}/labels.png", get(scenes::labels_png))
         .route("/v1/scenes/{id}/query", post(scenes::query))

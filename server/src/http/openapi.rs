@@ -4,14 +4,14 @@
 use utoipa::openapi::security::{Http, HttpAuthScheme, SecurityScheme};
 use utoipa::{Modify, OpenApi};
 
-use super::{jobs, ops, reconstruct, scenes};
+use super::{archive, jobs, ops, reconstruct, scenes};
 
 #[derive(OpenApi)]
 #[openapi(
     info(title = "inssplat", description = "Instance-aware 3D Gaussians from a few unposed photos: reconstruct, query, batch jobs. \
         Every error is {\"error\": \"...\", \"error_type\": \"...\"}."),
     paths(
-        reconstruct::reconstruct, scenes::ply, scenes::preview, scenes::instances_png, scenes::labels_png, scenes::query,
+        reconstruct::reconstruct, scenes::ply, scenes::preview, archive::archive, scenes::instances_png, scenes::labels_png, scenes::query,
         scenes::query_mask, jobs::submit, jobs::status, jobs::cancel, jobs::events, ops::health, ops::ready, ops::metrics, ops::openapi,
     ),
     modifiers(&BearerKey),

@@ -23,7 +23,7 @@ use crate::worker::Task;
 const MAX_QUERY_CHARS: usize = 500;
 
 /// The folder of the stored scene `id`.
-fn scene_dir(state: &AppState, id: &str) -> Result<(SceneId, PathBuf), ApiError> {
+pub(super) fn scene_dir(state: &AppState, id: &str) -> Result<(SceneId, PathBuf), ApiError> {
     let id: SceneId = id.parse().map_err(ApiError::BadRequest)?;
     let dir = state
         .shared

@@ -37,7 +37,7 @@ pub fn run_scene(
         .is_file()
         .then(|| Scene::load(&task.input))
         .transpose()?;
-    let (rec, names, metrics) = match split.filter(|s| s.eval.is_some()) {
+    let (rec, photos, metrics) = match split.filter(|s| s.eval.is_some()) {
         Some(scene) => {
             let views = (MIN_VIEWS..=MAX_VIEWS)
                 .rev()
@@ -56,9 +56,9 @@ pub fn run_scene(
                 query_rules: &[],
                 photos: None,
             };
-            let (scores, rec, names) =
+            let (scores, rec, photos) =
                 evaluate_scene_keeping(model, labels, &scene, views, &settings)?;
-            (rec, names, Some(serde_json::to_value(&scores)?))
+            (rec, photos, Some(serde_json::to_value(&scores)?))
         }
         None => {
             let paths = inputs::photo_paths(std::slice::from_ref(&task.input))?;
@@ -68,13 +68,9 @@ pub fn run_scene(
                 None => vocab::vocabulary(None)?,
             };
             let rec = reconstruct(model, labels, &photos, &vocabulary, config)?;
-            let names = paths
-                .iter()
-                .map(|p| p.strip_prefix(&task.input).unwrap_or(p).display().to_string())
-                .collect();
-            (rec, names, None)
+            (rec, photos, None)
         }
     };
-    write_reconstruction(&rec, &names, out)?;
+    write_reconstruction(&rec, &photos, out)?;
     Ok((rec.timings, metrics))
 }
