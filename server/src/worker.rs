@@ -25,6 +25,7 @@ use crate::scene_store::{SceneId, SceneStore};
 use inssplat_pipeline::backend::Model;
 use inssplat_pipeline::reconstruct::{InputImage, PipelineConfig, PipelineError, reconstruct};
 use inssplat_pipeline::saved::Saved;
+use inssplat_pipeline::stages::decode::DecodeError;
 use inssplat_pipeline::{output, query};
 
 /// How long an idle worker waits on the queue before looking for job scenes again.
@@ -36,6 +37,9 @@ pub enum TaskError {
     /// The input is at fault; the message names it.
     #[error("{0}")]
     Invalid(String),
+    /// The input is in a format the service does not read; the message names it.
+    #[error("{0}")]
+    Unsupported(String),
     #[error("{0}")]
     Internal(String),
 }
@@ -336,6 +340,9 @@ impl Worker {
     ) -> Result<ReconstructResponse, TaskError> {
         let rec = reconstruct(&mut self.model, &self.labels, images, vocabulary, config).map_err(
             |e| match e {
+                PipelineError::Decode(DecodeError::Unsupported { .. }) => {
+                    TaskError::Unsupported(e.to_string())
+                }
                 PipelineError::ViewCount(_)
                 | PipelineError::Decode(_)
                 | PipelineError::EmptyVocabulary => TaskError::Invalid(e.to_string()),

@@ -1,6 +1,7 @@
 //! Photos that registration cannot place well, through the real binary with the shipped network
 //! and the shipped learned matcher: a flat photo, a photo sent twice, a photo of something
-//! else, a photo turned 90°, photos under- and over-exposed. Each gives a reconstruction whose
+//! else, a photo turned 90° (by its pixels, or by an EXIF orientation that lies), photos under-
+//! and over-exposed. Each gives a reconstruction whose
 //! cameras say honestly how they were placed, with a warning naming the view where its pose is
 //! a guess; none panics.
 
@@ -32,6 +33,28 @@ fn case() -> Case {
 }
 
 impl Case {
+    /// Photo `v` as a JPEG whose EXIF says to turn it a quarter clockwise, though it is upright.
+    fn lying_orientation(&mut self, v: usize) {
+        use image::ImageEncoder;
+        let photo = image::open(&self.photos[v]).unwrap().to_rgb8();
+        let field = exif::Field {
+            tag: exif::Tag::Orientation,
+            ifd_num: exif::In::PRIMARY,
+            value: exif::Value::Short(vec![6]),
+        };
+        let mut writer = exif::experimental::Writer::new();
+        writer.push_field(&field);
+        let mut raw = std::io::Cursor::new(Vec::new());
+        writer.write(&mut raw, false).unwrap();
+        let path = self.root.join(format!("lying{v}.jpg"));
+        let mut file = std::fs::File::create(&path).unwrap();
+        let mut jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut file, 95);
+        jpeg.set_exif_metadata(raw.into_inner()).unwrap();
+        let (w, h) = photo.dimensions();
+        jpeg.write_image(photo.as_raw(), w, h, image::ExtendedColorType::Rgb8).unwrap();
+        self.photos[v] = path;
+    }
+
     /// Photo `v` replaced by `edit` of it, written beside the scene.
     fn edit(&mut self, v: usize, edit: impl Fn(RgbImage) -> RgbImage) {
         let photo = image::open(&self.photos[v]).unwrap().to_rgb8();
@@ -110,8 +133,19 @@ fn a_turned_photo_and_badly_exposed_ones_are_placed_or_named() {
         p.pixels_mut().for_each(|px| px.0 = px.0.map(|v| (f32::from(v) * 2.0).min(255.0) as u8));
         p
     });
+    let upright = image::open(&c.photos[6]).unwrap().to_rgb8();
+    c.lying_orientation(6);
     let r = c.reconstruct();
-    for v in [2, 4, 5] {
+    // The photo is read as its EXIF says (turned), and the output folder keeps it so.
+    let copy = image::open(c.root.join("out/images/006.png")).unwrap().to_rgb8();
+    let differs = |a: &RgbImage, b: &RgbImage| {
+        let sum: u64 =
+            a.as_raw().iter().zip(b.as_raw()).map(|(x, y)| u64::from(x.abs_diff(*y))).sum();
+        sum as f64 / a.as_raw().len() as f64
+    };
+    let turned = image::imageops::rotate90(&upright);
+    assert!(differs(&copy, &turned) < 4.0 && differs(&copy, &upright) > 20.0, "view 6 not turned");
+    for v in [2, 4, 5, 6] {
         let placed = r.cameras[v].placement == Some(Placement::Registered);
         let named = warned(&r, &format!("view {v}: "));
         assert!(placed || named, "view {v}: {:?}, warnings {:?}", r.cameras[v], r.warnings);

@@ -14,6 +14,10 @@ use super::exif;
 /// Largest accepted image, in pixels (a 40-megapixel photo).
 pub const MAX_PIXELS: u64 = 40_000_000;
 
+/// Largest accepted ratio of a photo's long side to its short side: a longer strip keeps too
+/// few pixels across in the model's square input to reconstruct from.
+pub const MAX_ASPECT: u32 = 16;
+
 /// Grey used for letterbox padding (mean of [0, 1]).
 const PAD: f32 = 0.5;
 
@@ -23,10 +27,19 @@ pub enum DecodeError {
     Empty { name: String },
     #[error("{name}: not a supported image (JPEG, PNG or WebP): {message}")]
     Format { name: String, message: String },
+    /// An image in a format the service does not read (HEIC from a phone, TIFF, GIF, …).
+    #[error(
+        "{name}: {format} images are not supported; send JPEG, PNG or WebP (a phone's HEIC photo converts with e.g. `heif-convert` or its share-as-JPEG setting)"
+    )]
+    Unsupported { name: String, format: String },
     #[error(
         "{name}: image is {width}×{height}; images must be non-empty and at most {MAX_PIXELS} pixels"
     )]
     Size { name: String, width: u32, height: u32 },
+    #[error(
+        "{name}: image is {width}×{height}, a strip: its long side may be at most {MAX_ASPECT} times its short side"
+    )]
+    Strip { name: String, width: u32, height: u32 },
     #[error("{name}: corrupt image data: {message}")]
     Corrupt { name: String, message: String },
 }
@@ -115,15 +128,25 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<(RgbImage, Option<f32>), D
         name: name.into(),
         message: e.to_string(),
     };
+    let unsupported =
+        |format: &str| DecodeError::Unsupported { name: name.into(), format: format.to_string() };
+    if let Some(format) = heif_brand(bytes) {
+        return Err(unsupported(format));
+    }
     let reader =
         ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| format_err(&e))?;
-    if reader.format().is_none() {
-        return Err(format_err(&"unrecognized file signature"));
+    match reader.format() {
+        None => return Err(format_err(&"unrecognized file signature")),
+        Some(image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::WebP) => {}
+        Some(other) => return Err(unsupported(&format!("{other:?}").to_uppercase())),
     }
     let mut decoder = reader.into_decoder().map_err(|e| format_err(&e))?;
     let (width, height) = decoder.dimensions();
     if width == 0 || height == 0 || u64::from(width) * u64::from(height) > MAX_PIXELS {
         return Err(DecodeError::Size { name: name.into(), width, height });
+    }
+    if width.max(height) > MAX_ASPECT * width.min(height) {
+        return Err(DecodeError::Strip { name: name.into(), width, height });
     }
     let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
     let focal =
@@ -132,6 +155,22 @@ pub fn decode_rgb(name: &str, bytes: &[u8]) -> Result<(RgbImage, Option<f32>), D
         .map_err(|e| DecodeError::Corrupt { name: name.into(), message: e.to_string() })?;
     img.apply_orientation(orientation);
     Ok((img.into_rgb8(), focal))
+}
+
+/// The format an ISO base media file (`ftyp` box) says it holds, when it is one of the HEIF
+/// family that phones save (HEIC, HEIF) or AVIF; `None` for anything else.
+fn heif_brand(bytes: &[u8]) -> Option<&'static str> {
+    if bytes.get(4..8) != Some(b"ftyp") {
+        return None;
+    }
+    match bytes.get(8..12)? {
+        b"heic" | b"heix" | b"hevc" | b"hevx" | b"heim" | b"heis" | b"hevm" | b"hevs" => {
+            Some("HEIC")
+        }
+        b"mif1" | b"msf1" => Some("HEIF"),
+        b"avif" | b"avis" => Some("AVIF"),
+        _ => None,
+    }
 }
 
 /// A photo as an output folder keeps it, for other tools to open beside `transforms.json`:
@@ -290,6 +329,9 @@ mod tests {
         let mut cut = png(16, 16);
         cut.truncate(cut.len() - 30);
         assert!(matches!(decode("cut.png", &cut, 8, 0), Err(DecodeError::Corrupt { .. })));
+        let err = decode("strip.png", &png(1, 4000), 8, 0).unwrap_err();
+        assert!(matches!(err, DecodeError::Strip { width: 1, height: 4000, .. }), "{err}");
+        assert!(decode("wide.png", &png(160, 10), 8, 0).is_ok(), "16:1 is still a photo");
     }
 
     /// A 40×20 JPEG whose EXIF says to turn it a quarter clockwise (orientation 6) and that a
@@ -331,5 +373,45 @@ mod tests {
         assert_eq!((ext, copy.dimensions()), ("png", (20, 40)));
         assert!(copy.get_pixel(10, 5)[0] > 200 && copy.get_pixel(10, 35)[0] < 50);
         assert!(matches!(portable_photo("j.jpg", b"junk"), Err(DecodeError::Format { .. })));
+    }
+
+    #[test]
+    fn reads_16_bit_grey_and_cmyk_photos_and_names_the_formats_it_does_not() {
+        let mut out = Cursor::new(Vec::new());
+        let deep = image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(8, 4, |x, _| {
+            image::Rgb([x as u16 * 8000, 0, 65535])
+        });
+        deep.write_to(&mut out, image::ImageFormat::Png).unwrap();
+        let (rgb, _) = decode_rgb("deep.png", &out.into_inner()).unwrap();
+        assert_eq!(rgb.get_pixel(7, 0).0, [218, 0, 255], "16 bits scaled to 8");
+        let mut out = Cursor::new(Vec::new());
+        image::GrayImage::from_pixel(8, 4, image::Luma([77]))
+            .write_to(&mut out, image::ImageFormat::Jpeg)
+            .unwrap();
+        let (rgb, _) = decode_rgb("grey.jpg", &out.into_inner()).unwrap();
+        let p = rgb.get_pixel(3, 2).0;
+        assert!(p.iter().all(|&c| c.abs_diff(77) <= 2), "grey on all three channels: {p:?}");
+        // A CMYK JPEG (made by Pillow): red on the left, blue on the right.
+        let cmyk = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/cmyk.jpg"));
+        let (rgb, _) = decode_rgb("cmyk.jpg", &cmyk.unwrap()).unwrap();
+        let (left, right) = (rgb.get_pixel(3, 8).0, rgb.get_pixel(20, 8).0);
+        assert!(
+            left[0] > 200 && left[2] < 60 && right[2] > 200 && right[0] < 60,
+            "{left:?} {right:?}"
+        );
+        // A phone's HEIC (its ftyp box), and a TIFF: refused by name, not as garbage.
+        let heic = b"\0\0\0\x18ftypheic\0\0\0\0mif1heic\0\0\0\0";
+        let err = decode_rgb("IMG_0001.HEIC", heic).unwrap_err();
+        assert!(
+            matches!(&err, DecodeError::Unsupported { format, .. } if format == "HEIC"),
+            "{err}"
+        );
+        assert!(err.to_string().starts_with("IMG_0001.HEIC: HEIC images are not supported"));
+        let tiff = [b"II*\0".as_slice(), &[8, 0, 0, 0], &[0; 32]].concat();
+        let err = decode_rgb("scan.tif", &tiff).unwrap_err();
+        assert!(
+            matches!(&err, DecodeError::Unsupported { format, .. } if format == "TIFF"),
+            "{err}"
+        );
     }
 }

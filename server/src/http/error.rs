@@ -163,6 +163,7 @@ impl From<TaskError> for ApiError {
     fn from(e: TaskError) -> Self {
         match e {
             TaskError::Invalid(m) => Self::Validation(m),
+            TaskError::Unsupported(m) => Self::UnsupportedMediaType(m),
             TaskError::Internal(m) => Self::Internal(m),
         }
     }

@@ -63,6 +63,9 @@ pub(super) fn all(scene: &str) -> Vec<Case> {
     let bad_tar = traversal_tar();
     let good_tar = tar_of(&[("s/a.png", &img), ("s/b.png", &img)]);
     let junk_tar = tar_of(&[("notes/readme.txt", b"no photos here")]);
+    // The ftyp box a phone's HEIC photo opens with.
+    let heic = [b"\0\0\0\x18ftypheic\0\0\0\0mif1heic".as_slice(), &[0; 64]].concat();
+    let strip = png(1, 4000, 3);
     let mut zip_junk = b"PK\x03\x04".to_vec();
     zip_junk.extend_from_slice(&[0xff; 64]);
 
@@ -135,6 +138,20 @@ pub(super) fn all(scene: &str) -> Vec<Case> {
             "empty files",
             "/v1/reconstruct",
             &[("images", Some("a.png"), b""), ("images", Some("b.png"), b"")],
+            422,
+            "validation",
+        ),
+        form(
+            "a phone's HEIC photo",
+            "/v1/reconstruct",
+            &[("images", Some("IMG_1.HEIC"), &heic), ("images", Some("b.png"), &img)],
+            415,
+            "unsupported_media_type",
+        ),
+        form(
+            "a 1×4000 strip",
+            "/v1/reconstruct",
+            &[("images", Some("strip.png"), &strip), ("images", Some("b.png"), &img)],
             422,
             "validation",
         ),
