@@ -104,7 +104,7 @@ pub struct Report {
     pub protocol: String,
 }
 
-const METRICS: [&str; 20] = [
+const METRICS: [&str; 24] = [
     "semantic_miou",
     "semantic_macc",
     "instance_miou",
@@ -125,6 +125,10 @@ const METRICS: [&str; 20] = [
     "depth_abs_rel_shell",
     "rotation_deg",
     "translation",
+    "photo_instance_miou",
+    "photo_instance_miou_nearest",
+    "photo_boundary_f",
+    "photo_boundary_f_nearest",
 ];
 
 fn metric(s: &SceneScores, name: &str) -> Option<f64> {
@@ -149,6 +153,10 @@ fn metric(s: &SceneScores, name: &str) -> Option<f64> {
         "depth_abs_rel_shell" => s.depth_abs_rel_shell,
         "rotation_deg" => s.rotation_deg,
         "translation" => s.translation,
+        "photo_instance_miou" => s.photo_instance_miou,
+        "photo_instance_miou_nearest" => s.photo_instance_miou_nearest,
+        "photo_boundary_f" => s.photo_boundary_f,
+        "photo_boundary_f_nearest" => s.photo_boundary_f_nearest,
         _ => None,
     }
 }

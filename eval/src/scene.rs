@@ -24,7 +24,7 @@ use serde::Serialize;
 use super::ceiling::{ContextView, context_instances};
 use super::confusion::Confusion;
 use super::perturb::{self, Perturbation};
-use super::photos::photo_images;
+use super::photos::{photo_images, photo_mask_scores};
 use super::query_rules::QueryScores;
 use super::targets::{align_cameras, target_scores};
 use super::views::{ClusterMode, segment};
@@ -66,6 +66,17 @@ pub struct SceneScores {
     pub depth_abs_rel_shell: Option<f64>,
     pub rotation_deg: Option<f64>,
     pub translation: Option<f64>,
+    /// With `--photos`: the context views' instance mIoU and boundary F-score at the photos'
+    /// resolution, as upsampled along the photos' edges and as sampled at the nearest model
+    /// pixel ([`super::photos::photo_mask_scores`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_instance_miou: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_instance_miou_nearest: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_boundary_f: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_boundary_f_nearest: Option<f64>,
     /// Mean angle by which `--target-pose-steps` turned the target cameras (degrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_pose_turn_deg: Option<f64>,
@@ -308,6 +319,15 @@ pub fn evaluate_scene_keeping(
         refine_context_psnr: rec.refinement.as_ref().map(|r| r.psnr()),
         ..SceneScores::default()
     };
+    if let Some(dir) = settings.photos {
+        let res = model.network.resolution;
+        if let Some(p) = photo_mask_scores(dir, &name, &context, &rec, res).map_err(&bad)? {
+            (s.photo_instance_miou, s.photo_instance_miou_nearest) =
+                (Some(p.miou.0), Some(p.miou.1));
+            (s.photo_boundary_f, s.photo_boundary_f_nearest) =
+                (Some(p.boundary_f.0), Some(p.boundary_f.1));
+        }
+    }
     let depth_scale =
         context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;
     let scale = match depth_scale {

@@ -279,6 +279,48 @@ pub fn consistency_scores(
     }))
 }
 
+/// Boundary F-score of two id maps `width` wide (Martin et al.'s, as DAVIS scores masks): a
+/// pixel is on a boundary where its id differs from its right or lower neighbour's; precision is
+/// the share of the predicted boundary within `tolerance` pixels (Chebyshev) of the true one,
+/// recall the converse, F their harmonic mean. `None` when neither map has a boundary.
+pub fn boundary_f(
+    pred: &[u32],
+    gt: &[u32],
+    width: usize,
+    tolerance: usize,
+) -> Result<Option<f64>, MetricError> {
+    same_len("id maps", pred.len(), gt.len())?;
+    let height = pred.len() / width.max(1);
+    let edges = |ids: &[u32]| -> Vec<bool> {
+        (0..ids.len())
+            .map(|i| {
+                let (x, y) = (i % width, i / width);
+                (x + 1 < width && ids[i] != ids[i + 1])
+                    || (y + 1 < height && ids[i] != ids[i + width])
+            })
+            .collect()
+    };
+    let (p, g) = (edges(pred), edges(gt));
+    let near = |of: &[bool], i: usize| {
+        let (x, y) = (i % width, i / width);
+        let t = tolerance;
+        (y.saturating_sub(t)..(y + t + 1).min(height))
+            .any(|yy| (x.saturating_sub(t)..(x + t + 1).min(width)).any(|xx| of[yy * width + xx]))
+    };
+    let share = |from: &[bool], to: &[bool]| -> Option<f64> {
+        let on: Vec<usize> = (0..from.len()).filter(|&i| from[i]).collect();
+        (!on.is_empty())
+            .then(|| on.iter().filter(|&&i| near(to, i)).count() as f64 / on.len() as f64)
+    };
+    Ok(match (share(&p, &g), share(&g, &p)) {
+        (None, None) => None,
+        (Some(precision), Some(recall)) if precision + recall > 0.0 => {
+            Some(2.0 * precision * recall / (precision + recall))
+        }
+        _ => Some(0.0),
+    })
+}
+
 /// IoU of two masks; `None` when both are empty.
 pub fn mask_iou(pred: &[bool], gt: &[bool]) -> Result<Option<f64>, MetricError> {
     same_len("masks", pred.len(), gt.len())?;
@@ -292,6 +334,19 @@ mod tests {
     use super::*;
 
     const N: u32 = NO_LABEL;
+
+    #[test]
+    fn boundary_f_by_hand() {
+        // 6×2 maps split at x = 3 (gt) and x = 4 (pred): one pixel apart.
+        let split = |at: usize| -> Vec<u32> { (0..12).map(|i| u32::from(i % 6 >= at)).collect() };
+        let (gt, pred) = (split(3), split(4));
+        assert_eq!(boundary_f(&pred, &gt, 6, 1).unwrap(), Some(1.0), "within tolerance");
+        assert_eq!(boundary_f(&pred, &gt, 6, 0).unwrap(), Some(0.0), "exact: none agree");
+        assert_eq!(boundary_f(&gt, &gt, 6, 0).unwrap(), Some(1.0));
+        assert_eq!(boundary_f(&[7; 12], &[7; 12], 6, 2).unwrap(), None);
+        // A prediction with no boundary where the truth has one scores 0.
+        assert_eq!(boundary_f(&[7; 12], &gt, 6, 2).unwrap(), Some(0.0));
+    }
 
     #[test]
     fn semantic_scores_by_hand() {

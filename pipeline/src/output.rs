@@ -1,9 +1,10 @@
 //! Writes a reconstruction to a folder: `scene.ply` (standard 3DGS + extras), `images/NNN.*`
 //! (the photos it was made from, upright) and `transforms.json` (the cameras, nerfstudio
 //! convention, naming those photos relative to itself, so the folder opens as it is in
-//! nerfstudio-style tools, gsplat's and brush's loaders), `instances/NNN.png` and `labels/NNN.png` (a colour per
-//! instance / label), `instances.json` and `preview.png` (input | depth | instances | labels
-//! per view). Each file is written to a temporary name and renamed, so a crash never leaves a
+//! nerfstudio-style tools, gsplat's and brush's loaders); at each photo's resolution (up to the
+//! mask size) `instances/NNN.png` and `labels/NNN.png` (a colour per instance / label) and
+//! `ids/NNN.png` (the instance ids, 16-bit); `instances.json` and `preview.png` (input | depth |
+//! instances | labels per view, at the model's resolution). Each file is written to a temporary name and renamed, so a crash never leaves a
 //! half-written artefact.
 
 use std::path::{Path, PathBuf};
@@ -17,7 +18,7 @@ use inssplat_proto::dataset::{FrameJson, TransformsJson};
 use inssplat_raster::masks::NO_LABEL;
 use serde::{Deserialize, Serialize};
 
-use crate::reconstruct::{InputImage, Reconstruction};
+use crate::reconstruct::{InputImage, PhotoMaps, Reconstruction};
 use crate::stages::decode::portable_photo;
 
 /// A distinct colour for index `i` (golden-angle hues); index 0 is black ("none").
@@ -70,6 +71,17 @@ pub fn colour_map(
     colour: impl Fn(u32) -> [u8; 3],
 ) -> RgbImage {
     RgbImage::from_fn(width, height, |x, y| Rgb(colour(values[(y * width + x) as usize])))
+}
+
+/// A view's instance ids as a 16-bit grey PNG (ids past 65535 saturate).
+fn id_png(m: &PhotoMaps) -> Vec<u8> {
+    let ids = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(m.width, m.height, |x, y| {
+        image::Luma([m.instance_ids[(y * m.width + x) as usize].min(u32::from(u16::MAX)) as u16])
+    });
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    ids.write_to(&mut bytes, image::ImageFormat::Png)
+        .expect("PNG encoding into memory cannot fail");
+    bytes.into_inner()
 }
 
 /// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.
@@ -146,7 +158,7 @@ pub fn write_reconstruction(
     photos: &[InputImage],
     out: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
-    for sub in ["images", "instances", "labels"] {
+    for sub in ["images", "ids", "instances", "labels"] {
         std::fs::create_dir_all(out.join(sub))
             .with_context(|| format!("cannot create {}", out.join(sub).display()))?;
     }
@@ -200,12 +212,24 @@ pub fn write_reconstruction(
     written.push(path);
 
     let mut sheet_rows = Vec::new();
+    let label_colour = |l: u32| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) };
     for (i, v) in rec.views.iter().enumerate() {
         let (w, h) = (v.camera.intrinsics.width, v.camera.intrinsics.height);
         let inst = colour_map(w, h, &v.instance_ids, palette);
-        let labels =
-            colour_map(w, h, &v.labels, |l| if l == NO_LABEL { [0, 0, 0] } else { palette(l + 1) });
-        for (dir, img) in [("instances", &inst), ("labels", &labels)] {
+        let labels = colour_map(w, h, &v.labels, label_colour);
+        let maps = match &v.photo_maps {
+            Some(m) => {
+                let path = out.join("ids").join(format!("{i:03}.png"));
+                write_atomic(&path, &id_png(m))?;
+                written.push(path);
+                [
+                    ("instances", colour_map(m.width, m.height, &m.instance_ids, palette)),
+                    ("labels", colour_map(m.width, m.height, &m.labels, label_colour)),
+                ]
+            }
+            None => [("instances", inst.clone()), ("labels", labels.clone())],
+        };
+        for (dir, img) in &maps {
             let path = out.join(dir).join(format!("{i:03}.png"));
             save_png(&path, img)?;
             written.push(path);
@@ -298,7 +322,7 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
     let stages: Vec<String> =
         s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
-    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, images/, instances/, labels/, instances.json, preview.png)", out.display()));
+    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, images/, ids/, instances/, labels/, instances.json, preview.png)", out.display()));
     text
 }
 

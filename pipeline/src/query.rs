@@ -1,7 +1,8 @@
 //! `inssplat query OUT "text"`: which instances of a saved reconstruction the text names
 //! (cosine of the text embedding with each instance's semantic prototype, under the
-//! `QueryRule`), and the mask of the answer in every input view, rendered from the Gaussians'
-//! instance ids at the photos' resolution and written as `OUT/query/<text>/NNN.png`.
+//! `QueryRule`), and the mask of the answer in every input view, from the view's instance ids
+//! (`ids/NNN.png`, at the photo's resolution up to the mask size; rendered from the Gaussians at
+//! the photo's resolution for a folder without them), written as `OUT/query/<text>/NNN.png`.
 
 use std::path::PathBuf;
 
@@ -44,10 +45,22 @@ pub fn run_query(
     let dir = saved.dir.join("query").join(slug(text));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let k = max_instance_id(&saved.doc.instances);
-    let maps: Vec<Vec<u32>> = saved
+    let maps: Vec<(u32, u32, Vec<u32>)> = saved
         .cameras
         .par_iter()
-        .map(|camera| render_instance_ids(&saved.scene, camera, k))
+        .enumerate()
+        .map(|(view, camera)| -> anyhow::Result<(u32, u32, Vec<u32>)> {
+            let path = saved.dir.join("ids").join(format!("{view:03}.png"));
+            if path.is_file() {
+                let ids = image::open(&path)
+                    .with_context(|| format!("{}: not an instance id map", path.display()))?
+                    .into_luma16();
+                let (w, h) = ids.dimensions();
+                return Ok((w, h, ids.into_raw().into_iter().map(u32::from).collect()));
+            }
+            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+            Ok((w, h, render_instance_ids(&saved.scene, camera, k)?))
+        })
         .collect::<Result<_, _>>()?;
     let label_of = |id: u32| {
         saved
@@ -60,9 +73,9 @@ pub fn run_query(
     let mut matches = Vec::new();
     for hit in &hits {
         let mut masks = Vec::new();
-        for (view, (map, camera)) in maps.iter().zip(&saved.cameras).enumerate() {
+        for (view, (w, h, map)) in maps.iter().enumerate() {
+            let (w, h) = (*w, *h);
             let mask = ids_mask(map, &[hit.id]);
-            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
             let img = GrayImage::from_fn(w, h, |x, y| {
                 Luma([if mask[(y * w + x) as usize] { 255 } else { 0 }])
             });

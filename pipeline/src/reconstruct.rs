@@ -26,7 +26,7 @@ use std::sync::Arc;
 
 use crate::backend::{Backend, RuntimeError};
 use crate::matcher::LearnedMatcher;
-use crate::stages::decode::{DecodeError, Letterbox, decode};
+use crate::stages::decode::{DecodeError, Letterbox, Sizes, decode};
 use crate::stages::label::LabelInputs;
 pub use crate::stages::network::Known;
 use crate::stages::{
@@ -105,7 +105,15 @@ pub struct PipelineConfig {
     pub heading: Option<HeadingParams>,
     /// What the superpixel vote corrects (with [`PipelineConfig::superpixels`] only).
     pub vote: VoteScope,
+    /// Long side, in pixels, of each input view's instance and label maps at the photo's
+    /// resolution (the photo's own when it is smaller), upsampled from the model's along the
+    /// photo's edges (stage "upsample", [`inssplat_understand::upsample`]); 0: the maps at the
+    /// model's resolution only.
+    pub mask_size: u32,
 }
+
+/// Default [`PipelineConfig::mask_size`].
+pub const DEFAULT_MASK_SIZE: u32 = 1024;
 
 /// Where the input views' superpixel vote (each superpixel takes the id most of its pixels
 /// carry) is applied.
@@ -133,6 +141,7 @@ impl Default for PipelineConfig {
             superpixels: Some(SuperpixelParams::default()),
             heading: Some(HeadingParams::default()),
             vote: VoteScope::Gaussians,
+            mask_size: DEFAULT_MASK_SIZE,
         }
     }
 }
@@ -171,6 +180,21 @@ pub struct ViewResult {
     pub depth: Vec<f32>,
     /// `[H][W][3]` the letterboxed input, 8-bit.
     pub rgb: Vec<u8>,
+    /// The instance and label maps at the photo's resolution ([`PipelineConfig::mask_size`]);
+    /// `None` when none was asked.
+    pub photo_maps: Option<PhotoMaps>,
+}
+
+/// A view's instance and label maps at its photo's resolution (up to the mask size), without
+/// the letterbox.
+#[derive(Debug, Clone)]
+pub struct PhotoMaps {
+    pub width: u32,
+    pub height: u32,
+    /// `[H][W]` instance id, 0 = none.
+    pub instance_ids: Vec<u32>,
+    /// `[H][W]` vocabulary index, `NO_LABEL` where none.
+    pub labels: Vec<u32>,
 }
 
 /// A reconstructed scene.
@@ -222,12 +246,13 @@ pub fn reconstruct_with(
     }
     let mut clock = Stopwatch::new(on_stage);
     let res = backend.network().resolution as u32;
-    let detail = config.register.as_ref().map_or(0, |r| r.photo_size);
+    let sizes = Sizes {
+        res,
+        detail: config.register.as_ref().map_or(0, |r| r.photo_size),
+        mask: config.mask_size,
+    };
     let decoded = clock.time("decode", || {
-        images
-            .par_iter()
-            .map(|i| decode(&i.name, &i.bytes, res, detail))
-            .collect::<Result<Vec<_>, _>>()
+        images.par_iter().map(|i| decode(&i.name, &i.bytes, sizes)).collect::<Result<Vec<_>, _>>()
     })?;
     let mut pass = clock.time("model", || network::run(backend, &decoded, &config.known))?;
     let pixels = pass.out.height * pass.out.width;
@@ -293,7 +318,9 @@ pub fn reconstruct_with(
         per_pixel: &per_pixel,
         label_of_id: &label_of_id,
     };
-    let views = masks::views(decoded, id_maps, &parts);
+    let photo_maps =
+        clock.time("upsample", || masks::photo_maps(&decoded, &id_maps, &label_of_id, out.width));
+    let views = masks::views(decoded, id_maps, photo_maps, &parts);
     voxelized.scene.meta.producer = format!("inssplat {}", env!("CARGO_PKG_VERSION"));
     Ok(Reconstruction {
         scene: voxelized.scene,

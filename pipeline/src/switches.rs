@@ -7,7 +7,7 @@ use std::sync::Arc;
 use super::backend::RuntimeError;
 use super::backend::onnx::search_folders;
 use super::matcher::{LearnedMatcher, MatcherParams};
-use super::reconstruct::PipelineConfig;
+use super::reconstruct::{DEFAULT_MASK_SIZE, PipelineConfig};
 
 /// The matcher's folder beside the network file, by default.
 pub const DEFAULT_DIR: &str = "matcher";
@@ -27,6 +27,11 @@ pub struct PipelineSwitches {
     /// `inssplat-eval score`, the ablation of that stage).
     #[arg(long, env = "INSSPLAT_NO_RAY_PASS")]
     pub no_ray_pass: bool,
+    /// Long side, in pixels, of each view's instance and label maps (`instances/`, `labels/`,
+    /// `ids/` and query masks), at most the photo's own: upsampled from the network's
+    /// resolution along the photo's edges. 0 keeps the maps at the network's resolution.
+    #[arg(long, env = "INSSPLAT_MASK_SIZE", default_value_t = DEFAULT_MASK_SIZE, value_name = "PIXELS")]
+    pub mask_size: u32,
     #[command(flatten)]
     pub matcher: MatcherSwitches,
 }
@@ -104,6 +109,7 @@ impl PipelineSwitches {
         Ok(PipelineConfig {
             refine_steps: self.refine_steps,
             ray_pass: !self.no_ray_pass,
+            mask_size: self.mask_size,
             matcher: self.matcher.load(model, threads)?,
             ..config
         })

@@ -346,6 +346,18 @@ fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() 
     // finds its keypoints in them), and the ground truth stays --data's.
     assert_ne!(own["scenes"][0]["psnr"], large["scenes"][0]["psnr"]);
     assert_eq!(own["scenes"][0]["instances_true"], large["scenes"][0]["instances_true"]);
+    // The masks at the photos' resolution are scored against the larger scene's, upsampled
+    // along the photos' edges and at the nearest model pixel.
+    let scene = &large["scenes"][0];
+    for k in [
+        "photo_instance_miou",
+        "photo_instance_miou_nearest",
+        "photo_boundary_f",
+        "photo_boundary_f_nearest",
+    ] {
+        assert!(scene[k].as_f64().is_some_and(|v| (0.0..=1.0).contains(&v)), "{k}: {scene}");
+    }
+    assert!(own["scenes"][0].get("photo_boundary_f").is_none(), "no photos, no photo masks");
     let out = eval(&["--photos", s(&other)]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -424,6 +436,7 @@ fn bench_times_every_stage_per_view_count() {
             "vote",
             "label",
             "masks",
+            "upsample",
         ] {
             assert!(stages[stage].as_f64().unwrap() >= 0.0, "{stage}");
         }

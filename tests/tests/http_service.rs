@@ -77,7 +77,7 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
             let img = server.get(&format!("{base}/views/{v}/{kind}.png"));
             assert_eq!(img.status, 200, "{kind} {v}: {}", img.text());
             let img = image::load_from_memory(&img.body).unwrap();
-            assert_eq!((img.width(), img.height()), (128, 128), "the model resolution");
+            assert_eq!((img.width(), img.height()), (128, 128), "the photo's size");
         }
     }
     let preview = server.get(&format!("{base}/preview.png"));

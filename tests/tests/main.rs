@@ -10,6 +10,7 @@ mod http_errors;
 mod http_load;
 mod http_resume;
 mod http_service;
+mod real_photos;
 mod reconstruct;
 mod register_synth;
 mod shipped_model;

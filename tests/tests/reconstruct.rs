@@ -63,7 +63,8 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
             "cluster",
             "vote",
             "label",
-            "masks"
+            "masks",
+            "upsample"
         ]
     );
 
@@ -74,10 +75,15 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
     assert_eq!(ply.sem_dim, 16);
     assert_eq!(ply.meta.model_version.as_deref(), Some("e2e-random"));
     for v in 0..4 {
-        for kind in ["instances", "labels"] {
+        for kind in ["instances", "labels", "ids"] {
             let img = image::open(out.join(format!("{kind}/{v:03}.png"))).unwrap();
             assert_eq!((img.width(), img.height()), (32, 32), "{kind} {v}");
         }
+        // The ids are the instance table's, 16-bit.
+        let ids = image::open(out.join(format!("ids/{v:03}.png"))).unwrap().into_luma16();
+        assert!(
+            ids.pixels().all(|p| p[0] == 0 || r.instances.iter().any(|i| i.id == u32::from(p[0])))
+        );
     }
     let t: TransformsJson =
         serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap())

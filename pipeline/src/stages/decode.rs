@@ -1,7 +1,7 @@
 //! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
-//! letterboxed to the model's square input, and, for registration, a copy of a photo larger
-//! than that input at up to `RegisterParams::photo_size` pixels (both resized by
-//! `fast_image_resize`). The header is read first and oversized or empty images are refused
+//! letterboxed to the model's square input; for registration, a copy of a photo larger than
+//! that input at up to `RegisterParams::photo_size` pixels; and the copy at the size of the
+//! masks, which guides their upsampling (all resized by `fast_image_resize`). The header is read first and oversized or empty images are refused
 //! before any pixel is decoded, so memory stays bounded whatever is sent.
 
 use std::io::Cursor;
@@ -91,6 +91,20 @@ pub struct ModelImage {
     pub detail: Option<Detail>,
     /// The focal length its EXIF gives, in the photo's pixels ([`super::exif`]).
     pub exif_focal: Option<f32>,
+    /// The photo at the masks' size ([`Sizes::mask`]); `None` when none was asked.
+    pub guide: Option<RgbImage>,
+}
+
+/// The sizes a photo is decoded to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sizes {
+    /// Side of the model's square input.
+    pub res: u32,
+    /// Long side of the copy registration finds keypoints in (see [`ModelImage::detail`]).
+    pub detail: u32,
+    /// Long side of the masks at the photo's resolution, no larger than the photo's own
+    /// (0: none).
+    pub mask: u32,
 }
 
 /// A copy of a photo and its pixels per original pixel.
@@ -108,14 +122,25 @@ impl ModelImage {
     }
 }
 
-/// Decodes `bytes` (named `name` in errors) and letterboxes it to `res`×`res`; with
-/// `detail` > `res`, also keeps a copy whose long side is at most `detail`.
-pub fn decode(name: &str, bytes: &[u8], res: u32, detail: u32) -> Result<ModelImage, DecodeError> {
+/// Decodes `bytes` (named `name` in errors) and letterboxes it to the model's input; keeps the
+/// copies `sizes` asks for.
+pub fn decode(name: &str, bytes: &[u8], sizes: Sizes) -> Result<ModelImage, DecodeError> {
     let (rgb, exif_focal) = decode_rgb(name, bytes)?;
-    let mut image = letterbox(&rgb, res);
-    image.detail = detail_copy(rgb, res, detail);
+    let mut image = letterbox(&rgb, sizes.res);
+    image.guide = (sizes.mask > 0).then(|| at_most(&rgb, sizes.mask));
+    image.detail = detail_copy(rgb, sizes.res, sizes.detail);
     image.exif_focal = exif_focal;
     Ok(image)
+}
+
+/// `rgb` with its long side scaled down to `long` when longer.
+fn at_most(rgb: &RgbImage, long: u32) -> RgbImage {
+    let (w, h) = rgb.dimensions();
+    if w.max(h) <= long {
+        return rgb.clone();
+    }
+    let s = long as f32 / w.max(h) as f32;
+    resize(rgb, ((w as f32 * s).round() as u32).max(1), ((h as f32 * s).round() as u32).max(1))
 }
 
 /// Decodes to RGB with EXIF orientation applied; with the focal length in pixels that its
@@ -258,12 +283,17 @@ pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
         },
         detail: None,
         exif_focal: None,
+        guide: None,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn sizes(res: u32, detail: u32) -> Sizes {
+        Sizes { res, detail, mask: 0 }
+    }
 
     fn png(w: u32, h: u32) -> Vec<u8> {
         let img = RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 10) as u8, (y * 10) as u8, 200]));
@@ -274,7 +304,7 @@ mod tests {
 
     #[test]
     fn letterboxes_wide_image_into_the_middle() {
-        let m = decode("a.png", &png(20, 10), 10, 0).unwrap();
+        let m = decode("a.png", &png(20, 10), sizes(10, 0)).unwrap();
         assert_eq!(
             m.letterbox,
             Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 }
@@ -293,27 +323,30 @@ mod tests {
     #[test]
     fn keeps_a_detail_copy_only_of_photos_larger_than_the_input() {
         // 40×20 into 10×10 (scale 1/4, 5 rows of padding split 2 above), the detail at 16 wide.
-        let m = decode("a.png", &png(40, 20), 10, 16).unwrap();
+        let m = decode("a.png", &png(40, 20), sizes(10, 16)).unwrap();
         let (copy, per_view, origin) = m.detail_in_model().expect("a detail");
         assert_eq!((copy.dimensions(), per_view, origin), ((16, 8), 1.6, [0.0, 2.0]));
         // Pixel (5, 0) of the 40×20 is (50, 0, 200).
-        let exact = decode("a.png", &png(40, 20), 10, 40).unwrap().detail.unwrap();
+        let exact = decode("a.png", &png(40, 20), sizes(10, 40)).unwrap().detail.unwrap();
         assert_eq!(
             (exact.scale, exact.rgb.get_pixel(5, 0).0),
             (1.0, [50, 0, 200]),
             "no larger than asked: kept as it is"
         );
         assert!(
-            decode("a.png", &png(10, 5), 10, 16).unwrap().detail.is_none(),
+            decode("a.png", &png(10, 5), sizes(10, 16)).unwrap().detail.is_none(),
             "no larger than the input"
         );
-        assert!(decode("a.png", &png(40, 20), 10, 10).unwrap().detail.is_none(), "no detail asked");
+        assert!(
+            decode("a.png", &png(40, 20), sizes(10, 10)).unwrap().detail.is_none(),
+            "no detail asked"
+        );
     }
 
     #[test]
     fn refuses_empty_garbage_and_huge_inputs_by_name() {
-        assert!(matches!(decode("e.png", b"", 8, 0), Err(DecodeError::Empty { .. })));
-        let err = decode("junk.jpg", b"this is not an image", 8, 0).unwrap_err();
+        assert!(matches!(decode("e.png", b"", sizes(8, 0)), Err(DecodeError::Empty { .. })));
+        let err = decode("junk.jpg", b"this is not an image", sizes(8, 0)).unwrap_err();
         assert!(
             matches!(err, DecodeError::Format { .. }) && err.to_string().starts_with("junk.jpg"),
             "{err}"
@@ -324,14 +357,23 @@ mod tests {
         huge[20..24].copy_from_slice(&20000u32.to_be_bytes());
         let crc = crc32fast::hash(&huge[12..29]);
         huge[29..33].copy_from_slice(&crc.to_be_bytes());
-        let err = decode("huge.png", &huge, 8, 0).unwrap_err();
+        let err = decode("huge.png", &huge, sizes(8, 0)).unwrap_err();
         assert!(matches!(err, DecodeError::Size { width: 20000, height: 20000, .. }), "{err}");
         let mut cut = png(16, 16);
         cut.truncate(cut.len() - 30);
-        assert!(matches!(decode("cut.png", &cut, 8, 0), Err(DecodeError::Corrupt { .. })));
-        let err = decode("strip.png", &png(1, 4000), 8, 0).unwrap_err();
+        assert!(matches!(decode("cut.png", &cut, sizes(8, 0)), Err(DecodeError::Corrupt { .. })));
+        let err = decode("strip.png", &png(1, 4000), sizes(8, 0)).unwrap_err();
         assert!(matches!(err, DecodeError::Strip { width: 1, height: 4000, .. }), "{err}");
-        assert!(decode("wide.png", &png(160, 10), 8, 0).is_ok(), "16:1 is still a photo");
+        assert!(decode("wide.png", &png(160, 10), sizes(8, 0)).is_ok(), "16:1 is still a photo");
+    }
+
+    #[test]
+    fn keeps_the_masks_guide_at_most_the_mask_size() {
+        let sized = |mask| Sizes { res: 10, detail: 0, mask };
+        let guide = |bytes: &[u8], mask| decode("a.png", bytes, sized(mask)).unwrap().guide;
+        assert_eq!(guide(&png(40, 20), 16).unwrap().dimensions(), (16, 8));
+        assert_eq!(guide(&png(40, 20), 64).unwrap().dimensions(), (40, 20), "never enlarged");
+        assert!(guide(&png(40, 20), 0).is_none());
     }
 
     /// A 40×20 JPEG whose EXIF says to turn it a quarter clockwise (orientation 6) and that a
@@ -354,12 +396,12 @@ mod tests {
 
     #[test]
     fn turns_a_photo_upright_and_reads_its_focal_length() {
-        let m = decode("t.jpg", &turned_jpeg(), 10, 0).unwrap();
+        let m = decode("t.jpg", &turned_jpeg(), sizes(10, 0)).unwrap();
         assert_eq!((m.letterbox.width, m.letterbox.height), (20, 40), "turned upright");
         // 30 / 43.27 of the 44.7 px diagonal.
         let f = m.exif_focal.unwrap();
         assert!((f - 31.0).abs() < 0.1, "{f}");
-        assert_eq!(decode("a.png", &png(40, 20), 10, 0).unwrap().exif_focal, None);
+        assert_eq!(decode("a.png", &png(40, 20), sizes(10, 0)).unwrap().exif_focal, None);
     }
 
     #[test]

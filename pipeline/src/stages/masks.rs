@@ -2,20 +2,23 @@
 //! pixel's own Gaussian was merged into one clustered Gaussian, whose id it takes (exact at the
 //! pixel's own surface, and the same id in every view that sees that Gaussian), and then each
 //! superpixel takes its pixels' majority id. Novel views are rendered
-//! ([`crate::render_view`]).
+//! ([`crate::render_view`]). Stage "upsample" takes the maps to each photo's resolution
+//! ([`photo_maps`]).
 
 use inssplat_geometry::backproject::BackProjected;
 use inssplat_geometry::voxel::{DROPPED, Voxelized};
 use inssplat_proto::Camera;
 use inssplat_proto::api::{CameraFit, FocalSource, Placement};
 use inssplat_raster::masks::label_map;
+use inssplat_understand::upsample::{LowRes, Placement as Grid, UpsampleParams, upsample_labels};
+use rayon::prelude::*;
 
-use super::decode::ModelImage;
+use super::decode::{Letterbox, ModelImage};
 use super::plane;
 use super::superpixels::Segments;
 use super::vote::voted_maps;
 use crate::backend::ModelOutput;
-use crate::reconstruct::ViewResult;
+use crate::reconstruct::{PhotoMaps, ViewResult};
 
 /// Each input view's instance id map (`pixels` a view).
 pub fn run(
@@ -27,6 +30,59 @@ pub fn run(
     voted_maps(voxelized, per_pixel, segments, pixels)
         .chunks_exact(pixels)
         .map(<[u32]>::to_vec)
+        .collect()
+}
+
+/// Each view's instance and label maps at its photo's resolution (up to the size of the
+/// decode stage's guide, [`ModelImage::guide`]): upsampled along the photo's edges where the
+/// photo has more pixels than its part of the model's input, else sampled at the nearest model
+/// pixel; `None` for a view without a guide.
+pub fn photo_maps(
+    decoded: &[ModelImage],
+    id_maps: &[Vec<u32>],
+    label_of_id: &[Option<usize>],
+    res: usize,
+) -> Vec<Option<PhotoMaps>> {
+    decoded
+        .par_iter()
+        .zip(id_maps)
+        .map(|(d, ids)| {
+            let guide = d.guide.as_ref()?;
+            let (w, h) = guide.dimensions();
+            let lb = &d.letterbox;
+            let at =
+                Grid { origin: [lb.pad_x, lb.pad_y], step: lb.scale * lb.width as f32 / w as f32 };
+            let instance_ids = if at.step >= 1.0 {
+                nearest_map(ids, lb, w, h, res)
+            } else {
+                let px = res * res;
+                let rgb: Vec<u8> = (0..px)
+                    .flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * px + p] * 255.0).round() as u8))
+                    .collect();
+                let lo = LowRes {
+                    labels: ids,
+                    rgb: &rgb,
+                    width: res,
+                    height: res,
+                    rect: lb.photo_rect(),
+                };
+                let params = UpsampleParams::default();
+                upsample_labels(&lo, guide.as_raw(), w as usize, h as usize, at, &params)
+            };
+            let labels = label_map(&instance_ids, label_of_id);
+            Some(PhotoMaps { width: w, height: h, instance_ids, labels })
+        })
+        .collect()
+}
+
+/// A view's `res`² model-resolution map at `w`×`h` over its photo (letterbox `lb`), each photo
+/// pixel taking the model pixel its centre falls in.
+pub fn nearest_map(ids: &[u32], lb: &Letterbox, w: u32, h: u32, res: usize) -> Vec<u32> {
+    let step = lb.scale * lb.width as f32 / w as f32;
+    let cell = |v: u32, o: f32| ((o + (v as f32 + 0.5) * step) as usize).min(res - 1);
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| ids[cell(y, lb.pad_y) * res + cell(x, lb.pad_x)])
         .collect()
 }
 
@@ -49,6 +105,7 @@ pub struct ViewParts<'a> {
 pub fn views(
     decoded: Vec<ModelImage>,
     id_maps: Vec<Vec<u32>>,
+    photo_maps: Vec<Option<PhotoMaps>>,
     parts: &ViewParts<'_>,
 ) -> Vec<ViewResult> {
     let pixels = parts.out.height * parts.out.width;
@@ -58,9 +115,11 @@ pub fn views(
     decoded
         .into_iter()
         .zip(id_maps)
+        .zip(photo_maps)
         .zip(gaussian_maps.chunks_exact(pixels))
         .enumerate()
-        .map(|(v, ((d, ids), gaussians))| ViewResult {
+        .map(|(v, (((d, ids), photo_maps), gaussians))| ViewResult {
+            photo_maps,
             camera: parts.cameras[v],
             placement: parts.placements[v],
             focal: parts.focal[v],
