@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::support::photo::save_jpeg_with_exif;
 use crate::support::s;
 use image::RgbImage;
 use inssplat_e2e::inssplat;
@@ -35,23 +36,10 @@ fn case() -> Case {
 impl Case {
     /// Photo `v` as a JPEG whose EXIF says to turn it a quarter clockwise, though it is upright.
     fn lying_orientation(&mut self, v: usize) {
-        use image::ImageEncoder;
         let photo = image::open(&self.photos[v]).unwrap().to_rgb8();
-        let field = exif::Field {
-            tag: exif::Tag::Orientation,
-            ifd_num: exif::In::PRIMARY,
-            value: exif::Value::Short(vec![6]),
-        };
-        let mut writer = exif::experimental::Writer::new();
-        writer.push_field(&field);
-        let mut raw = std::io::Cursor::new(Vec::new());
-        writer.write(&mut raw, false).unwrap();
         let path = self.root.join(format!("lying{v}.jpg"));
-        let mut file = std::fs::File::create(&path).unwrap();
-        let mut jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut file, 95);
-        jpeg.set_exif_metadata(raw.into_inner()).unwrap();
-        let (w, h) = photo.dimensions();
-        jpeg.write_image(photo.as_raw(), w, h, image::ExtendedColorType::Rgb8).unwrap();
+        let turn = (exif::Tag::Orientation, exif::Value::Short(vec![6]));
+        save_jpeg_with_exif(&photo, &[turn], &path);
         self.photos[v] = path;
     }
 

@@ -72,12 +72,14 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!((ply.status, ply.header("content-type")), (200, Some("application/octet-stream")));
     let gaussians = inssplat_proto::ply::read_ply(&mut std::io::Cursor::new(&ply.body)).unwrap();
     assert_eq!(gaussians.len(), rec.gaussians_kept);
-    for v in 0..4 {
+    for (v, photo) in photos[..4].iter().enumerate() {
+        let photo = image::load_from_memory(photo).unwrap();
         for kind in ["instances", "labels"] {
             let img = server.get(&format!("{base}/views/{v}/{kind}.png"));
             assert_eq!(img.status, 200, "{kind} {v}: {}", img.text());
             let img = image::load_from_memory(&img.body).unwrap();
-            assert_eq!((img.width(), img.height()), (128, 128), "the photo's size");
+            let size = |i: &image::DynamicImage| (i.width(), i.height());
+            assert_eq!(size(&img), size(&photo), "{kind} {v} at the photo's size");
         }
     }
     let preview = server.get(&format!("{base}/preview.png"));

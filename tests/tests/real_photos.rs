@@ -6,8 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::support::photo::save_jpeg_with_exif;
 use crate::support::s;
-use image::ImageEncoder;
 use inssplat_e2e::inssplat;
 use inssplat_proto::api::{FocalSource, QueryResponse, ReconstructResponse};
 
@@ -18,21 +18,9 @@ const FOCAL_35MM: u16 = 48;
 /// `photo` as a JPEG in `dir` whose EXIF says a `FOCAL_35MM` mm-equivalent lens took it.
 fn with_exif(photo: &Path, dir: &Path) -> PathBuf {
     let rgb = image::open(photo).unwrap().to_rgb8();
-    let field = exif::Field {
-        tag: exif::Tag::FocalLengthIn35mmFilm,
-        ifd_num: exif::In::PRIMARY,
-        value: exif::Value::Short(vec![FOCAL_35MM]),
-    };
-    let mut writer = exif::experimental::Writer::new();
-    writer.push_field(&field);
-    let mut raw = std::io::Cursor::new(Vec::new());
-    writer.write(&mut raw, false).unwrap();
     let path = dir.join(photo.with_extension("jpg").file_name().unwrap());
-    let mut file = std::fs::File::create(&path).unwrap();
-    let mut jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut file, 95);
-    jpeg.set_exif_metadata(raw.into_inner()).unwrap();
-    let (w, h) = rgb.dimensions();
-    jpeg.write_image(rgb.as_raw(), w, h, image::ExtendedColorType::Rgb8).unwrap();
+    let focal = (exif::Tag::FocalLengthIn35mmFilm, exif::Value::Short(vec![FOCAL_35MM]));
+    save_jpeg_with_exif(&rgb, &[focal], &path);
     path
 }
 

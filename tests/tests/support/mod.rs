@@ -3,6 +3,7 @@
 //! plumbing, not accuracy) and procedural scenes.
 
 pub mod http;
+pub mod photo;
 pub mod web;
 
 use std::path::{Path, PathBuf};
