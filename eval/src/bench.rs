@@ -250,6 +250,7 @@ pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String 
         .chain(["backproject", "voxelize", "cluster", "vote", "label"])
         .chain(ran("refine").then_some("refine"))
         .chain(["masks"])
+        .chain(ran("upsample").then_some("upsample"))
         .collect();
     let mut out = format!(
         "Median milliseconds per stage ({} runs each, {threads} ONNX Runtime threads; stages on the CPU; GPU: {}). \
