@@ -4,8 +4,8 @@
 //! nerfstudio-style tools, gsplat's and brush's loaders); at each photo's resolution (up to the
 //! mask size) `instances/NNN.png` and `labels/NNN.png` (a colour per instance / label) and
 //! `ids/NNN.png` (the instance ids, 16-bit); `instances.json` and `preview.png` (input | depth |
-//! instances | labels per view, at the model's resolution). Each file is written to a temporary name and renamed, so a crash never leaves a
-//! half-written artefact.
+//! instances | labels per view, at the model's resolution). Each file is written to a
+//! temporary name and renamed, so a crash never leaves a half-written artefact.
 
 use std::path::{Path, PathBuf};
 
@@ -322,7 +322,11 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
     let stages: Vec<String> =
         s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
-    text.push_str(&format!("outputs in {} (scene.ply, transforms.json, images/, ids/, instances/, labels/, instances.json, preview.png)", out.display()));
+    text.push_str(&format!(
+        "outputs in {} (scene.ply, transforms.json, images/, ids/, instances/, labels/, \
+         instances.json, preview.png)",
+        out.display()
+    ));
     text
 }
 

@@ -30,7 +30,12 @@ pub struct PipelineSwitches {
     /// Long side, in pixels, of each view's instance and label maps (`instances/`, `labels/`,
     /// `ids/` and query masks), at most the photo's own: upsampled from the network's
     /// resolution along the photo's edges. 0 keeps the maps at the network's resolution.
-    #[arg(long, env = "INSSPLAT_MASK_SIZE", default_value_t = DEFAULT_MASK_SIZE, value_name = "PIXELS")]
+    #[arg(
+        long,
+        env = "INSSPLAT_MASK_SIZE",
+        default_value_t = DEFAULT_MASK_SIZE,
+        value_name = "PIXELS"
+    )]
     pub mask_size: u32,
     #[command(flatten)]
     pub matcher: MatcherSwitches,

@@ -1,8 +1,9 @@
 //! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
 //! letterboxed to the model's square input; for registration, a copy of a photo larger than
 //! that input at up to `RegisterParams::photo_size` pixels; and the copy at the size of the
-//! masks, which guides their upsampling (all resized by `fast_image_resize`). The header is read first and oversized or empty images are refused
-//! before any pixel is decoded, so memory stays bounded whatever is sent.
+//! masks, which guides their upsampling (all resized by `fast_image_resize`). The header is
+//! read first: other formats (HEIC, TIFF, …) and oversized, empty or strip-shaped images are
+//! refused before any pixel is decoded, so memory stays bounded whatever is sent.
 
 use std::io::Cursor;
 
