@@ -1,8 +1,8 @@
 //! A user's own photos through the real binary with the shipped network: the Middlebury
 //! motorcycle stereo pair (741×500, from the scikit-image wheel that `scripts/setup` unpacks),
 //! saved as a phone would, JPEG with the 35 mm-equivalent focal length in its EXIF. The
-//! cameras take that focal length, the masks come back at the photos' resolution, and the
-//! output folder holds the photos its `transforms.json` names.
+//! cameras take that focal length and the baseline's direction, the masks come back at the
+//! photos' resolution, and the output folder holds the photos its `transforms.json` names.
 
 use std::path::{Path, PathBuf};
 
@@ -54,6 +54,12 @@ fn a_real_stereo_pair_takes_its_exif_focal_length_and_gives_masks_at_its_size() 
         assert!((c.fl_x - 991.7).abs() < 1.0 && c.fl_x == c.fl_y, "{c:?}");
         assert_eq!((c.w, c.h), (741, 500));
     }
+    // The right photo's camera lies to the right of the left one's (nerfstudio axes: x right):
+    // the matches' rays, not the network's depth, tell the sideways step from a turn.
+    let m = &r.cameras[1].transform_matrix;
+    let step = glam::DVec3::new(m[0][3], m[1][3], m[2][3]);
+    let off = step.normalize().dot(glam::DVec3::X).acos().to_degrees();
+    assert!(off < 25.0, "the baseline is {off:.1}° off the true sideways one: {step:?}");
     // Masks, labels and ids at the photo's size, and the ids are the instance table's.
     for v in 0..2 {
         for kind in ["instances", "labels", "ids"] {

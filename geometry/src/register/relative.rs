@@ -6,7 +6,11 @@
 //! error (MSAC). The best is refined on the inliers' reprojection errors in both views
 //! ([`super::joint`]). Reprojection, not 3-D distance, is what is minimised:
 //! a depth that is off by 20% moves a point along its ray, which changes its projection in
-//! the other view only through the parallax of the baseline.
+//! the other view only through the parallax of the baseline. Where the depth is wrong in its
+//! shape (a real photo unlike the training rooms), a yaw and a forward step can fit the matches
+//! lifted by it better than the true sideways step; so a pose from the rays alone is sought
+//! too ([`super::essential`], [`RegisterParams::essential_px`]) and replaces the depth-lifted one
+//! when clearly more matches lie on its epipolar lines.
 
 use glam::{DMat3, DQuat, DVec3, Quat, Vec2, Vec3};
 use inssplat_proto::camera::Intrinsics;
@@ -14,6 +18,7 @@ use rand::Rng;
 use rand::seq::index::sample;
 
 use super::RegisterParams;
+use super::essential::{epipolar_inliers, essential_pose};
 use super::joint::{self, Edge, Focal};
 use crate::rotation::nearest_rotation;
 
@@ -161,6 +166,12 @@ fn fit_rigid(from: &[DVec3], to: &[DVec3]) -> Option<Model> {
     Some(Model { r, t: cb - r * ca })
 }
 
+/// RANSAC hypotheses of the depth-free (essential-matrix) pose.
+const ESSENTIAL_ITERATIONS: usize = 300;
+/// How many times the depth-lifted pose's count of matches on its epipolar lines the
+/// essential-matrix pose must reach (plus 5) to replace it.
+const ESSENTIAL_MARGIN: f64 = 1.5;
+
 /// Hypotheses that draw at least one all-inlier triple with 99% probability when a share `w`
 /// of the matches are inliers (the standard adaptive RANSAC bound, at least 16).
 fn iterations_for(w: f64) -> usize {
@@ -211,8 +222,20 @@ pub fn relative_pose(
     let (_, model) = best?;
     let mut given = Focal::GIVEN;
     let (model, _) = refine_pair(model, corr, ki, kj, &mut given, tau, params);
-    let inliers: Vec<Correspondence> =
+    let mut inliers: Vec<Correspondence> =
         corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
+    let mut model = model;
+    if params.essential_px > 0.0 {
+        // The depth-free hypothesis, where the matches' rays agree with it clearly better.
+        let (f, tau_e) = (ki.fx as f64, params.essential_px as f64);
+        let depth_fits = epipolar_inliers(&model, corr, f, tau_e);
+        if let Some((m, idx)) = essential_pose(corr, f, tau_e, ESSENTIAL_ITERATIONS, rng)
+            && idx.len() as f64 > ESSENTIAL_MARGIN * depth_fits as f64 + 5.0
+        {
+            model = m;
+            inliers = idx.iter().map(|&k| corr[k]).collect();
+        }
+    }
     (inliers.len() >= params.min_inliers)
         .then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
 }
@@ -389,6 +412,43 @@ mod tests {
             "the given focal length bent the rotation by only {}°",
             angle_deg(pose.rotation, r)
         );
+    }
+
+    #[test]
+    fn a_sideways_step_survives_a_depth_of_the_wrong_shape() {
+        // A stereo pair (camera j 0.3 m to the right, not turned) over points 1.5–6 m away,
+        // whose predicted depth has the wrong shape (the near far and the far near): the
+        // depth-lifted fit takes a turn and a step forward for the sideways step; the
+        // matches' rays alone do not.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let t = Vec3::new(-0.3, 0.0, 0.0);
+        let lift = |p: Vec2, z: f32| {
+            let k = k();
+            Vec3::new((p.x - k.cx) / k.fx * z, (p.y - k.cy) / k.fy * z, z)
+        };
+        let corr: Vec<Correspondence> = (0..150)
+            .map(|_| {
+                let z = rng.random_range(1.5..6.0);
+                let pi =
+                    Vec3::new(rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6), 1.0) * z;
+                let (a, b) = (project(pi), project(pi + t));
+                Correspondence {
+                    pixel_i: a,
+                    point_i: lift(a, 7.5 - z),
+                    pixel_j: b,
+                    point_j: lift(b, 7.5 - z),
+                }
+            })
+            .collect();
+        let off = |params: &RegisterParams, rng: &mut ChaCha8Rng| {
+            let (pose, _) = relative_pose(&corr, &k(), &k(), params, rng).expect("a pose");
+            pose.translation.normalize().dot(t.normalize()).clamp(-1.0, 1.0).acos().to_degrees()
+        };
+        let rays = off(&RegisterParams::default(), &mut rng);
+        assert!(rays < 3.0, "the baseline is {rays}° off");
+        let depth_only =
+            off(&RegisterParams { essential_px: 0.0, ..RegisterParams::default() }, &mut rng);
+        assert!(depth_only > 10.0, "the depth-lifted fit alone was {depth_only}° off: no test");
     }
 
     #[test]
