@@ -50,8 +50,12 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .with_context(|| format!("cannot rename {} to {}", tmp.display(), path.display()))
 }
 
-/// `img` encoded as PNG in memory.
-pub fn png_bytes(img: &RgbImage) -> Vec<u8> {
+/// `img` (RGB, grey, 8 or 16 bits) encoded as PNG in memory.
+pub fn png_bytes<P>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, image::ImageFormat::Png)
         .expect("PNG encoding into memory cannot fail");
@@ -75,13 +79,9 @@ pub fn colour_map(
 
 /// A view's instance ids as a 16-bit grey PNG (ids past 65535 saturate).
 fn id_png(m: &PhotoMaps) -> Vec<u8> {
-    let ids = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(m.width, m.height, |x, y| {
+    png_bytes(&image::ImageBuffer::<image::Luma<u16>, _>::from_fn(m.width, m.height, |x, y| {
         image::Luma([m.instance_ids[(y * m.width + x) as usize].min(u32::from(u16::MAX)) as u16])
-    });
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    ids.write_to(&mut bytes, image::ImageFormat::Png)
-        .expect("PNG encoding into memory cannot fail");
-    bytes.into_inner()
+    }))
 }
 
 /// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.

@@ -14,7 +14,7 @@ use inssplat_text::LabelCache;
 use inssplat_understand::label::{QueryRule, query};
 use rayon::prelude::*;
 
-use crate::output::write_atomic;
+use crate::output::{png_bytes, write_atomic};
 use crate::reconstruct::{max_instance_id, own_label_scores};
 use crate::saved::Saved;
 
@@ -73,16 +73,13 @@ pub fn run_query(
     let mut matches = Vec::new();
     for hit in &hits {
         let mut masks = Vec::new();
-        for (view, (w, h, map)) in maps.iter().enumerate() {
-            let (w, h) = (*w, *h);
+        for (view, &(w, h, ref map)) in maps.iter().enumerate() {
             let mask = ids_mask(map, &[hit.id]);
             let img = GrayImage::from_fn(w, h, |x, y| {
                 Luma([if mask[(y * w + x) as usize] { 255 } else { 0 }])
             });
-            let mut bytes = std::io::Cursor::new(Vec::new());
-            img.write_to(&mut bytes, image::ImageFormat::Png)?;
             let path = dir.join(format!("id{}_view{view:03}.png", hit.id));
-            write_atomic(&path, bytes.get_ref())?;
+            write_atomic(&path, &png_bytes(&img))?;
             masks.push(ViewMask {
                 view,
                 png_url: path.display().to_string(),

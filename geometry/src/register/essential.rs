@@ -81,19 +81,8 @@ fn decompose(e: &Matrix3<f64>, corr: &[Correspondence], of: &[usize]) -> Option<
         vt = -vt;
     }
     let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
-    let to_glam = |m: Matrix3<f64>| {
-        DMat3::from_cols_array(&[
-            m[(0, 0)],
-            m[(1, 0)],
-            m[(2, 0)],
-            m[(0, 1)],
-            m[(1, 1)],
-            m[(2, 1)],
-            m[(0, 2)],
-            m[(1, 2)],
-            m[(2, 2)],
-        ])
-    };
+    // nalgebra stores column-major, as glam's column arrays are.
+    let to_glam = |m: Matrix3<f64>| DMat3::from_cols_slice(m.as_slice());
     let t = DVec3::new(u[(0, 2)], u[(1, 2)], u[(2, 2)]);
     [u * w * vt, u * w.transpose() * vt]
         .into_iter()
@@ -130,11 +119,13 @@ pub(super) fn essential_pose(
             best = Some((cost, e));
         }
     }
+    let inliers_of = |e: &Matrix3<f64>| -> Vec<usize> {
+        (0..corr.len()).filter(|&k| sampson2(e, &corr[k]) < tau2).collect()
+    };
     let (_, e) = best?;
-    let inliers: Vec<usize> = (0..corr.len()).filter(|&k| sampson2(&e, &corr[k]) < tau2).collect();
     // Once more on all the inliers.
-    let e = eight_point(corr, inliers.iter().copied())?;
-    let inliers: Vec<usize> = (0..corr.len()).filter(|&k| sampson2(&e, &corr[k]) < tau2).collect();
+    let e = eight_point(corr, inliers_of(&e).into_iter())?;
+    let inliers = inliers_of(&e);
     let (r, t) = decompose(&e, corr, &inliers)?;
     let mut ratios: Vec<f64> = inliers
         .iter()
@@ -154,16 +145,8 @@ pub(super) fn epipolar_inliers(m: &Model, corr: &[Correspondence], focal: f64, t
     if t.length() < 1e-9 {
         return 0;
     }
-    let tx = DMat3::from_cols(
-        DVec3::new(0.0, t.z, -t.y),
-        DVec3::new(-t.z, 0.0, t.x),
-        DVec3::new(t.y, -t.x, 0.0),
-    );
-    let e = tx * m.r;
-    let e = Matrix3::new(
-        e.x_axis.x, e.y_axis.x, e.z_axis.x, e.x_axis.y, e.y_axis.y, e.z_axis.y, e.x_axis.z,
-        e.y_axis.z, e.z_axis.z,
-    ) / t.length();
+    let t = nalgebra::Vector3::new(t.x, t.y, t.z) / t.length();
+    let e = t.cross_matrix() * Matrix3::from_column_slice(&m.r.to_cols_array());
     let tau2 = (tau / focal).powi(2);
     corr.iter().filter(|c| sampson2(&e, c) < tau2).count()
 }

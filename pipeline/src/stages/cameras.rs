@@ -56,12 +56,8 @@ pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
 }
 
 /// The cameras predicted by the network, each view's focal length replaced by its photo's
-/// EXIF where it has one; with where each came from (`otherwise` where not from EXIF).
-fn with_exif(
-    mut cameras: Vec<Camera>,
-    decoded: &[ModelImage],
-    otherwise: FocalSource,
-) -> (Vec<Camera>, Vec<FocalSource>) {
+/// EXIF where it has one; with where each came from.
+fn with_exif(mut cameras: Vec<Camera>, decoded: &[ModelImage]) -> (Vec<Camera>, Vec<FocalSource>) {
     let sources = cameras
         .iter_mut()
         .zip(decoded)
@@ -71,7 +67,7 @@ fn with_exif(
                 (cam.intrinsics.fx, cam.intrinsics.fy) = (model_px, model_px);
                 FocalSource::Exif
             }
-            None => otherwise,
+            None => FocalSource::CameraHead,
         })
         .collect();
     (cameras, sources)
@@ -101,15 +97,14 @@ pub fn run(
     let params = match (known, params) {
         (Some(poses), _) => return given(poses, decoded.len()),
         (None, None) => {
-            let (predicted, focal) =
-                with_exif(predicted_cameras(out), decoded, FocalSource::CameraHead);
+            let (predicted, focal) = with_exif(predicted_cameras(out), decoded);
             return Ok(camera_head(predicted, focal));
         }
         (None, Some(params)) => params,
     };
     // A focal length from EXIF is the photo's own: the one measured from the matches, shared by
     // every view, is not sought when any view has one.
-    let (predicted, exif) = with_exif(predicted_cameras(out), decoded, FocalSource::CameraHead);
+    let (predicted, exif) = with_exif(predicted_cameras(out), decoded);
     let any_exif = exif.contains(&FocalSource::Exif);
     clock.time("register", || -> Result<Cameras, PipelineError> {
         let pixels = out.height * out.width;

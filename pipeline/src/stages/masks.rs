@@ -50,15 +50,11 @@ pub fn photo_maps(
             let guide = d.guide.as_ref()?;
             let (w, h) = guide.dimensions();
             let lb = &d.letterbox;
-            let at =
-                Grid { origin: [lb.pad_x, lb.pad_y], step: lb.scale * lb.width as f32 / w as f32 };
+            let at = grid(lb, w);
             let instance_ids = if at.step >= 1.0 {
                 nearest_map(ids, lb, w, h, res)
             } else {
-                let px = res * res;
-                let rgb: Vec<u8> = (0..px)
-                    .flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * px + p] * 255.0).round() as u8))
-                    .collect();
+                let rgb = rgb8(&d.planar, res * res);
                 let lo = LowRes {
                     labels: ids,
                     rgb: &rgb,
@@ -78,11 +74,23 @@ pub fn photo_maps(
 /// A view's `res`² model-resolution map at `w`×`h` over its photo (letterbox `lb`), each photo
 /// pixel taking the model pixel its centre falls in.
 pub fn nearest_map(ids: &[u32], lb: &Letterbox, w: u32, h: u32, res: usize) -> Vec<u32> {
-    let step = lb.scale * lb.width as f32 / w as f32;
-    let cell = |v: u32, o: f32| ((o + (v as f32 + 0.5) * step) as usize).min(res - 1);
+    let at = grid(lb, w);
+    let cell = |v: u32, o: f32| ((o + (v as f32 + 0.5) * at.step) as usize).min(res - 1);
     (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| ids[cell(y, lb.pad_y) * res + cell(x, lb.pad_x)])
+        .map(|(x, y)| ids[cell(y, at.origin[1]) * res + cell(x, at.origin[0])])
+        .collect()
+}
+
+/// Where the pixels of a photo map `w` wide fall in the model's grid (letterbox `lb`).
+fn grid(lb: &Letterbox, w: u32) -> Grid {
+    Grid { origin: [lb.pad_x, lb.pad_y], step: lb.scale * lb.width as f32 / w as f32 }
+}
+
+/// A planar `[3][pixels]` image in [0, 1] as interleaved 8-bit RGB.
+fn rgb8(planar: &[f32], pixels: usize) -> Vec<u8> {
+    (0..pixels)
+        .flat_map(|p| [0, 1, 2].map(|c| (planar[c * pixels + p] * 255.0).round() as u8))
         .collect()
 }
 
@@ -129,9 +137,7 @@ pub fn views(
             instance_ids: ids,
             gaussians: gaussians.to_vec(),
             depth: parts.out.depth[plane(1, pixels, v)].to_vec(),
-            rgb: (0..pixels)
-                .flat_map(|p| [0, 1, 2].map(|c| (d.planar[c * pixels + p] * 255.0).round() as u8))
-                .collect(),
+            rgb: rgb8(&d.planar, pixels),
         })
         .collect()
 }
