@@ -15,6 +15,7 @@ pub mod photos;
 mod progress;
 pub mod query_rules;
 pub mod scene;
+pub mod stereo;
 pub mod sweep;
 mod targets;
 pub mod views;

@@ -34,6 +34,37 @@ enum Command {
     Score(Box<ScoreArgs>),
     /// Time the pipeline per stage at several view counts on one scene.
     Bench(BenchArgs),
+    /// Score what `inssplat reconstruct` made of a rectified stereo pair against its true
+    /// disparity: the first view's depth (AbsRel at the median scale; depth ∝ 1 / (disparity
+    /// + doffs)) and the registered baseline's direction.
+    Stereo(StereoArgs),
+}
+
+/// A reconstructed stereo pair and its truth.
+#[derive(Args)]
+struct StereoArgs {
+    /// Output folder of `inssplat reconstruct` on the pair, the left photo first.
+    out: PathBuf,
+    /// The left photo's true disparity: a .npz whose first array is float32 `[H][W]`, unknown
+    /// where not finite or not positive.
+    #[arg(long)]
+    disparity: PathBuf,
+    /// Disparity between the two principal points (Middlebury's `doffs`), photo pixels.
+    #[arg(long, default_value_t = 0.0)]
+    doffs: f64,
+    /// Print the JSON report instead of the text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn run_stereo(args: StereoArgs) -> anyhow::Result<()> {
+    let s = inssplat_eval::stereo::score(&args.out, &args.disparity, args.doffs)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+    } else {
+        println!("{}", inssplat_eval::stereo::describe(&s));
+    }
+    Ok(())
 }
 
 /// The network and the threads it runs on.
@@ -448,5 +479,6 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Score(args) => score(*args),
         Command::Bench(args) => run_bench(args),
+        Command::Stereo(args) => run_stereo(args),
     }
 }

@@ -9,6 +9,7 @@ pub mod backend;
 pub mod inputs;
 pub mod matcher;
 pub mod output;
+pub mod photo_depth;
 pub mod query;
 pub mod reconstruct;
 pub mod render_view;

@@ -3,7 +3,8 @@
 //! convention, naming those photos relative to itself, so the folder opens as it is in
 //! nerfstudio-style tools, gsplat's and brush's loaders); at each photo's resolution (up to the
 //! mask size) `instances/NNN.png` and `labels/NNN.png` (a colour per instance / label) and
-//! `ids/NNN.png` (the instance ids, 16-bit); `instances.json` and `preview.png` (input | depth |
+//! `ids/NNN.png` (the instance ids, 16-bit); at each photo's own resolution `depth/NNN.png`
+//! (16-bit millimetres, named by `transforms.json`); `instances.json` and `preview.png` (input | depth |
 //! instances | labels per view, at the model's resolution). Each file is written to a
 //! temporary name and renamed, so a crash never leaves a half-written artefact.
 
@@ -14,10 +15,11 @@ use image::{Rgb, RgbImage};
 use inssplat_proto::api::{
     CameraFit, CameraOut, FocalSource, InstanceOut, Placement, ReconstructResponse, RefinementOut,
 };
-use inssplat_proto::dataset::{FrameJson, TransformsJson};
+use inssplat_proto::dataset::{DEFAULT_DEPTH_UNIT_M, FrameJson, TransformsJson};
 use inssplat_raster::masks::NO_LABEL;
 use serde::{Deserialize, Serialize};
 
+use crate::photo_depth::{depth_png, photo_depth};
 use crate::reconstruct::{InputImage, PhotoMaps, Reconstruction};
 use crate::stages::decode::portable_photo;
 
@@ -158,7 +160,7 @@ pub fn write_reconstruction(
     photos: &[InputImage],
     out: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
-    for sub in ["images", "ids", "instances", "labels"] {
+    for sub in ["images", "depth", "ids", "instances", "labels"] {
         std::fs::create_dir_all(out.join(sub))
             .with_context(|| format!("cannot create {}", out.join(sub).display()))?;
     }
@@ -170,20 +172,26 @@ pub fn write_reconstruction(
     written.push(path);
 
     let mut names = Vec::with_capacity(photos.len());
-    for (i, photo) in photos.iter().enumerate() {
+    for (i, (photo, v)) in photos.iter().zip(&rec.views).enumerate() {
         let (bytes, ext) = portable_photo(&photo.name, &photo.bytes)?;
         let name = format!("images/{i:03}.{ext}");
         let path = out.join(&name);
         write_atomic(&path, &bytes)?;
         written.push(path);
-        names.push(name);
+        let lb = &v.letterbox;
+        let depth = photo_depth(&v.depth, v.camera.intrinsics.width, lb);
+        let depth_name = format!("depth/{i:03}.png");
+        let path = out.join(&depth_name);
+        write_atomic(&path, &depth_png(lb.width, lb.height, &depth))?;
+        written.push(path);
+        names.push((name, depth_name));
     }
     let frames = cameras_out(rec)
         .into_iter()
         .zip(names)
-        .map(|(c, file_path)| FrameJson {
+        .map(|(c, (file_path, depth_file_path))| FrameJson {
             file_path,
-            depth_file_path: None,
+            depth_file_path: Some(depth_file_path),
             instance_file_path: None,
             transform_matrix: c.transform_matrix,
             fl_x: Some(f64::from(c.fl_x)),
@@ -202,7 +210,7 @@ pub fn write_reconstruction(
         cy: None,
         w: None,
         h: None,
-        depth_unit_m: None,
+        depth_unit_m: Some(DEFAULT_DEPTH_UNIT_M),
         instances: Vec::new(),
         frames,
         eval: None,
@@ -323,7 +331,7 @@ pub fn describe(s: &ReconstructResponse, out: &Path) -> String {
         s.timings.iter().map(|t| format!("{} {:.0} ms", t.stage, t.ms)).collect();
     text.push_str(&format!("time {total:.0} ms: {}\n", stages.join(", ")));
     text.push_str(&format!(
-        "outputs in {} (scene.ply, transforms.json, images/, ids/, instances/, labels/, \
+        "outputs in {} (scene.ply, transforms.json, images/, depth/, ids/, instances/, labels/, \
          instances.json, preview.png)",
         out.display()
     ));

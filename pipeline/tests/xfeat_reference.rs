@@ -34,7 +34,7 @@ fn crop(name: &str) -> Grey {
     let dir = std::env::var_os("INSSPLAT_PHOTOS_DIR")
         .map(PathBuf::from)
         .expect("INSSPLAT_PHOTOS_DIR (set by `source .deps/env` after scripts/setup)");
-    let path = dir.join(name);
+    let path = dir.join("motorcycle").join(name);
     let rgb = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgb8();
     let (width, height) = (736, 480);
     let data = (0..height)

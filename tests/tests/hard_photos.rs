@@ -103,7 +103,7 @@ fn a_photo_of_something_else_is_not_registered() {
     let other = std::env::var_os("INSSPLAT_PHOTOS_DIR")
         .map(PathBuf::from)
         .expect("INSSPLAT_PHOTOS_DIR (set by `source .deps/env` after scripts/setup)");
-    c.photos[6] = other.join("motorcycle_left.png");
+    c.photos[6] = other.join("motorcycle/motorcycle_left.png");
     let r = c.reconstruct();
     assert_ne!(r.cameras[6].placement, Some(Placement::Registered), "{:?}", r.cameras[6]);
     assert!(warned(&r, "view 6: no keypoint match links it"), "{:?}", r.warnings);

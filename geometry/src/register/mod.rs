@@ -371,7 +371,11 @@ fn continued_motion(prev: &Camera, last: &Camera) -> (Quat, Vec3) {
 
 /// Refines all chained poses at once on every pair within a component (each component's root
 /// stays), gating matches at [`JOINT_GATE`] × the inlier threshold: a chain's drift may have
-/// moved a pair's inliers beyond it.
+/// moved a pair's inliers beyond it. The refinement lifts the matches by the depth, so the pairs
+/// whose pose the depth-free hypothesis gave (the depth there disagreeing with the rays) take no
+/// part: they would pull their pose back to the depth's (on the Middlebury aloe pair, from the
+/// true sideways baseline to 96° off it), and a view that only such pairs reach keeps its
+/// chained pose.
 /// Returns the focal multiplier, refined with the poses when `focal` is free.
 fn refine_jointly(
     cameras: &mut [Camera],
@@ -382,7 +386,8 @@ fn refine_jointly(
 ) -> f64 {
     let edges: Vec<Edge<'_>> = pairs
         .iter()
-        .filter(|p| p.pose.is_some() && component[p.i] == component[p.j])
+        .filter(|p| p.pose.is_some_and(|pose| !pose.depth_free))
+        .filter(|p| component[p.i] == component[p.j])
         .map(|p| Edge {
             i: p.i,
             j: p.j,
@@ -395,7 +400,8 @@ fn refine_jointly(
         .iter()
         .map(|c| Model { r: DMat3::from_quat(c.rotation.as_dquat()), t: c.translation.as_dvec3() })
         .collect();
-    let free: Vec<bool> = component.iter().enumerate().map(|(v, c)| *c != v).collect();
+    let linked = |v: usize| edges.iter().any(|e| e.i == v || e.j == v);
+    let free: Vec<bool> = component.iter().enumerate().map(|(v, c)| *c != v && linked(v)).collect();
     let tau = params.inlier_px as f64;
     joint::refine(
         &mut poses,

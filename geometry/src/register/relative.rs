@@ -48,14 +48,17 @@ pub struct RelativePose {
     pub rotation: Quat,
     pub translation: Vec3,
     pub inliers: usize,
+    /// Found from the matches' rays alone (the essential matrix), the depth disagreeing.
+    pub depth_free: bool,
 }
 
 impl RelativePose {
-    fn of_model(m: &Model, inliers: usize) -> Self {
+    fn of_model(m: &Model, inliers: usize, depth_free: bool) -> Self {
         Self {
             rotation: DQuat::from_mat3(&m.r).normalize().as_quat(),
             translation: m.t.as_vec3(),
             inliers,
+            depth_free,
         }
     }
 
@@ -66,7 +69,7 @@ impl RelativePose {
     /// The pose of the opposite direction (camera j → camera i).
     pub fn inverse(&self) -> Self {
         let rotation = self.rotation.conjugate();
-        Self { rotation, translation: -(rotation * self.translation), inliers: self.inliers }
+        Self { rotation, translation: -(rotation * self.translation), ..*self }
     }
 }
 
@@ -225,6 +228,7 @@ pub fn relative_pose(
     let mut inliers: Vec<Correspondence> =
         corr.iter().filter(|c| pair.error2(&model, c) < tau * tau).copied().collect();
     let mut model = model;
+    let mut depth_free = false;
     if params.essential_px > 0.0 {
         // The depth-free hypothesis, where the matches' rays agree with it clearly better.
         let (f, tau_e) = (ki.fx as f64, params.essential_px as f64);
@@ -234,10 +238,11 @@ pub fn relative_pose(
         {
             model = m;
             inliers = idx.iter().map(|&k| corr[k]).collect();
+            depth_free = true;
         }
     }
     (inliers.len() >= params.min_inliers)
-        .then(|| (RelativePose::of_model(&model, inliers.len()), inliers))
+        .then(|| (RelativePose::of_model(&model, inliers.len(), depth_free), inliers))
 }
 
 /// Gauss–Newton on one pair's matches from `model`, with `focal` (refined when free), on the
