@@ -3,8 +3,8 @@
 //! convention, naming those photos relative to itself, so the folder opens as it is in
 //! nerfstudio-style tools, gsplat's and brush's loaders); at each photo's resolution (up to the
 //! mask size) `instances/NNN.png` and `labels/NNN.png` (a colour per instance / label) and
-//! `ids/NNN.png` (the instance ids, 16-bit); at each photo's own resolution `depth/NNN.png`
-//! (16-bit millimetres, named by `transforms.json`); `instances.json` and `preview.png` (input | depth |
+//! `ids/NNN.png` (the instance ids, 16-bit) and `depth/NNN.png` (16-bit millimetres, named by
+//! `transforms.json`); `instances.json` and `preview.png` (input | depth |
 //! instances | labels per view, at the model's resolution). Each file is written to a
 //! temporary name and renamed, so a crash never leaves a half-written artefact.
 
@@ -20,7 +20,7 @@ use inssplat_raster::masks::NO_LABEL;
 use serde::{Deserialize, Serialize};
 
 use crate::photo_depth::{depth_png, photo_depth};
-use crate::reconstruct::{InputImage, PhotoMaps, Reconstruction};
+use crate::reconstruct::{InputImage, PhotoMaps, Reconstruction, ViewResult};
 use crate::stages::decode::portable_photo;
 
 /// A distinct colour for index `i` (golden-angle hues); index 0 is black ("none").
@@ -84,6 +84,20 @@ fn id_png(m: &PhotoMaps) -> Vec<u8> {
     png_bytes(&image::ImageBuffer::<image::Luma<u16>, _>::from_fn(m.width, m.height, |x, y| {
         image::Luma([m.instance_ids[(y * m.width + x) as usize].min(u32::from(u16::MAX)) as u16])
     }))
+}
+
+/// A view's depth as `depth/NNN.png` holds it: at the size of its masks over the photo, or
+/// the photo at the model's scale when they have none.
+fn view_depth_png(v: &ViewResult) -> Vec<u8> {
+    let lb = &v.letterbox;
+    let size = match &v.photo_maps {
+        Some(m) => (m.width, m.height),
+        None => {
+            let side = |n: u32| ((n as f32 * lb.scale).round() as u32).max(1);
+            (side(lb.width), side(lb.height))
+        }
+    };
+    depth_png(size.0, size.1, &photo_depth(&v.depth, v.camera.intrinsics.width, lb, size))
 }
 
 /// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.
@@ -178,11 +192,9 @@ pub fn write_reconstruction(
         let path = out.join(&name);
         write_atomic(&path, &bytes)?;
         written.push(path);
-        let lb = &v.letterbox;
-        let depth = photo_depth(&v.depth, v.camera.intrinsics.width, lb);
         let depth_name = format!("depth/{i:03}.png");
         let path = out.join(&depth_name);
-        write_atomic(&path, &depth_png(lb.width, lb.height, &depth))?;
+        write_atomic(&path, &view_depth_png(v))?;
         written.push(path);
         names.push((name, depth_name));
     }

@@ -1,6 +1,7 @@
-//! A view's depth at its photo's resolution, as the output folder's `depth/NNN.png` holds it:
-//! the model's map without the letterbox, sampled bilinearly at each photo pixel's centre
-//! from the pixels that have a depth, in the dataset format's 16-bit millimetres.
+//! A view's depth over its photo, as the output folder's `depth/NNN.png` holds it (at the size
+//! of the view's masks: the photo's, up to the mask size): the model's map without the
+//! letterbox, sampled bilinearly at each pixel's centre from the model pixels that have a
+//! depth, in the dataset format's 16-bit millimetres.
 
 use image::{ImageBuffer, Luma};
 use inssplat_proto::dataset::DEFAULT_DEPTH_UNIT_M;
@@ -8,46 +9,51 @@ use rayon::prelude::*;
 
 use crate::stages::decode::Letterbox;
 
-/// `depth`, the model's `res`×`res` map of a photo placed by `lb`, at the photo's
-/// `lb.width`×`lb.height`; 0 where no model pixel near has a depth.
-pub fn photo_depth(depth: &[f32], res: u32, lb: &Letterbox) -> Vec<f32> {
+/// `depth`, the model's `res`×`res` map of a photo placed by `lb`, over the photo at
+/// `size` (its own size, or smaller with its shape); 0 where no model pixel near has a depth.
+pub fn photo_depth(depth: &[f32], res: u32, lb: &Letterbox, size: (u32, u32)) -> Vec<f32> {
     let [x0, y0, x1, y1] = lb.photo_rect();
     let (last_x, last_y) = (x1.max(x0 + 1) - 1, y1.max(y0 + 1) - 1);
+    // Where an output pixel's centre falls in the model's grid along one axis, kept inside the
+    // photo: the two model pixels either side and the weight of the second.
+    let taps = |n: u32, photo: u32, pad: f32, lo: u32, hi: u32| -> Vec<(u32, u32, f32)> {
+        let step = photo as f32 / n as f32 * lb.scale;
+        (0..n)
+            .map(|p| {
+                let m = ((p as f32 + 0.5) * step + pad - 0.5).clamp(lo as f32, hi as f32);
+                let a = m.floor() as u32;
+                (a, (a + 1).min(hi), m - a as f32)
+            })
+            .collect()
+    };
+    let (w, h) = size;
+    let columns = taps(w, lb.width, lb.pad_x, x0, last_x);
+    let rows = taps(h, lb.height, lb.pad_y, y0, last_y);
     let at = |x: u32, y: u32| {
         let d = depth[(y * res + x) as usize];
-        (d.is_finite() && d > 0.0).then_some(d)
+        if d.is_finite() && d > 0.0 { d } else { 0.0 }
     };
-    // Model coordinate of a photo pixel's centre along one axis, kept inside the photo.
-    let model = |p: u32, pad: f32, lo: u32, hi: u32| {
-        ((p as f32 + 0.5) * lb.scale + pad - 0.5).clamp(lo as f32, hi as f32)
-    };
-    let (w, h) = (lb.width as usize, lb.height as usize);
-    let mut out = vec![0.0; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(py, row)| {
-        let my = model(py as u32, lb.pad_y, y0, last_y);
-        let (ya, fy) = (my.floor() as u32, my.fract());
-        let yb = (ya + 1).min(last_y);
-        for (px, d) in row.iter_mut().enumerate() {
-            let mx = model(px as u32, lb.pad_x, x0, last_x);
-            let (xa, fx) = (mx.floor() as u32, mx.fract());
-            let xb = (xa + 1).min(last_x);
-            let taps = [
+    let mut out = vec![0.0; (w * h) as usize];
+    out.par_chunks_mut(w as usize).zip(&rows).for_each(|(row, &(ya, yb, fy))| {
+        for (d, &(xa, xb, fx)) in row.iter_mut().zip(&columns) {
+            let corners = [
                 (at(xa, ya), (1.0 - fx) * (1.0 - fy)),
                 (at(xb, ya), fx * (1.0 - fy)),
                 (at(xa, yb), (1.0 - fx) * fy),
                 (at(xb, yb), fx * fy),
             ];
-            let (sum, weight) = taps
+            // Pixels without a depth take no part: the rest's weights are renormalised.
+            let (sum, weight) = corners
                 .iter()
-                .filter_map(|&(d, wt)| d.map(|d| (d * wt, wt)))
-                .fold((0.0, 0.0), |(s, t), (dw, wt)| (s + dw, t + wt));
+                .filter(|(d, _)| *d > 0.0)
+                .fold((0.0, 0.0), |(s, t), &(d, wt)| (s + d * wt, t + wt));
             *d = if weight > 1e-6 { sum / weight } else { 0.0 };
         }
     });
     out
 }
 
-/// A photo-sized depth map as a 16-bit grey PNG in [`DEFAULT_DEPTH_UNIT_M`] steps (0: no
+/// A depth map as a 16-bit grey PNG in [`DEFAULT_DEPTH_UNIT_M`] steps (0: no
 /// depth; depths past 65.535 m saturate).
 pub fn depth_png(width: u32, height: u32, depth: &[f32]) -> Vec<u8> {
     let steps = |d: f32| (f64::from(d) / DEFAULT_DEPTH_UNIT_M).round().clamp(0.0, 65535.0) as u16;
@@ -68,7 +74,7 @@ mod tests {
         depth[2 * 4 + 3] = 0.0;
         depth[0] = 99.0; // padding: never sampled
         let lb = Letterbox { width: 8, height: 4, scale: 0.5, pad_x: 0.0, pad_y: 1.0 };
-        let d = photo_depth(&depth, 4, &lb);
+        let d = photo_depth(&depth, 4, &lb, (8, 4));
         assert_eq!(d.len(), 32);
         // Photo pixel (2, 0) is model (0.75, 1.0): between columns 0 and 1 of row 1.
         assert!((d[2] - 1.75).abs() < 1e-5, "{}", d[2]);
@@ -78,5 +84,8 @@ mod tests {
         assert!((d[3 * 8 + 6] - 3.0).abs() < 1e-5, "{}", d[3 * 8 + 6]);
         assert_eq!(d[3 * 8 + 7], 0.0);
         assert!(d.iter().all(|&x| x < 10.0), "the padding leaked in");
+        // At half the photo's size each pixel stands for two: pixel (1, 0) for photo (3, 1).
+        let half = photo_depth(&depth, 4, &lb, (4, 2));
+        assert!((half[1] - 2.0).abs() < 1e-5, "{}", half[1]);
     }
 }

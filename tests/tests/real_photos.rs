@@ -108,15 +108,17 @@ fn every_real_photo_set_reconstructs_with_its_depth_and_masks_at_its_photos_size
             // Registered (or the reference), or the user is told that its pose is a guess.
             let warned = r.warnings.iter().any(|w| w.starts_with(&format!("view {v}:")));
             assert!(registered(c) || warned, "{photo:?}: {c:?}");
-            let depth = image::open(out.join(format!("depth/{v:03}.png"))).unwrap().into_luma16();
-            assert_eq!(depth.dimensions(), (w, h), "{photo:?}");
-            let covered = depth.pixels().filter(|p| p[0] > 0).count();
-            assert!(covered > (w * h) as usize * 9 / 10, "{photo:?}: depth at {covered} pixels");
-            // The ids at the photo's size, up to the default mask size's long side of 1024.
-            let ids = image::open(out.join(format!("ids/{v:03}.png"))).unwrap();
+            // Depth and ids at the photo's size, up to the default mask size's long side of
+            // 1024.
             let scale = (1024.0 / w.max(h) as f32).min(1.0);
-            let expected = ((w as f32 * scale).round() as u32, (h as f32 * scale).round() as u32);
-            assert_eq!((ids.width(), ids.height()), expected, "{photo:?}");
+            let size = ((w as f32 * scale).round() as u32, (h as f32 * scale).round() as u32);
+            let depth = image::open(out.join(format!("depth/{v:03}.png"))).unwrap().into_luma16();
+            assert_eq!(depth.dimensions(), size, "{photo:?}");
+            let covered = depth.pixels().filter(|p| p[0] > 0).count();
+            let all = (size.0 * size.1) as usize;
+            assert!(covered > all * 9 / 10, "{photo:?}: depth at {covered} of {all} pixels");
+            let ids = image::open(out.join(format!("ids/{v:03}.png"))).unwrap();
+            assert_eq!((ids.width(), ids.height()), size, "{photo:?}");
         }
         // All of a set's views but the leuven pair's (too far apart for a match) register.
         if !set.ends_with("leuven") {

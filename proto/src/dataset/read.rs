@@ -154,6 +154,22 @@ struct FrameCtx<'a> {
     depth_unit_m: f64,
 }
 
+/// Whether `img` is smaller than `w`×`h` with the same shape: one side scaled, the other
+/// scaled alike and rounded.
+fn shrunk(img: &DynamicImage, (w, h): (u32, u32)) -> bool {
+    let (iw, ih) = (img.width(), img.height());
+    // Side `ia` of the image is side `a` of the frame scaled as `ib` is `b`, to within rounding.
+    let alike = |ia: u32, a: u32, ib: u32, b: u32| {
+        (f64::from(ia) - f64::from(a) * f64::from(ib) / f64::from(b)).abs() <= 0.5
+    };
+    iw > 0
+        && ih > 0
+        && iw <= w
+        && ih <= h
+        && (iw, ih) != (w, h)
+        && (alike(iw, w, ih, h) || alike(ih, h, iw, w))
+}
+
 impl FrameCtx<'_> {
     fn field(&self, name: &str) -> String {
         format!("frames[{}].{name}", self.index)
@@ -177,6 +193,14 @@ impl FrameCtx<'_> {
             None => None,
             Some(rel) => {
                 let (path, img) = self.image("depth_file_path", rel)?;
+                // A depth map smaller than its photo with the photo's shape (as a
+                // reconstruction writes a large photo's) is read at the photo's size, each
+                // pixel the nearest one's, as nerfstudio reads it.
+                let img = if shrunk(&img, (w, h)) {
+                    img.resize_exact(w, h, image::imageops::FilterType::Nearest)
+                } else {
+                    img
+                };
                 self.same_size(&path, "depth_file_path", &img, (w, h), "the image")?;
                 let raw = self.luma16(&path, "depth_file_path", img)?;
                 Some(raw.into_iter().map(|d| (f64::from(d) * self.depth_unit_m) as f32).collect())

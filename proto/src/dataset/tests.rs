@@ -130,6 +130,21 @@ fn rejects_depth_of_another_size() {
 }
 
 #[test]
+fn reads_a_smaller_depth_of_the_photos_shape_at_the_photos_size() {
+    let dir = written();
+    // Half the 6×4 frame: each pixel stands for the 2×2 it covers.
+    image::ImageBuffer::<image::Luma<u16>, _>::from_raw(3, 2, vec![1, 2, 3, 4, 5, 6])
+        .unwrap()
+        .save(dir.path().join("depth/001.png"))
+        .unwrap();
+    let scene = Scene::load(dir.path()).unwrap();
+    let depth = scene.frames[1].depth.as_ref().unwrap();
+    let steps: Vec<u32> =
+        depth.iter().map(|d| (f64::from(*d) / DEFAULT_DEPTH_UNIT_M).round() as u32).collect();
+    assert_eq!(steps, [1, 1, 2, 2, 3, 3, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6, 4, 4, 5, 5, 6, 6]);
+}
+
+#[test]
 fn rejects_instance_mask_of_another_size() {
     let dir = written();
     image::ImageBuffer::<image::Luma<u16>, _>::from_raw(6, 3, vec![0u16; 18])
