@@ -74,12 +74,14 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     assert_eq!(gaussians.len(), rec.gaussians_kept);
     for (v, photo) in photos[..4].iter().enumerate() {
         let photo = image::load_from_memory(photo).unwrap();
-        for kind in ["instances", "labels"] {
+        for kind in ["instances", "labels", "ids", "depth"] {
             let img = server.get(&format!("{base}/views/{v}/{kind}.png"));
             assert_eq!(img.status, 200, "{kind} {v}: {}", img.text());
             let img = image::load_from_memory(&img.body).unwrap();
             let size = |i: &image::DynamicImage| (i.width(), i.height());
             assert_eq!(size(&img), size(&photo), "{kind} {v} at the photo's size");
+            let sixteen_bit = matches!(img, image::DynamicImage::ImageLuma16(_));
+            assert_eq!(sixteen_bit, ["ids", "depth"].contains(&kind), "{kind} {v}");
         }
     }
     let preview = server.get(&format!("{base}/preview.png"));
@@ -139,9 +141,14 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
     }
     let doc: serde_json::Value = server.get("/openapi.json").json();
     assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
-    for path in
-        ["/v1/reconstruct", "/v1/scenes/{id}/query", "/v1/jobs", "/v1/jobs/{id}/events", "/ready"]
-    {
+    for path in [
+        "/v1/reconstruct",
+        "/v1/scenes/{id}/query",
+        "/v1/scenes/{id}/views/{view}/depth.png",
+        "/v1/jobs",
+        "/v1/jobs/{id}/events",
+        "/ready",
+    ] {
         assert!(doc["paths"][path].is_object(), "{path} missing from the OpenAPI document");
     }
     for form in ["ReconstructForm", "JobForm"] {

@@ -255,6 +255,8 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/scenes/{id}/archive", get(archive::archive))
         .route("/v1/scenes/{id}/views/{view}/instances.png", get(scenes::instances_png))
         .route("/v1/scenes/{id}/views/{view}/labels.png", get(scenes::labels_png))
+        .route("/v1/scenes/{id}/views/{view}/ids.png", get(scenes::ids_png))
+        .route("/v1/scenes/{id}/views/{view}/depth.png", get(scenes::depth_png))
         .route("/v1/scenes/{id}/query", post(scenes::query))
         .route("/v1/scenes/{id}/query/{slug}/{file}", get(scenes::query_mask))
         .route("/v1/jobs", post(jobs::submit))

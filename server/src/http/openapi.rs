@@ -11,7 +11,7 @@ use super::{archive, jobs, ops, reconstruct, scenes};
     info(title = "inssplat", description = "Instance-aware 3D Gaussians from a few unposed photos: reconstruct, query, batch jobs. \
         Every error is {\"error\": \"...\", \"error_type\": \"...\"}."),
     paths(
-        reconstruct::reconstruct, scenes::ply, scenes::preview, archive::archive, scenes::instances_png, scenes::labels_png, scenes::query,
+        reconstruct::reconstruct, scenes::ply, scenes::preview, archive::archive, scenes::instances_png, scenes::labels_png, scenes::ids_png, scenes::depth_png, scenes::query,
         scenes::query_mask, jobs::submit, jobs::status, jobs::cancel, jobs::events, ops::health, ops::ready, ops::metrics, ops::openapi,
     ),
     modifiers(&BearerKey),

@@ -74,7 +74,7 @@ pub async fn preview(
     file(&state, &id?.0, "preview.png", "image/png").await
 }
 
-/// A view's image from `folder` (`instances` or `labels`).
+/// A view's image from `folder` (`instances`, `labels`, `ids` or `depth`).
 async fn view_png(
     state: &AppState,
     params: Result<Path<(String, String)>, PathRejection>,
@@ -109,6 +109,31 @@ pub async fn labels_png(
     params: Result<Path<(String, String)>, PathRejection>,
 ) -> Result<Response, ApiError> {
     view_png(&state, params, "labels").await
+}
+
+/// A view's instance ids as 16-bit grey (0 = none), at the size of its instance map.
+#[utoipa::path(get, path = "/v1/scenes/{id}/views/{view}/ids.png", tag = "scenes",
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
+    responses((status = 200, description = "16-bit grey PNG", content_type = "image/png"),
+        (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
+pub async fn ids_png(
+    State(state): State<Arc<AppState>>,
+    params: Result<Path<(String, String)>, PathRejection>,
+) -> Result<Response, ApiError> {
+    view_png(&state, params, "ids").await
+}
+
+/// A view's depth along the camera's z axis in millimetres, as 16-bit grey (0 = none), at the
+/// size of its instance map: the scene's units, which photos alone do not make metric.
+#[utoipa::path(get, path = "/v1/scenes/{id}/views/{view}/depth.png", tag = "scenes",
+    params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Scene id"), ("view" = usize, Path, description = "Input view index, from 0")),
+    responses((status = 200, description = "16-bit grey PNG", content_type = "image/png"),
+        (status = 400, description = "Malformed id or view", body = ErrorBody), (status = 404, description = "No such scene or view", body = ErrorBody)))]
+pub async fn depth_png(
+    State(state): State<Arc<AppState>>,
+    params: Result<Path<(String, String)>, PathRejection>,
+) -> Result<Response, ApiError> {
+    view_png(&state, params, "depth").await
 }
 
 /// Which instances of the scene the text names, each with its mask in every view.
