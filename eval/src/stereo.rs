@@ -1,10 +1,9 @@
-//! `inssplat-eval stereo OUT`: the depth `inssplat reconstruct` wrote for the first photo of a
-//! rectified stereo pair against the pair's true disparity, as Middlebury gives it (depth =
-//! focal × baseline / (disparity + doffs), the focal length and baseline a scale that the
-//! median alignment takes out), on the pixels whose disparity is known. Scored at
-//! two scales, since photos alone fix none: the median ratio to the truth (the monocular
-//! convention), and the one the registered cameras imply when their distance is taken for the
-//! known baseline (what a user of the output would get without the truth).
+//! `inssplat-eval stereo OUT`: what `inssplat reconstruct` made of a rectified stereo pair,
+//! against the first photo's true disparity as Middlebury gives it. The depth of view 0 is
+//! scored as AbsRel after median scaling (photos alone fix no scale) on the pixels whose
+//! disparity is known, the truth's depth being focal × baseline / (disparity + doffs), of which
+//! the median scaling takes out the focal length and baseline; and the registered second
+//! camera's direction from the first against the true one, the first camera's x axis.
 
 use std::path::{Path, PathBuf};
 

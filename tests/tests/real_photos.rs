@@ -134,11 +134,18 @@ fn the_aloe_pairs_cameras_step_sideways() {
         .iter()
         .map(|f| with_exif(&photos_dir().join("aloe").join(f), dir.path(), ALOE_35MM))
         .collect();
-    let r = reconstruct(&pair, &dir.path().join("out"));
+    let out = dir.path().join("out");
+    let r = reconstruct(&pair, &out);
     // Its truth is 8-bit disparity without the offset that would make it a depth: the
     // direction alone is checked.
     let off = sideways_off(&r);
     assert!(off < 10.0, "the baseline is {off:.1}° off the true sideways one");
+    // Another pair's truth is refused by name, with both sizes.
+    let truth = photos_dir().join("truth/motorcycle_disp.npz");
+    let run = inssplat_eval(&["stereo", s(&out), "--disparity", s(&truth)]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("motorcycle_disp.npz"), "{err}");
+    assert!(err.contains("741×500") && err.contains("1282×1110"), "{err}");
 }
 
 #[test]
