@@ -128,6 +128,37 @@ fn every_real_photo_set_reconstructs_with_its_depth_and_masks_at_its_photos_size
 }
 
 #[test]
+fn landscape_and_portrait_photos_in_one_request_keep_their_own_shapes() {
+    // Four of ViSP's castel frames (640×480), one cut to a portrait 300×480 of its middle.
+    let dir = tempfile::tempdir().unwrap();
+    let frames = ["image_0000.pgm", "image_0004.pgm", "image_0008.pgm", "image_0012.pgm"];
+    let photos: Vec<PathBuf> = frames
+        .iter()
+        .enumerate()
+        .map(|(v, f)| {
+            let mut img = image::open(photos_dir().join("castel").join(f)).unwrap();
+            if v == 2 {
+                img = img.crop_imm(170, 0, 300, 480);
+            }
+            let path = dir.path().join(format!("{v}.png"));
+            img.save(&path).unwrap();
+            path
+        })
+        .collect();
+    let out = dir.path().join("out");
+    let r = reconstruct(&photos, &out);
+    for (v, c) in r.cameras.iter().enumerate() {
+        let size = if v == 2 { (300, 480) } else { (640, 480) };
+        assert_eq!((c.w, c.h), size, "view {v}");
+        assert!(registered(c), "view {v}: {c:?} {:?}", r.warnings);
+        for kind in ["depth", "ids", "instances", "labels"] {
+            let img = image::open(out.join(format!("{kind}/{v:03}.png"))).unwrap();
+            assert_eq!((img.width(), img.height()), size, "{kind} {v}");
+        }
+    }
+}
+
+#[test]
 fn the_aloe_pairs_cameras_step_sideways() {
     let dir = tempfile::tempdir().unwrap();
     let pair: Vec<PathBuf> = ["aloeL.jpg", "aloeR.jpg"]
