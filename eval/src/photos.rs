@@ -33,7 +33,6 @@ pub fn photo_mask_scores(
     name: &str,
     context: &[usize],
     rec: &Reconstruction,
-    res: usize,
 ) -> Result<Option<PhotoMaskScores>, String> {
     let twin = Scene::load(dir.join(name)).map_err(|e| format!("--photos: {e}"))?;
     let (mut gt, mut up, mut near) = (Vec::new(), Vec::new(), Vec::new());
@@ -46,8 +45,7 @@ pub fn photo_mask_scores(
         if truth.len() != maps.instance_ids.len() {
             return Err(format!("--photos: frame {f}'s masks are not at the photo's size"));
         }
-        let nearest =
-            nearest_map(&view.instance_ids, &view.letterbox, maps.width, maps.height, res);
+        let nearest = nearest_map(&view.instance_ids, &view.letterbox, maps.width, maps.height);
         let w = maps.width as usize;
         let f_of = |pred: &[u32]| boundary_f(pred, &truth, w, BOUNDARY_TOLERANCE);
         edges.0.extend(f_of(&maps.instance_ids).map_err(|e| e.to_string())?);

@@ -319,14 +319,12 @@ pub fn evaluate_scene_keeping(
         refine_context_psnr: rec.refinement.as_ref().map(|r| r.psnr()),
         ..SceneScores::default()
     };
-    if let Some(dir) = settings.photos {
-        let res = model.network.resolution;
-        if let Some(p) = photo_mask_scores(dir, &name, &context, &rec, res).map_err(&bad)? {
-            (s.photo_instance_miou, s.photo_instance_miou_nearest) =
-                (Some(p.miou.0), Some(p.miou.1));
-            (s.photo_boundary_f, s.photo_boundary_f_nearest) =
-                (Some(p.boundary_f.0), Some(p.boundary_f.1));
-        }
+    if let Some(dir) = settings.photos
+        && let Some(p) = photo_mask_scores(dir, &name, &context, &rec).map_err(&bad)?
+    {
+        (s.photo_instance_miou, s.photo_instance_miou_nearest) = (Some(p.miou.0), Some(p.miou.1));
+        (s.photo_boundary_f, s.photo_boundary_f_nearest) =
+            (Some(p.boundary_f.0), Some(p.boundary_f.1));
     }
     let depth_scale =
         context_scores(&mut s, scene, &context, &rec, labels, settings).map_err(&bad)?;

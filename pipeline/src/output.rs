@@ -97,7 +97,7 @@ fn view_depth_png(v: &ViewResult) -> Vec<u8> {
             (side(lb.width), side(lb.height))
         }
     };
-    depth_png(size.0, size.1, &photo_depth(&v.depth, v.camera.intrinsics.width, lb, size))
+    depth_png(size.0, size.1, &photo_depth(&v.depth, lb, size))
 }
 
 /// Depth as grey, near = bright, scaled by the 2–98 percentile range of the view.

@@ -9,9 +9,10 @@ use rayon::prelude::*;
 
 use crate::stages::decode::Letterbox;
 
-/// `depth`, the model's `res`×`res` map of a photo placed by `lb`, over the photo at
+/// `depth`, the model's map of a photo placed by `lb` (at its input's size), over the photo at
 /// `size` (its own size, or smaller with its shape); 0 where no model pixel near has a depth.
-pub fn photo_depth(depth: &[f32], res: u32, lb: &Letterbox, size: (u32, u32)) -> Vec<f32> {
+pub fn photo_depth(depth: &[f32], lb: &Letterbox, size: (u32, u32)) -> Vec<f32> {
+    let input_width = lb.input[0];
     let [x0, y0, x1, y1] = lb.photo_rect();
     let (last_x, last_y) = (x1.max(x0 + 1) - 1, y1.max(y0 + 1) - 1);
     // Where an output pixel's centre falls in the model's grid along one axis, kept inside the
@@ -30,7 +31,7 @@ pub fn photo_depth(depth: &[f32], res: u32, lb: &Letterbox, size: (u32, u32)) ->
     let columns = taps(w, lb.width, lb.pad_x, x0, last_x);
     let rows = taps(h, lb.height, lb.pad_y, y0, last_y);
     let at = |x: u32, y: u32| {
-        let d = depth[(y * res + x) as usize];
+        let d = depth[(y * input_width + x) as usize];
         if d.is_finite() && d > 0.0 { d } else { 0.0 }
     };
     let mut out = vec![0.0; (w * h) as usize];
@@ -73,8 +74,9 @@ mod tests {
         let mut depth: Vec<f32> = (0..16).map(|i| 1.0 + (i % 4) as f32).collect();
         depth[2 * 4 + 3] = 0.0;
         depth[0] = 99.0; // padding: never sampled
-        let lb = Letterbox { width: 8, height: 4, scale: 0.5, pad_x: 0.0, pad_y: 1.0 };
-        let d = photo_depth(&depth, 4, &lb, (8, 4));
+        let lb =
+            Letterbox { width: 8, height: 4, input: [4, 4], scale: 0.5, pad_x: 0.0, pad_y: 1.0 };
+        let d = photo_depth(&depth, &lb, (8, 4));
         assert_eq!(d.len(), 32);
         // Photo pixel (2, 0) is model (0.75, 1.0): between columns 0 and 1 of row 1.
         assert!((d[2] - 1.75).abs() < 1e-5, "{}", d[2]);
@@ -85,7 +87,7 @@ mod tests {
         assert_eq!(d[3 * 8 + 7], 0.0);
         assert!(d.iter().all(|&x| x < 10.0), "the padding leaked in");
         // At half the photo's size each pixel stands for two: pixel (1, 0) for photo (3, 1).
-        let half = photo_depth(&depth, 4, &lb, (4, 2));
+        let half = photo_depth(&depth, &lb, (4, 2));
         assert!((half[1] - 2.0).abs() < 1e-5, "{}", half[1]);
     }
 }

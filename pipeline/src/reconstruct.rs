@@ -26,7 +26,7 @@ use std::sync::Arc;
 
 use crate::backend::{Backend, RuntimeError};
 use crate::matcher::LearnedMatcher;
-use crate::stages::decode::{DecodeError, Letterbox, Sizes, decode};
+use crate::stages::decode::{DecodeError, Letterbox, Sizes, decode_all};
 use crate::stages::label::LabelInputs;
 pub use crate::stages::network::Known;
 use crate::stages::{
@@ -58,6 +58,10 @@ pub enum PipelineError {
     RaysNeedScale,
     #[error("{stage}: {message}")]
     Stage { stage: &'static str, message: String },
+    #[error(
+        "--photo-aspect: this network takes only the {resolution}×{resolution} square it was trained at (a file exported before 0.14); leave the switch off or export it again"
+    )]
+    SquareOnly { resolution: usize },
 }
 
 /// Default [`PipelineConfig::shape_weight`].
@@ -110,6 +114,10 @@ pub struct PipelineConfig {
     /// photo's edges (stage "upsample", [`inssplat_understand::upsample`]); 0: the maps at the
     /// model's resolution only.
     pub mask_size: u32,
+    /// Run the network on a patch grid of the photos' aspect (their long side at the model's
+    /// resolution, [`crate::stages::decode::input_size`]) rather than on its trained square
+    /// with grey bars; the network must take it ([`crate::backend::Network::size_multiple`]).
+    pub photo_aspect: bool,
 }
 
 /// Default [`PipelineConfig::mask_size`].
@@ -142,6 +150,7 @@ impl Default for PipelineConfig {
             heading: Some(HeadingParams::default()),
             vote: VoteScope::Gaussians,
             mask_size: DEFAULT_MASK_SIZE,
+            photo_aspect: false,
         }
     }
 }
@@ -245,14 +254,22 @@ pub fn reconstruct_with(
         return Err(PipelineError::EmptyVocabulary);
     }
     let mut clock = Stopwatch::new(on_stage);
-    let res = backend.network().resolution as u32;
+    let network = backend.network();
+    let multiple = match (config.photo_aspect, network.size_multiple) {
+        (false, _) => None,
+        (true, Some(m)) => Some(m as u32),
+        (true, None) => {
+            return Err(PipelineError::SquareOnly { resolution: network.resolution });
+        }
+    };
     let sizes = Sizes {
-        res,
+        res: network.resolution as u32,
+        multiple,
         detail: config.register.as_ref().map_or(0, |r| r.photo_size),
         mask: config.mask_size,
     };
     let decoded = clock.time("decode", || {
-        images.par_iter().map(|i| decode(&i.name, &i.bytes, sizes)).collect::<Result<Vec<_>, _>>()
+        decode_all(images.par_iter().map(|i| (i.name.as_str(), i.bytes.as_slice())), sizes)
     })?;
     let mut pass = clock.time("model", || network::run(backend, &decoded, &config.known))?;
     let pixels = pass.out.height * pass.out.width;
@@ -318,8 +335,7 @@ pub fn reconstruct_with(
         per_pixel: &per_pixel,
         label_of_id: &label_of_id,
     };
-    let photo_maps =
-        clock.time("upsample", || masks::photo_maps(&decoded, &id_maps, &label_of_id, out.width));
+    let photo_maps = clock.time("upsample", || masks::photo_maps(&decoded, &id_maps, &label_of_id));
     let views = masks::views(decoded, id_maps, photo_maps, &parts);
     voxelized.scene.meta.producer = format!("inssplat {}", env!("CARGO_PKG_VERSION"));
     Ok(Reconstruction {

@@ -37,6 +37,12 @@ pub struct PipelineSwitches {
         value_name = "PIXELS"
     )]
     pub mask_size: u32,
+    /// Run the network on a grid of the photos' aspect (their long side at its resolution,
+    /// e.g. 128×96 for 4:3 photos) instead of its trained square with grey bars: a quarter
+    /// fewer tokens at 4:3. Off by default: the shipped network, trained on squares alone,
+    /// measured slightly worse so (docs/EVALUATION.md, "Photo aspect").
+    #[arg(long, env = "INSSPLAT_PHOTO_ASPECT")]
+    pub photo_aspect: bool,
     #[command(flatten)]
     pub matcher: MatcherSwitches,
 }
@@ -115,6 +121,7 @@ impl PipelineSwitches {
             refine_steps: self.refine_steps,
             ray_pass: !self.no_ray_pass,
             mask_size: self.mask_size,
+            photo_aspect: self.photo_aspect,
             matcher: self.matcher.load(model, threads)?,
             ..config
         })

@@ -36,9 +36,11 @@ impl Backend for IdealNetwork {
         &mut self,
         images: &[f32],
         views: usize,
+        size: [usize; 2],
         rays: Option<&[f32]>,
     ) -> Result<ModelOutput, RuntimeError> {
         assert!(rays.is_none(), "this network reads no rays");
+        assert_eq!(size, [SIZE as usize; 2]);
         assert_eq!((views, images.len()), (VIEWS, VIEWS * 3 * (SIZE * SIZE) as usize));
         Ok(self.out.clone())
     }
@@ -93,6 +95,7 @@ fn ideal_network(scene: &Scene, cameras: &[Camera], labels: &LabelCache) -> Idea
     };
     let network = Network {
         resolution: SIZE as usize,
+        size_multiple: None,
         sem_dim: SEM_DIM,
         model_version: "ideal".into(),
         shapes: None,

@@ -13,17 +13,23 @@ pub fn ray_channels(k: usize) -> usize {
     6 * k * k
 }
 
-/// `[N, (size / patch)², 6·k²]`, row-major over the patches, of the cameras of the N input
-/// views in the frame of the first (whatever frame they are given in); `scale` > 0 divides
-/// the camera centres.
-pub fn patch_rays(cameras: &[Camera], size: usize, patch: usize, k: usize, scale: f32) -> Vec<f32> {
-    let grid = size / patch;
-    let mut out = Vec::with_capacity(cameras.len() * grid * grid * ray_channels(k));
+/// `[N, (height / patch)·(width / patch), 6·k²]`, row-major over the patches of an input of
+/// `size` (height, width), of the cameras of the N input views in the frame of the first
+/// (whatever frame they are given in); `scale` > 0 divides the camera centres.
+pub fn patch_rays(
+    cameras: &[Camera],
+    [height, width]: [usize; 2],
+    patch: usize,
+    k: usize,
+    scale: f32,
+) -> Vec<f32> {
+    let (rows, columns) = (height / patch, width / patch);
+    let mut out = Vec::with_capacity(cameras.len() * rows * columns * ray_channels(k));
     let Some(reference) = cameras.first() else { return out };
     for cam in cameras {
         let origin = reference.world_to_camera(cam.center()) / scale;
         let rotation = reference.rotation * cam.rotation.inverse();
-        for (py, px) in (0..grid).flat_map(|y| (0..grid).map(move |x| (y, x))) {
+        for (py, px) in (0..rows).flat_map(|y| (0..columns).map(move |x| (y, x))) {
             for (sy, sx) in (0..k).flat_map(|y| (0..k).map(move |x| (y, x))) {
                 let u = (px * patch) as f32 + (sx as f32 + 0.5) * patch as f32 / k as f32;
                 let v = (py * patch) as f32 + (sy as f32 + 0.5) * patch as f32 / k as f32;
@@ -61,7 +67,7 @@ mod tests {
         let k = Intrinsics::from_fov_y(16, 16, 1.0);
         let a = Camera::look_at(k, Vec3::ZERO, Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y);
         let b = Camera::look_at(k, Vec3::new(1.0, 0.2, 0.5), Vec3::new(0.0, 0.0, 3.0), Vec3::NEG_Y);
-        let rays = patch_rays(&[a, b], 16, 8, 2, 2.0);
+        let rays = patch_rays(&[a, b], [16, 16], 8, 2, 2.0);
         assert_eq!(rays.len(), 2 * 4 * ray_channels(2));
         // The centre of a's patch 0, sub-ray 0 (pixel 2, 2) at depth 2.5, seen by b.
         let p = a.camera_to_world(a.unproject(2.0, 2.0, 2.5));
@@ -98,8 +104,8 @@ mod tests {
             translation: c.translation - c.rotation * turn.inverse() * shift,
         };
         assert!((moved(&a).center() - (turn * a.center() + shift)).length() < 1e-5);
-        let here = patch_rays(&[a, b], 16, 8, 2, 2.0);
-        let there = patch_rays(&[moved(&a), moved(&b)], 16, 8, 2, 2.0);
+        let here = patch_rays(&[a, b], [16, 16], 8, 2, 2.0);
+        let there = patch_rays(&[moved(&a), moved(&b)], [16, 16], 8, 2, 2.0);
         let worst = here.iter().zip(&there).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
         assert!(worst < 1e-5, "rays moved by {worst}");
         assert!(

@@ -2,7 +2,8 @@
 //! graph) and the server (which runs it). Names, element types, ranks and meanings of every
 //! tensor, the metadata keys, and the version string both sides must agree on.
 //!
-//! `N` is the number of views (a dynamic axis, 2–16), `H`×`W` the model resolution, `d_s`
+//! `N` is the number of views (a dynamic axis, 2–16), `H`×`W` the input's size (the trained
+//! [`META_RESOLUTION`], or any multiple of [`META_SIZE_MULTIPLE`] in a file that has it), `d_s`
 //! the semantic feature width (metadata [`META_SEM_DIM`]). The world frame is view 0's
 //! camera frame (OpenCV axes), so view 0's pose is the identity.
 
@@ -48,8 +49,12 @@ const fn f32_tensor(
     TensorSpec { name, element: ElementType::F32, shape, rank, meaning }
 }
 
-pub const INPUT_IMAGES: TensorSpec =
-    f32_tensor("images", "[N, 3, H, W]", 4, "RGB in [0, 1], letterboxed to the model resolution");
+pub const INPUT_IMAGES: TensorSpec = f32_tensor(
+    "images",
+    "[N, 3, H, W]",
+    4,
+    "RGB in [0, 1], each photo fitted into H×W (the long side at the model resolution, bars where its aspect differs)",
+);
 
 /// Optional: read only by networks trained with the cameras as input (the trainer's
 /// `--camera-rays K`); the service gives it the known cameras ([`crate::rays::patch_rays`]).
@@ -103,8 +108,15 @@ pub const OUTPUTS: [TensorSpec; 8] = [
 /// ONNX metadata keys (custom_metadata_map).
 pub const META_IO_VERSION: &str = "inssplat.io_version";
 pub const META_MODEL_VERSION: &str = "inssplat.model_version";
-/// Input size as `"<H>x<W>"` in pixels, e.g. `"128x128"` (square for now).
+/// The size trained at, as `"<H>x<W>"` in pixels, e.g. `"128x128"` (square).
 pub const META_RESOLUTION: &str = "inssplat.resolution";
+/// Optional: a number of pixels; the file takes any input whose height and width are
+/// multiples of it (its patch grid then of the photo's aspect). Without it the input is
+/// [`META_RESOLUTION`] only.
+pub const META_SIZE_MULTIPLE: &str = "inssplat.size_multiple";
+/// Optional: the patch side in pixels, which a file whose `rays` input has a symbolic patch
+/// count needs (its rays tile the input's patches).
+pub const META_PATCH: &str = "inssplat.patch";
 pub const META_SEM_DIM: &str = "inssplat.sem_dim";
 pub const META_TRAIN_STEPS: &str = "inssplat.train_steps";
 /// Optional: the shape classifier ([`crate::shape::ShapeClassifier`]) as JSON.

@@ -37,10 +37,16 @@ fn with_exif(photo: &Path, dir: &Path, focal_35mm: u16) -> PathBuf {
 
 /// Runs `inssplat reconstruct` on `photos` into `out` with the shipped model.
 fn reconstruct(photos: &[PathBuf], out: &Path) -> ReconstructResponse {
+    reconstruct_with(photos, out, &[])
+}
+
+/// [`reconstruct`] with `extra` switches.
+fn reconstruct_with(photos: &[PathBuf], out: &Path, extra: &[&str]) -> ReconstructResponse {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
     let mut args: Vec<&str> = vec!["reconstruct"];
     args.extend(photos.iter().map(|p| s(p)));
     args.extend(["-o", s(out), "--model", s(&model), "--json"]);
+    args.extend(extra);
     let run = inssplat(&args);
     assert!(run.status.success(), "{photos:?}: {}", String::from_utf8_lossy(&run.stderr));
     serde_json::from_slice(&run.stdout).unwrap()
@@ -154,6 +160,36 @@ fn landscape_and_portrait_photos_in_one_request_keep_their_own_shapes() {
         for kind in ["depth", "ids", "instances", "labels"] {
             let img = image::open(out.join(format!("{kind}/{v:03}.png"))).unwrap();
             assert_eq!((img.width(), img.height()), size, "{kind} {v}");
+        }
+    }
+}
+
+/// With `--photo-aspect` the network runs on 4:3 photos' own 128×96 grid: the model-resolution
+/// maps of the preview are a quarter shorter than on the square, every view still registers,
+/// and the depth and ids still come back at the photos' size.
+#[test]
+fn photos_run_on_a_grid_of_their_own_aspect_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let photos: Vec<PathBuf> = ["image_0000.pgm", "image_0004.pgm", "image_0008.pgm"]
+        .iter()
+        .map(|f| {
+            let path = dir.path().join(Path::new(f).with_extension("png"));
+            image::open(photos_dir().join("castel").join(f)).unwrap().save(&path).unwrap();
+            path
+        })
+        .collect();
+    let preview = |out: &Path| image::image_dimensions(out.join("preview.png")).unwrap();
+    let square = dir.path().join("square");
+    reconstruct(&photos, &square);
+    let out = dir.path().join("aspect");
+    let r = reconstruct_with(&photos, &out, &["--photo-aspect"]);
+    let ((sw, sh), (aw, ah)) = (preview(&square), preview(&out));
+    assert!(aw == sw && ah < sh, "preview {aw}×{ah} against the square's {sw}×{sh}");
+    for (v, c) in r.cameras.iter().enumerate() {
+        assert!(registered(c), "view {v}: {c:?} {:?}", r.warnings);
+        for kind in ["depth", "ids"] {
+            let img = image::open(out.join(format!("{kind}/{v:03}.png"))).unwrap();
+            assert_eq!((img.width(), img.height()), (640, 480), "{kind} {v}");
         }
     }
 }

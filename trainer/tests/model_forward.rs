@@ -62,8 +62,35 @@ fn model_rejects_bad_configs_and_inputs() {
     assert!(matches!(small().with_heads(5).validate(), Err(ModelError::Config(_))));
     let device = Device::flex();
     let net = small().init(&device).expect("config");
-    let wrong = Tensor::<4>::zeros([2, 3, 16, 16], &device);
-    assert!(matches!(net.forward(wrong), Err(ModelError::InputShape { .. })));
+    for wrong in [[2, 3, 12, 16], [2, 3, 32, 20], [0, 3, 32, 32], [2, 1, 32, 32]] {
+        let images = Tensor::<4>::zeros(wrong, &device);
+        assert!(matches!(net.forward(images), Err(ModelError::InputShape { .. })), "{wrong:?}");
+    }
+}
+
+/// A wide input (the photo's aspect rather than the trained square) runs on its own patch grid:
+/// maps of its size, the position embedding resampled to the grid (4×4 → 2×4: each row the
+/// mean of two of the square's, the columns as they are).
+#[test]
+fn model_runs_on_the_grid_of_a_wide_input() {
+    let device = Device::flex();
+    device.seed(2);
+    let net = small().with_global_kv_pool(Some(2)).init(&device).expect("config");
+    let images = Tensor::<4>::random([2, 3, 16, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let out = net.forward(images).expect("a 16×32 input");
+    assert_eq!(out.depth.dims(), [2, 1, 16, 32]);
+    assert_eq!(out.instance.dims(), [2, 8, 16, 32]);
+    let square = values(net.position_embedding(4, 4));
+    let wide = values(net.position_embedding(2, 4));
+    assert_eq!(wide.len(), 2 * 4 * 32);
+    let at = |grid: &[f32], columns: usize, r: usize, c: usize, k: usize| {
+        grid[(r * columns + c) * 32 + k]
+    };
+    for (r, c, k) in (0..2).flat_map(|r| (0..4).flat_map(move |c| (0..32).map(move |k| (r, c, k))))
+    {
+        let mean = (at(&square, 4, 2 * r, c, k) + at(&square, 4, 2 * r + 1, c, k)) / 2.0;
+        assert!((at(&wide, 4, r, c, k) - mean).abs() < 1e-6, "row {r} column {c} channel {k}");
+    }
 }
 
 #[test]
@@ -148,7 +175,7 @@ fn camera_rays_join_at_zero_learn_and_are_checked() {
         })
         .collect();
     let rays = Tensor::<3>::from_data(
-        TensorData::new(patch_rays(&cameras, 32, 8, 2, 2.5), [3, 16, ray_channels(2)]),
+        TensorData::new(patch_rays(&cameras, [32, 32], 8, 2, 2.5), [3, 16, ray_channels(2)]),
         &device,
     );
     let images = Tensor::<4>::random([3, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);

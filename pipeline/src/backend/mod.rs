@@ -17,13 +17,15 @@ pub trait Backend {
     /// What the network is: its input size, version and optional heads and inputs.
     fn network(&self) -> &Network;
 
-    /// Runs the network on `views` images, `images` planar `[views][3][res][res]` in [0, 1],
-    /// and their cameras' `rays` ([`RayInput`]), which a network with the `rays` input needs
-    /// and one without refuses.
+    /// Runs the network on `views` images of `size` (height, width; one the network takes,
+    /// [`Network::takes`]), `images` planar `[views][3][height][width]` in [0, 1], and their
+    /// cameras' `rays` ([`RayInput`]), which a network with the `rays` input needs and one
+    /// without refuses.
     fn run(
         &mut self,
         images: &[f32],
         views: usize,
+        size: [usize; 2],
         rays: Option<&[f32]>,
     ) -> Result<ModelOutput, RuntimeError>;
 }
@@ -31,8 +33,11 @@ pub trait Backend {
 /// What a loaded network is.
 #[derive(Debug, Clone)]
 pub struct Network {
-    /// Input size (square) in pixels.
+    /// Side of the square input it was trained at, in pixels: the long side of every input.
     pub resolution: usize,
+    /// What else it takes: inputs whose sides are multiples of this (no longer than
+    /// `resolution`); `None`: the square only.
+    pub size_multiple: Option<usize>,
     pub sem_dim: usize,
     pub model_version: String,
     /// The shape classifier stored with the network, if the file carries one.
@@ -83,20 +88,34 @@ pub struct ModelOutput {
     pub sem_proj_bias: Vec<f32>,
 }
 
-/// The optional `rays` input ([`signature::INPUT_RAYS`]): each view's `tokens` patches get
-/// `k` × `k` rays ([`inssplat_proto::rays::patch_rays`]).
+impl Network {
+    /// Whether it takes an input of `size` (height, width).
+    pub fn takes(&self, [h, w]: [usize; 2]) -> bool {
+        let r = self.resolution;
+        match self.size_multiple {
+            None => h == r && w == r,
+            Some(m) => [h, w].iter().all(|&s| s > 0 && s <= r && s.is_multiple_of(m)),
+        }
+    }
+}
+
+/// The optional `rays` input ([`signature::INPUT_RAYS`]): each patch of `patch` pixels a side
+/// gets `k` × `k` rays ([`inssplat_proto::rays::patch_rays`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RayInput {
-    pub tokens: usize,
+    pub patch: usize,
     pub k: usize,
 }
 
 impl RayInput {
-    /// Of a `rays` input of `shape` `[N, T, 6·k²]` for a square grid of T patches.
+    /// Of a `rays` input of `shape` `[N, T, 6·k²]`: the patch side is `patch` (the file's
+    /// [`signature::META_PATCH`]) when it has one, else that of a square grid of T patches
+    /// tiling the `resolution`² input.
     pub(crate) fn of_shape(
         path: &std::path::Path,
         shape: &[i64],
         resolution: usize,
+        patch: Option<usize>,
     ) -> Result<Self, RuntimeError> {
         let err = |problem: String| RuntimeError::Signature {
             path: path.to_path_buf(),
@@ -106,29 +125,35 @@ impl RayInput {
         let [_, t, c] = *shape else {
             return Err(err(format!("shape {shape:?}, expected {}", signature::INPUT_RAYS.shape)));
         };
-        let side = (t.max(0) as f64).sqrt().round() as usize;
         let k = ((c.max(0) / 6) as f64).sqrt().round() as usize;
-        if side == 0
-            || side * side != t as usize
-            || !resolution.is_multiple_of(side)
-            || k == 0
-            || inssplat_proto::rays::ray_channels(k) != c as usize
-        {
-            return Err(err(format!(
-                "shape {shape:?}: expected [N, T, 6·K²] with T a square number of patches that tile {resolution}²"
-            )));
+        let side = (t.max(0) as f64).sqrt().round() as usize;
+        let patch = match patch {
+            Some(p) if p > 0 && resolution.is_multiple_of(p) => Some(p),
+            Some(_) => None,
+            None if side > 0 && side * side == t as usize && resolution.is_multiple_of(side) => {
+                Some(resolution / side)
+            }
+            None => None,
+        };
+        match patch {
+            Some(patch) if k > 0 && inssplat_proto::rays::ray_channels(k) == c as usize => {
+                Ok(Self { patch, k })
+            }
+            _ => Err(err(format!(
+                "shape {shape:?}: expected [N, T, 6·K²] with T the patches that tile {resolution}² (or the file's `{}` patch side)",
+                signature::META_PATCH
+            ))),
         }
-        Ok(Self { tokens: t as usize, k })
     }
 
-    /// Pixels on a side of one patch at `resolution`.
-    pub fn patch(&self, resolution: usize) -> usize {
-        resolution / (self.tokens as f64).sqrt().round() as usize
+    /// Values of the input for `views` views of `size` (height, width).
+    pub fn values(&self, views: usize, [h, w]: [usize; 2]) -> usize {
+        views * self.tokens([h, w]) * inssplat_proto::rays::ray_channels(self.k)
     }
 
-    /// Values of the input for `views` views.
-    pub fn values(&self, views: usize) -> usize {
-        views * self.tokens * inssplat_proto::rays::ray_channels(self.k)
+    /// Patches of an input of `size` (height, width).
+    pub fn tokens(&self, [h, w]: [usize; 2]) -> usize {
+        (h / self.patch) * (w / self.patch)
     }
 }
 

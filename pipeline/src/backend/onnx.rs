@@ -164,6 +164,18 @@ impl Model {
             }
         };
         let sem_dim = number(signature::META_SEM_DIM)?;
+        let optional = |key: &'static str| {
+            meta.custom(key).map(|_| number(key)).transpose().and_then(|n| match n {
+                Some(0) => Err(RuntimeError::Metadata {
+                    path: path.to_path_buf(),
+                    key,
+                    problem: "`0` is not a size".into(),
+                }),
+                n => Ok(n),
+            })
+        };
+        let size_multiple = optional(signature::META_SIZE_MULTIPLE)?;
+        let patch = optional(signature::META_PATCH)?;
         let model_version = get(signature::META_MODEL_VERSION)?;
         let shapes = meta
             .custom(signature::META_SHAPE_CLASSIFIER)
@@ -175,13 +187,15 @@ impl Model {
                 problem: e.to_string(),
             })?;
         drop(meta);
-        let rays =
-            rays_shape.map(|shape| RayInput::of_shape(path, &shape, resolution)).transpose()?;
-        let network = Network { resolution, sem_dim, model_version, shapes, rays };
+        let rays = rays_shape
+            .map(|shape| RayInput::of_shape(path, &shape, resolution, patch))
+            .transpose()?;
+        let network = Network { resolution, size_multiple, sem_dim, model_version, shapes, rays };
         let mut model = Self { session, path: path.to_path_buf(), network };
+        let size = [resolution, resolution];
         let warm = vec![0.5f32; 2 * 3 * resolution * resolution];
-        let warm_rays = rays.map(|r| vec![0.0f32; r.values(2)]);
-        model.run(&warm, 2, warm_rays.as_deref())?;
+        let warm_rays = rays.map(|r| vec![0.0f32; r.values(2, size)]);
+        model.run(&warm, 2, size, warm_rays.as_deref())?;
         Ok(model)
     }
 }
@@ -195,19 +209,28 @@ impl Backend for Model {
         &mut self,
         images: &[f32],
         views: usize,
+        size: [usize; 2],
         rays: Option<&[f32]>,
     ) -> Result<ModelOutput, RuntimeError> {
-        let r = self.network.resolution;
-        assert_eq!(images.len(), views * 3 * r * r, "image batch size");
+        let [h, w] = size;
+        if !self.network.takes(size) {
+            return Err(RuntimeError::Run(format!(
+                "this network takes no {h}×{w} input (trained at {r}², sides multiples of {m:?})",
+                r = self.network.resolution,
+                m = self.network.size_multiple
+            )));
+        }
+        assert_eq!(images.len(), views * 3 * h * w, "image batch size");
         let run_err = |e: ort::Error| RuntimeError::Run(e.to_string());
         let mut inputs = vec![(
             signature::INPUT_IMAGES.name,
-            TensorRef::from_array_view(([views, 3, r, r], images)).map_err(run_err)?,
+            TensorRef::from_array_view(([views, 3, h, w], images)).map_err(run_err)?,
         )];
         match (self.network.rays, rays) {
             (None, None) => {}
-            (Some(input), Some(rays)) if rays.len() == input.values(views) => {
-                let shape = [views, input.tokens, inssplat_proto::rays::ray_channels(input.k)];
+            (Some(input), Some(rays)) if rays.len() == input.values(views, size) => {
+                let channels = inssplat_proto::rays::ray_channels(input.k);
+                let shape = [views, input.tokens(size), channels];
                 inputs.push((
                     signature::INPUT_RAYS.name,
                     TensorRef::from_array_view((shape, rays)).map_err(run_err)?,
@@ -217,7 +240,7 @@ impl Backend for Model {
                 let given = given.map_or("none".to_string(), |g| format!("{} values", g.len()));
                 return Err(RuntimeError::Run(format!(
                     "this network reads its cameras as rays ({} values for {views} views), given {given}",
-                    input.values(views)
+                    input.values(views, size)
                 )));
             }
             (None, Some(_)) => {
@@ -235,8 +258,8 @@ impl Backend for Model {
         };
         Ok(ModelOutput {
             views,
-            height: r,
-            width: r,
+            height: h,
+            width: w,
             sem_dim: self.network.sem_dim,
             camera: take(&signature::OUTPUT_CAMERA)?,
             depth: take(&signature::OUTPUT_DEPTH)?,
@@ -291,19 +314,26 @@ mod tests {
 
     use super::RayInput;
 
-    /// A `rays` input is read as its patch grid and rays a patch; a shape that is no square
-    /// grid tiling the resolution, or no 6·K² channels, is named.
+    /// A `rays` input is read as its patch side and rays a patch (from a square grid tiling the
+    /// resolution, or from the file's patch side where the count is symbolic); a shape that is
+    /// neither, or no 6·K² channels, is named.
     #[test]
     fn a_rays_input_is_read_from_its_shape_or_named() {
         let path = Path::new("m.onnx");
-        let input = RayInput::of_shape(path, &[-1, 256, 24], 128)
+        let input = RayInput::of_shape(path, &[-1, 256, 24], 128, None)
             .expect("16×16 patches of 8 pixels, 2×2 rays");
-        assert_eq!(
-            (input.tokens, input.k, input.patch(128), input.values(3)),
-            (256, 2, 8, 3 * 256 * 24)
-        );
-        for bad in [&[-1, 255, 24][..], &[-1, 256, 25], &[-1, 256], &[-1, 49, 6]] {
-            let err = RayInput::of_shape(path, bad, 128).expect_err("refused").to_string();
+        assert_eq!((input.patch, input.k, input.values(3, [128, 128])), (8, 2, 3 * 256 * 24));
+        let wide = RayInput::of_shape(path, &[-1, -1, 24], 128, Some(8)).expect("patch side 8");
+        assert_eq!((wide.tokens([96, 128]), wide.values(2, [96, 128])), (192, 2 * 192 * 24));
+        for (bad, patch) in [
+            (&[-1, 255, 24][..], None),
+            (&[-1, 256, 25], None),
+            (&[-1, 256], None),
+            (&[-1, 49, 6], None),
+            (&[-1, -1, 24], None),
+            (&[-1, -1, 24], Some(7)),
+        ] {
+            let err = RayInput::of_shape(path, bad, 128, patch).expect_err("refused").to_string();
             assert!(err.contains("m.onnx") && err.contains("`rays`"), "{err}");
         }
     }

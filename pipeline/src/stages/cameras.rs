@@ -42,9 +42,17 @@ pub fn predicted_cameras(out: &ModelOutput) -> Vec<Camera> {
                 if q.is_finite() && q.length() > 1e-8 { q.normalize() } else { Quat::IDENTITY };
             let focal =
                 |fov: f32, size: usize| 0.5 * size as f32 / (0.5 * fov.clamp(0.05, 3.0)).tan();
+            // A network trained on squares gives both fields of view alike; on an oblong input
+            // the long side's is the one it reads as in the square (the photo's long side is
+            // the square's side either way), and the pixels are square.
+            let (fx, fy) = match out.width.cmp(&out.height) {
+                std::cmp::Ordering::Equal => (focal(c[8], out.width), focal(c[7], out.height)),
+                std::cmp::Ordering::Greater => (focal(c[8], out.width), focal(c[8], out.width)),
+                std::cmp::Ordering::Less => (focal(c[7], out.height), focal(c[7], out.height)),
+            };
             let intrinsics = Intrinsics {
-                fx: focal(c[8], out.width),
-                fy: focal(c[7], out.height),
+                fx,
+                fy,
                 cx: 0.5 * out.width as f32,
                 cy: 0.5 * out.height as f32,
                 width: out.width as u32,
@@ -129,7 +137,7 @@ pub fn run(
             })
             .collect();
         let (matches, keypoints) = match matcher {
-            Some(matcher) => learned_matches(matcher, decoded, out.width as u32)?,
+            Some(matcher) => learned_matches(matcher, decoded)?,
             None => brief_matches(&views, params),
         };
         let params = &RegisterParams {
@@ -170,14 +178,13 @@ pub fn run(
 }
 
 /// XFeat + LighterGlue matches of every pair of views, found in each photo's detail where it
-/// has one, else in its part of the `res`² input.
+/// has one, else in its part of the model's input.
 fn learned_matches(
     matcher: &LearnedMatcher,
     decoded: &[ModelImage],
-    res: u32,
 ) -> Result<(Vec<PairMatches>, Vec<usize>), RuntimeError> {
     let own: Vec<Option<RgbImage>> =
-        decoded.iter().map(|d| d.detail.is_none().then(|| photo_of_input(d, res))).collect();
+        decoded.iter().map(|d| d.detail.is_none().then(|| photo_of_input(d))).collect();
     let photos: Vec<ViewPhoto<'_>> = decoded
         .iter()
         .zip(&own)
@@ -195,13 +202,14 @@ fn learned_matches(
     matcher.pair_matches(&photos)
 }
 
-/// The photo's rectangle of a view's `res`² planar input, 8-bit.
-fn photo_of_input(d: &ModelImage, res: u32) -> RgbImage {
+/// The photo's rectangle of a view's planar input, 8-bit.
+fn photo_of_input(d: &ModelImage) -> RgbImage {
     let [x0, y0, x1, y1] = d.letterbox.photo_rect();
-    let px = (res * res) as usize;
+    let [iw, ih] = d.letterbox.input;
+    let px = (iw * ih) as usize;
     let (w, h) = (x1.saturating_sub(x0).max(1), y1.saturating_sub(y0).max(1));
     RgbImage::from_fn(w, h, |x, y| {
-        let i = ((y0 + y).min(res - 1) * res + (x0 + x).min(res - 1)) as usize;
+        let i = ((y0 + y).min(ih - 1) * iw + (x0 + x).min(iw - 1)) as usize;
         image::Rgb(
             [0, 1, 2].map(|c| (d.planar[c * px + i] * 255.0).round().clamp(0.0, 255.0) as u8),
         )

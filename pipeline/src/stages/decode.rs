@@ -1,5 +1,8 @@
-//! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied →
-//! letterboxed to the model's square input; for registration, a copy of a photo larger than
+//! Decode stage: photo bytes (JPEG, PNG, WebP) → RGB with EXIF orientation applied → fitted
+//! into the model's input: one size for the request ([`input_size`]), the photos' own aspect
+//! where the network takes it (its long side at the model's resolution, the short side
+//! rounded up to the network's size multiple), else the square, the rest of each photo's box
+//! grey bars; for registration, a copy of a photo larger than
 //! that input at up to `RegisterParams::photo_size` pixels; and the copy at the size of the
 //! masks, which guides their upsampling (all resized by `fast_image_resize`). The header is
 //! read first: other formats (HEIC, TIFF, …) and oversized, empty or strip-shaped images are
@@ -9,6 +12,7 @@ use std::io::Cursor;
 
 use image::{DynamicImage, ImageDecoder, ImageReader, RgbImage};
 use inssplat_proto::Intrinsics;
+use rayon::prelude::*;
 
 use super::exif;
 
@@ -45,21 +49,23 @@ pub enum DecodeError {
     Corrupt { name: String, message: String },
 }
 
-/// How an input photo maps into the model's square input.
+/// How an input photo maps into the model's input.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Letterbox {
     /// Original size after EXIF orientation.
     pub width: u32,
     pub height: u32,
+    /// The model's input, width and height in pixels.
+    pub input: [u32; 2],
     /// Model pixels per original pixel.
     pub scale: f32,
-    /// Offset of the photo inside the square, in model pixels.
+    /// Offset of the photo inside the input, in model pixels.
     pub pad_x: f32,
     pub pad_y: f32,
 }
 
 impl Letterbox {
-    /// The photo's pixels inside the square, `[x0, y0, x1, y1)` in model pixels.
+    /// The photo's pixels inside the input, `[x0, y0, x1, y1)` in model pixels.
     pub fn photo_rect(&self) -> [u32; 4] {
         let (x1, y1) = (
             self.pad_x + self.width as f32 * self.scale,
@@ -84,7 +90,7 @@ impl Letterbox {
 /// A decoded photo ready for the network.
 #[derive(Debug, Clone)]
 pub struct ModelImage {
-    /// Planar `[3][res][res]` in [0, 1].
+    /// Planar `[3][H][W]` in [0, 1], `[W, H]` the letterbox's `input`.
     pub planar: Vec<f32>,
     pub letterbox: Letterbox,
     /// The photo at a finer scale than the model's input, for registration to find keypoints
@@ -99,8 +105,11 @@ pub struct ModelImage {
 /// The sizes a photo is decoded to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Sizes {
-    /// Side of the model's square input.
+    /// Long side of the model's input (the side of the square it was trained at).
     pub res: u32,
+    /// What the input's sides may be multiples of, no longer than `res` (the network's size
+    /// multiple); `None`: the square only.
+    pub multiple: Option<u32>,
     /// Long side of the copy registration finds keypoints in (see [`ModelImage::detail`]).
     pub detail: u32,
     /// Long side of the masks at the photo's resolution, no larger than the photo's own
@@ -123,15 +132,44 @@ impl ModelImage {
     }
 }
 
-/// Decodes `bytes` (named `name` in errors) and letterboxes it to the model's input; keeps the
-/// copies `sizes` asks for.
-pub fn decode(name: &str, bytes: &[u8], sizes: Sizes) -> Result<ModelImage, DecodeError> {
-    let (rgb, exif_focal) = decode_rgb(name, bytes)?;
-    let mut image = letterbox(&rgb, sizes.res);
-    image.guide = (sizes.mask > 0).then(|| at_most(&rgb, sizes.mask));
-    image.detail = detail_copy(rgb, sizes.res, sizes.detail);
-    image.exif_focal = exif_focal;
-    Ok(image)
+/// Decodes each named photo (in parallel) and fits them all into one input size
+/// ([`input_size`]); keeps the copies `sizes` asks for. The first photo that cannot be read is
+/// the error.
+pub fn decode_all<'a>(
+    photos: impl IntoParallelIterator<Item = (&'a str, &'a [u8])>,
+    sizes: Sizes,
+) -> Result<Vec<ModelImage>, DecodeError> {
+    let decoded: Vec<(RgbImage, Option<f32>)> = photos
+        .into_par_iter()
+        .map(|(name, bytes)| decode_rgb(name, bytes))
+        .collect::<Result<_, _>>()?;
+    let input = input_size(decoded.iter().map(|(rgb, _)| rgb.dimensions()), sizes);
+    Ok(decoded
+        .into_par_iter()
+        .map(|(rgb, exif_focal)| {
+            let mut image = letterbox(&rgb, input);
+            image.guide = (sizes.mask > 0).then(|| at_most(&rgb, sizes.mask));
+            image.detail = detail_copy(rgb, sizes.res, sizes.detail);
+            image.exif_focal = exif_focal;
+            image
+        })
+        .collect())
+}
+
+/// The model's input, `[width, height]`, for photos of `dims` (after EXIF orientation): the
+/// smallest box of multiples of `sizes.multiple`, its long side `sizes.res`, that holds each
+/// photo scaled to `res` on its long side; so photos of one aspect fill it but for a bar under
+/// one multiple, and landscape and portrait photos together get the square. The square
+/// without a multiple.
+pub fn input_size(dims: impl IntoIterator<Item = (u32, u32)>, sizes: Sizes) -> [u32; 2] {
+    let res = sizes.res;
+    let Some(m) = sizes.multiple else { return [res, res] };
+    let fitted = |(w, h): (u32, u32)| {
+        let s = res as f32 / w.max(h) as f32;
+        [(w as f32 * s).round() as u32, (h as f32 * s).round() as u32]
+    };
+    let [w, h] = dims.into_iter().map(fitted).fold([0, 0], |[a, b], [w, h]| [a.max(w), b.max(h)]);
+    [w, h].map(|side| side.div_ceil(m).max(1).saturating_mul(m).min(res))
 }
 
 /// `rgb` with its long side scaled down to `long` when longer.
@@ -255,20 +293,22 @@ fn resize(rgb: &RgbImage, w: u32, h: u32) -> RgbImage {
     RgbImage::from_raw(w, h, dst.into_vec()).expect("w × h RGB pixels")
 }
 
-/// Scales `rgb` to fit `res`×`res` keeping its aspect ratio and pads the rest with grey.
-pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
+/// Scales `rgb` to fit `input` (`[width, height]`) keeping its aspect ratio, centred, and pads
+/// the rest with grey.
+fn letterbox(rgb: &RgbImage, input: [u32; 2]) -> ModelImage {
     let (w, h) = rgb.dimensions();
-    let scale = res as f32 / w.max(h) as f32;
+    let [iw, ih] = input;
+    let scale = (iw as f32 / w as f32).min(ih as f32 / h as f32);
     let (nw, nh) = (
-        ((w as f32 * scale).round() as u32).clamp(1, res),
-        ((h as f32 * scale).round() as u32).clamp(1, res),
+        ((w as f32 * scale).round() as u32).clamp(1, iw),
+        ((h as f32 * scale).round() as u32).clamp(1, ih),
     );
     let resized = if (nw, nh) == (w, h) { rgb.clone() } else { resize(rgb, nw, nh) };
-    let (ox, oy) = ((res - nw) / 2, (res - nh) / 2);
-    let n = (res * res) as usize;
+    let (ox, oy) = ((iw - nw) / 2, (ih - nh) / 2);
+    let n = (iw * ih) as usize;
     let mut planar = vec![PAD; 3 * n];
     for (x, y, p) in resized.enumerate_pixels() {
-        let i = ((y + oy) * res + (x + ox)) as usize;
+        let i = ((y + oy) * iw + (x + ox)) as usize;
         for c in 0..3 {
             planar[c * n + i] = f32::from(p[c]) / 255.0;
         }
@@ -278,6 +318,7 @@ pub fn letterbox(rgb: &RgbImage, res: u32) -> ModelImage {
         letterbox: Letterbox {
             width: w,
             height: h,
+            input,
             scale: nw as f32 / w as f32,
             pad_x: ox as f32,
             pad_y: oy as f32,
@@ -293,7 +334,12 @@ mod tests {
     use super::*;
 
     fn sizes(res: u32, detail: u32) -> Sizes {
-        Sizes { res, detail, mask: 0 }
+        Sizes { res, multiple: None, detail, mask: 0 }
+    }
+
+    /// One photo decoded as the stage decodes a request.
+    fn decode(name: &str, bytes: &[u8], sizes: Sizes) -> Result<ModelImage, DecodeError> {
+        Ok(decode_all([(name, bytes)], sizes)?.remove(0))
     }
 
     fn png(w: u32, h: u32) -> Vec<u8> {
@@ -308,7 +354,14 @@ mod tests {
         let m = decode("a.png", &png(20, 10), sizes(10, 0)).unwrap();
         assert_eq!(
             m.letterbox,
-            Letterbox { width: 20, height: 10, scale: 0.5, pad_x: 0.0, pad_y: 2.0 }
+            Letterbox {
+                width: 20,
+                height: 10,
+                input: [10, 10],
+                scale: 0.5,
+                pad_x: 0.0,
+                pad_y: 2.0
+            }
         );
         let n = 100;
         assert_eq!(m.planar[0], PAD, "top rows are padding");
@@ -319,6 +372,28 @@ mod tests {
         let k = Intrinsics { fx: 10.0, fy: 10.0, cx: 5.0, cy: 5.0, width: 10, height: 10 };
         let back = m.letterbox.to_original(&k);
         assert_eq!((back.fx, back.cx, back.cy, back.width, back.height), (20.0, 10.0, 6.0, 20, 10));
+    }
+
+    /// With a size multiple the input takes the photos' aspect: 4:3 landscape photos a box
+    /// 128 × 96, a 3:2 one rounded up to the multiple (a bar of 5 rows each side), portrait
+    /// photos the transposed box, the two together the square; no multiple, the square.
+    #[test]
+    fn the_input_takes_the_photos_aspect_rounded_to_the_multiple() {
+        let aspect = Sizes { res: 128, multiple: Some(32), detail: 0, mask: 0 };
+        assert_eq!(input_size([(640, 480), (4000, 3000)], aspect), [128, 96]);
+        assert_eq!(input_size([(480, 640)], aspect), [96, 128]);
+        assert_eq!(input_size([(640, 480), (480, 640)], aspect), [128, 128]);
+        assert_eq!(input_size([(1000, 50)], aspect), [128, 32], "a strip keeps one multiple");
+        assert_eq!(input_size([(640, 480)], Sizes { multiple: None, ..aspect }), [128, 128]);
+        let wide = decode("w.png", &png(300, 200), aspect).unwrap();
+        let lb = wide.letterbox;
+        assert_eq!(
+            (lb.input, lb.pad_x, lb.pad_y, lb.photo_rect()),
+            ([128, 96], 0.0, 5.0, [0, 5, 128, 90])
+        );
+        assert_eq!(wide.planar.len(), 3 * 128 * 96);
+        let blue = |row: usize| wide.planar[2 * 128 * 96 + row * 128];
+        assert_eq!((blue(4), blue(5), blue(90)), (PAD, 200.0 / 255.0, PAD), "bars about the photo");
     }
 
     #[test]
@@ -370,7 +445,7 @@ mod tests {
 
     #[test]
     fn keeps_the_masks_guide_at_most_the_mask_size() {
-        let sized = |mask| Sizes { res: 10, detail: 0, mask };
+        let sized = |mask| Sizes { res: 10, multiple: None, detail: 0, mask };
         let guide = |bytes: &[u8], mask| decode("a.png", bytes, sized(mask)).unwrap().guide;
         assert_eq!(guide(&png(40, 20), 16).unwrap().dimensions(), (16, 8));
         assert_eq!(guide(&png(40, 20), 64).unwrap().dimensions(), (40, 20), "never enlarged");

@@ -41,7 +41,6 @@ pub fn photo_maps(
     decoded: &[ModelImage],
     id_maps: &[Vec<u32>],
     label_of_id: &[Option<usize>],
-    res: usize,
 ) -> Vec<Option<PhotoMaps>> {
     decoded
         .par_iter()
@@ -52,16 +51,12 @@ pub fn photo_maps(
             let lb = &d.letterbox;
             let at = grid(lb, w);
             let instance_ids = if at.step >= 1.0 {
-                nearest_map(ids, lb, w, h, res)
+                nearest_map(ids, lb, w, h)
             } else {
-                let rgb = rgb8(&d.planar, res * res);
-                let lo = LowRes {
-                    labels: ids,
-                    rgb: &rgb,
-                    width: res,
-                    height: res,
-                    rect: lb.photo_rect(),
-                };
+                let [iw, ih] = lb.input.map(|s| s as usize);
+                let rgb = rgb8(&d.planar, iw * ih);
+                let lo =
+                    LowRes { labels: ids, rgb: &rgb, width: iw, height: ih, rect: lb.photo_rect() };
                 let params = UpsampleParams::default();
                 upsample_labels(&lo, guide.as_raw(), w as usize, h as usize, at, &params)
             };
@@ -71,14 +66,15 @@ pub fn photo_maps(
         .collect()
 }
 
-/// A view's `res`² model-resolution map at `w`×`h` over its photo (letterbox `lb`), each photo
+/// A view's map at the model's input (letterbox `lb`) at `w`×`h` over its photo, each photo
 /// pixel taking the model pixel its centre falls in.
-pub fn nearest_map(ids: &[u32], lb: &Letterbox, w: u32, h: u32, res: usize) -> Vec<u32> {
+pub fn nearest_map(ids: &[u32], lb: &Letterbox, w: u32, h: u32) -> Vec<u32> {
     let at = grid(lb, w);
-    let cell = |v: u32, o: f32| ((o + (v as f32 + 0.5) * at.step) as usize).min(res - 1);
+    let [iw, ih] = lb.input.map(|s| s as usize);
+    let cell = |v: u32, o: f32, n: usize| ((o + (v as f32 + 0.5) * at.step) as usize).min(n - 1);
     (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| ids[cell(y, at.origin[1]) * res + cell(x, at.origin[0])])
+        .map(|(x, y)| ids[cell(y, at.origin[1], ih) * iw + cell(x, at.origin[0], iw)])
         .collect()
 }
 

@@ -41,16 +41,17 @@ pub fn run(
 ) -> Result<NetworkPass, PipelineError> {
     let views = decoded.len();
     let batch: Vec<f32> = decoded.iter().flat_map(|d| d.planar.iter().copied()).collect();
-    let res = backend.network().resolution;
+    let [w, h] = decoded.first().map_or([0, 0], |d| d.letterbox.input);
+    let size = [h as usize, w as usize];
     let rays = match (backend.network().rays, &known.poses, known.median_depth) {
         (None, _, _) => None,
-        (Some(input), None, _) => Some(vec![0.0; input.values(views)]),
+        (Some(input), None, _) => Some(vec![0.0; input.values(views, size)]),
         (Some(input), Some(poses), Some(scale)) if scale > 0.0 => {
-            Some(patch_rays(poses, res, input.patch(res), input.k, scale))
+            Some(patch_rays(poses, size, input.patch, input.k, scale))
         }
         (Some(_), Some(_), _) => return Err(PipelineError::RaysNeedScale),
     };
-    let mut out = backend.run(&batch, views, rays.as_deref())?;
+    let mut out = backend.run(&batch, views, size, rays.as_deref())?;
     if let Some(depth) = &known.depth {
         if depth.len() != out.depth.len() {
             let pixels = out.height * out.width;

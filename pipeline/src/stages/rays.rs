@@ -20,16 +20,13 @@ pub fn run(
     cameras: &[Camera],
     segments: Option<&Segments>,
 ) -> Result<(), PipelineError> {
-    let res = backend.network().resolution;
     let out = &mut pass.out;
     // The registered cameras are in the depth's units, as the true ones are in the true
     // depth's when the network learns.
     let scale = median_depth(&out.depth).unwrap_or(1.0);
-    let second = backend.run(
-        &pass.batch,
-        out.views,
-        Some(&patch_rays(cameras, res, input.patch(res), input.k, scale)),
-    )?;
+    let size = [out.height, out.width];
+    let rays = patch_rays(cameras, size, input.patch, input.k, scale);
+    let second = backend.run(&pass.batch, out.views, size, Some(&rays))?;
     out.instance = second.instance;
     out.semantic = second.semantic;
     if let Some(segments) = segments {

@@ -38,6 +38,15 @@ pub fn attr_ints(name: &str, ints: &[i64]) -> AttributeProto {
     }
 }
 
+pub fn attr_string(name: &str, value: &str) -> AttributeProto {
+    AttributeProto {
+        name: Some(name.into()),
+        s: Some(value.as_bytes().to_vec()),
+        r#type: Some(attribute_type::STRING),
+        ..Default::default()
+    }
+}
+
 pub fn attr_float(name: &str, f: f32) -> AttributeProto {
     AttributeProto {
         name: Some(name.into()),
@@ -163,6 +172,35 @@ impl Graph {
         self.op("Reshape", &[x, &s], vec![])
     }
 
+    /// `Reshape(x, shape)` with a target built at run time from constants and 1-D int64
+    /// tensors of one element each ([`Dim`]).
+    pub fn reshape_to(&mut self, x: &str, shape: &[Dim<'_>]) -> String {
+        let s = self.shape_of(shape);
+        self.op("Reshape", &[x, &s], vec![])
+    }
+
+    /// A 1-D int64 shape tensor of `dims`, consecutive constants in one initializer.
+    pub fn shape_of(&mut self, dims: &[Dim<'_>]) -> String {
+        let mut parts: Vec<String> = Vec::new();
+        let mut constants: Vec<i64> = Vec::new();
+        for d in dims {
+            match d {
+                Dim::Const(v) => constants.push(*v),
+                Dim::Tensor(t) => {
+                    if !constants.is_empty() {
+                        parts.push(self.i64s(&std::mem::take(&mut constants)));
+                    }
+                    parts.push((*t).to_string());
+                }
+            }
+        }
+        if !constants.is_empty() {
+            parts.push(self.i64s(&constants));
+        }
+        let refs: Vec<&str> = parts.iter().map(String::as_str).collect();
+        self.op("Concat", &refs, vec![attr_int("axis", 0)])
+    }
+
     pub fn transpose(&mut self, x: &str, perm: &[i64]) -> String {
         self.op("Transpose", &[x], vec![attr_ints("perm", perm)])
     }
@@ -178,4 +216,13 @@ impl Graph {
         let m = self.op("Mul", &[x, &a], vec![]);
         self.op("Mul", &[&m, &half], vec![])
     }
+}
+
+/// One dimension of a shape computed at run time.
+#[derive(Debug, Clone, Copy)]
+pub enum Dim<'a> {
+    /// A constant (0 copies the input's dimension, -1 infers it).
+    Const(i64),
+    /// A 1-D int64 tensor of one element, by name.
+    Tensor(&'a str),
 }

@@ -1,6 +1,7 @@
 //! ONNX export of the network: the single hand-off to the server. [`export_onnx`] walks the
 //! model's modules (same structure and arithmetic as `InsSplatNet::forward`) into an ONNX
-//! graph, opset 17, IR 8, with the view count N as the symbolic dimension "N", the weights
+//! graph, opset 17, IR 8, with the view count, the image's height and width and the patch count
+//! as the symbolic dimensions "N", "H", "W" and "T", the weights
 //! as initializers, and the signature's metadata keys in `metadata_props`. With
 //! [`Weights::Int8`] the linear layers' weights are stored as int8 ([`int8`]; `inssplat-train
 //! quantize` writes such a file from any exported one).
@@ -44,6 +45,10 @@ pub const OPSET: i64 = 17;
 pub const IR_VERSION: i64 = 8;
 /// Name of the symbolic view-count dimension.
 pub const VIEWS_DIM: &str = "N";
+/// Names of the symbolic image height and width, and of the patch count a view.
+const HEIGHT_DIM: &str = "H";
+const WIDTH_DIM: &str = "W";
+const TOKENS_DIM: &str = "T";
 /// Metadata key of the network's whole [`crate::model::ModelConfig`] as JSON, which
 /// [`import_onnx`] reads back (the server does not need it).
 pub const META_MODEL_CONFIG: &str = "inssplat.model_config";
@@ -100,32 +105,32 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
     g.int8 = meta.weights == Weights::Int8;
     net::network(&mut g, net)?;
     let c = net.config();
-    let (hw, ds) = (c.image_size as i64, c.sem_dim as i64);
+    let ds = c.sem_dim as i64;
     let n = || Dim::Sym(VIEWS_DIM);
+    let map = |channels: i64| vec![n(), F(channels), Dim::Sym(HEIGHT_DIM), Dim::Sym(WIDTH_DIM)];
     use Dim::Fixed as F;
     let outputs = [
         (sig::OUTPUT_CAMERA.name, vec![n(), F(sig::CAMERA_CHANNELS as i64)]),
-        (sig::OUTPUT_DEPTH.name, vec![n(), F(1), F(hw), F(hw)]),
-        (sig::OUTPUT_DEPTH_CONF.name, vec![n(), F(1), F(hw), F(hw)]),
-        (sig::OUTPUT_GAUSSIANS.name, vec![n(), F(sig::GAUSSIAN_CHANNELS as i64), F(hw), F(hw)]),
-        (sig::OUTPUT_INSTANCE.name, vec![n(), F(crate::model::OUT_INSTANCE as i64), F(hw), F(hw)]),
-        (sig::OUTPUT_SEMANTIC.name, vec![n(), F(ds), F(hw), F(hw)]),
+        (sig::OUTPUT_DEPTH.name, map(1)),
+        (sig::OUTPUT_DEPTH_CONF.name, map(1)),
+        (sig::OUTPUT_GAUSSIANS.name, map(sig::GAUSSIAN_CHANNELS as i64)),
+        (sig::OUTPUT_INSTANCE.name, map(crate::model::OUT_INSTANCE as i64)),
+        (sig::OUTPUT_SEMANTIC.name, map(ds)),
         (sig::OUTPUT_SEM_PROJ_WEIGHT.name, vec![F(sig::TEXT_DIM as i64), F(ds)]),
         (sig::OUTPUT_SEM_PROJ_BIAS.name, vec![F(sig::TEXT_DIM as i64)]),
     ];
     debug_assert_eq!(outputs.len(), sig::OUTPUTS.len());
-    let tokens = (c.grid() * c.grid()) as i64;
     let rays = c.camera_rays.map(|k| {
         (
             sig::INPUT_RAYS.name,
-            vec![n(), F(tokens), F(inssplat_proto::rays::ray_channels(k) as i64)],
+            vec![n(), Dim::Sym(TOKENS_DIM), F(inssplat_proto::rays::ray_channels(k) as i64)],
         )
     });
     let graph = GraphProto {
         node: g.nodes,
         name: Some("inssplat".into()),
         initializer: g.initializers,
-        input: std::iter::once(value_info(sig::INPUT_IMAGES.name, &[n(), F(3), F(hw), F(hw)]))
+        input: std::iter::once(value_info(sig::INPUT_IMAGES.name, &map(3)))
             .chain(rays.iter().map(|(name, dims)| value_info(name, dims)))
             .collect(),
         output: outputs.iter().map(|(name, dims)| value_info(name, dims)).collect(),
@@ -135,6 +140,8 @@ pub fn to_model_proto(net: &InsSplatNet, meta: &ExportMeta) -> Result<ModelProto
         (sig::META_IO_VERSION, sig::IO_VERSION.to_string()),
         (sig::META_MODEL_VERSION, meta.model_version.clone()),
         (sig::META_RESOLUTION, resolution),
+        (sig::META_SIZE_MULTIPLE, c.size_multiple().to_string()),
+        (sig::META_PATCH, c.patch.to_string()),
         (sig::META_SEM_DIM, c.sem_dim.to_string()),
         (sig::META_TRAIN_STEPS, meta.train_steps.to_string()),
         (
@@ -165,7 +172,7 @@ pub fn to_onnx_bytes(net: &InsSplatNet, meta: &ExportMeta) -> Result<Vec<u8>, Ex
     Ok(to_model_proto(net, meta)?.encode_to_vec())
 }
 
-/// Writes `net` as an ONNX file at `path` (resolution "HxW" in pixels, e.g. "128x128").
+/// Writes `net` as an ONNX file at `path`.
 pub fn export_onnx(net: &InsSplatNet, path: &Path, meta: &ExportMeta) -> Result<(), ExportError> {
     let bytes = to_onnx_bytes(net, meta)?;
     std::fs::write(path, bytes)

@@ -3,16 +3,17 @@
 //! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
 //! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
 //! Shape, Expand, Exp, Softplus, Sigmoid, Identity; ReduceMean for pooled keys; in an int8
-//! file also DynamicQuantizeLinear, MatMulInteger and Cast). The view count stays symbolic: shapes
-//! are given with 0 (copy) and -1 (infer), and the only data-dependent size, the number of
-//! non-reference views, comes from a Shape node.
+//! file also DynamicQuantizeLinear, MatMulInteger and Cast; Resize for the position embedding).
+//! The view count and the image's height and width stay symbolic: the patch grid ([`Sizes`])
+//! is read from the images' Shape, and the position embedding is resampled to it by `Resize`
+//! (linear, half-pixel), as [`InsSplatNet::position_embedding`] does.
 
 use burn::nn::conv::{Conv2d, ConvTranspose2d};
 use burn::nn::{LayerNorm, Linear};
 use inssplat_proto::signature as sig;
 
 use super::ExportError;
-use super::graph::{Graph, attr_float, attr_int, attr_ints};
+use super::graph::{Dim, Graph, attr_float, attr_int, attr_ints, attr_string};
 use crate::model::{
     Block, CameraHead, DenseDecoder, GAUSSIAN_AFFINE_CHANNELS, InsSplatNet, LN_EPS, ModelConfig,
     OUT_INSTANCE, SH_C0, gaussian_affine,
@@ -85,30 +86,31 @@ fn conv_transpose(
     Ok(g.op("ConvTranspose", &[x, &w, &b], attrs))
 }
 
-/// `KeyPooling::apply` on `t`, `[1, heads, views·(1 + grid²), head_dim]` (views symbolic),
-/// for a network with [`ModelConfig::global_kv_pool`] `pool`.
-fn pool_keys(g: &mut Graph, t: &str, heads: i64, hd: i64, grid: i64, pool: i64) -> String {
-    let q = grid / pool;
-    let t = g.reshape(t, &[heads, -1, 1 + grid * grid, hd]);
+/// `KeyPooling::apply` on `t`, `[1, heads, views·(1 + rows·columns), head_dim]`, for a network
+/// with [`ModelConfig::global_kv_pool`] `pool` (views and grid symbolic, from `sizes`).
+fn pool_keys(g: &mut Graph, t: &str, heads: i64, hd: i64, sizes: &Sizes, pool: i64) -> String {
+    use Dim::{Const as C, Tensor as T};
+    let t = g.reshape_to(t, &[C(heads), T(&sizes.views), C(-1), C(hd)]);
     let camera = g.slice(&t, &[0], &[1], &[2]);
     let patches = g.slice(&t, &[1], &[END], &[2]);
-    let patches = g.reshape(&patches, &[heads, -1, q, pool, q, pool, hd]);
+    let (qh, qw) = (sizes.pooled[0].as_str(), sizes.pooled[1].as_str());
+    let patches = g.reshape_to(&patches, &[C(heads), C(-1), T(qh), C(pool), T(qw), C(pool), C(hd)]);
     let pooled =
         g.op("ReduceMean", &[&patches], vec![attr_ints("axes", &[3, 5]), attr_int("keepdims", 0)]);
-    let pooled = g.reshape(&pooled, &[heads, -1, q * q, hd]);
+    let pooled = g.reshape_to(&pooled, &[C(heads), T(&sizes.views), C(-1), C(hd)]);
     let joined = g.op("Concat", &[&camera, &pooled], vec![attr_int("axis", 2)]);
     g.reshape(&joined, &[1, heads, -1, hd])
 }
 
 /// One transformer layer on `x`: `[batch, seq, dim]` (batch and seq may be symbolic); a
-/// global layer of a network with [`ModelConfig::global_kv_pool`] passes `(grid, pool)`.
+/// global layer of a network with [`ModelConfig::global_kv_pool`] passes the sizes and pool.
 fn block(
     g: &mut Graph,
     hint: &str,
     m: &Block,
     x: &str,
     dim: usize,
-    pooling: Option<(usize, usize)>,
+    pooling: Option<(&Sizes, usize)>,
 ) -> Result<String, ExportError> {
     let heads = m.heads as i64;
     let hd = (dim / m.heads) as i64;
@@ -122,9 +124,8 @@ fn block(
     let k = g.op("Squeeze", &[&parts[1], &axis0], vec![]);
     let v = g.op("Squeeze", &[&parts[2], &axis0], vec![]);
     let (k, v) = match pooling {
-        Some((grid, pool)) => {
-            let pool =
-                |g: &mut Graph, t: &str| pool_keys(g, t, heads, hd, grid as i64, pool as i64);
+        Some((sizes, pool)) => {
+            let pool = |g: &mut Graph, t: &str| pool_keys(g, t, heads, hd, sizes, pool as i64);
             (pool(g, &k), pool(g, &v))
         }
         None => (k, v),
@@ -146,20 +147,47 @@ fn block(
     Ok(g.op("Add", &[&x, &h], vec![]))
 }
 
+/// The run-time sizes of the input, each a 1-D int64 tensor of one element: the view count,
+/// the patch grid's rows and columns, and (with pooled global keys) the pooled grid's.
+struct Sizes {
+    views: String,
+    grid: [String; 2],
+    pooled: [String; 2],
+}
+
+impl Sizes {
+    fn of_images(g: &mut Graph, c: &ModelConfig) -> Self {
+        let shape = g.op("Shape", &[sig::INPUT_IMAGES.name], vec![]);
+        let views = g.slice(&shape, &[0], &[1], &[0]);
+        let mut side = |axis: i64, divisor: usize| {
+            let pixels = g.slice(&shape, &[axis], &[axis + 1], &[0]);
+            let d = g.i64s(&[divisor as i64]);
+            g.op("Div", &[&pixels, &d], vec![])
+        };
+        let grid = [side(2, c.patch), side(3, c.patch)];
+        let m = c.size_multiple();
+        let pooled = [side(2, m), side(3, m)];
+        Self { views, grid, pooled }
+    }
+}
+
 /// Token embedding, as `InsSplatNet::embed`. Returns (centred images, tokens `[N, S, dim]`).
 fn embed(
     g: &mut Graph,
     net: &InsSplatNet,
     c: &ModelConfig,
+    sizes: &Sizes,
 ) -> Result<(String, String), ExportError> {
-    let (p, gr, d) = (c.patch as i64, c.grid() as i64, c.dim);
+    use Dim::{Const as C, Tensor as T};
+    let (p, d) = (c.patch as i64, c.dim);
+    let [gh, gw] = [sizes.grid[0].as_str(), sizes.grid[1].as_str()];
     let half = g.scalar(0.5);
     let centred = g.op("Sub", &[sig::INPUT_IMAGES.name, &half], vec![]);
-    let x = g.reshape(&centred, &[-1, 3, gr, p, gr, p]);
+    let x = g.reshape_to(&centred, &[C(-1), C(3), T(gh), C(p), T(gw), C(p)]);
     let x = g.transpose(&x, &[0, 2, 4, 1, 3, 5]);
-    let x = g.reshape(&x, &[-1, gr * gr, 3 * p * p]);
+    let x = g.reshape(&x, &[0, -1, 3 * p * p]);
     let x = linear(g, "patch_embed", &net.patch_embed, &x)?;
-    let pos = g.param("pos_embed", net.pos_embed.val())?;
+    let pos = position_embedding(g, net, c, sizes)?;
     let mut x = g.op("Add", &[&x, &pos], vec![]);
     if let Some(embed) = &net.ray_embed {
         let rays = linear(g, "ray_embed", embed, sig::INPUT_RAYS.name)?;
@@ -180,6 +208,32 @@ fn embed(
     let rest = g.op("Concat", &[&rest_cam, &rest], vec![attr_int("axis", 1)]);
     let tokens = g.op("Concat", &[&first, &rest], vec![attr_int("axis", 0)]);
     Ok((centred, tokens))
+}
+
+/// `InsSplatNet::position_embedding` at the run-time grid: the square `[1, dim, g, g]`
+/// resampled by `Resize` (linear, half-pixel centres; the same size is the identity).
+fn position_embedding(
+    g: &mut Graph,
+    net: &InsSplatNet,
+    c: &ModelConfig,
+    sizes: &Sizes,
+) -> Result<String, ExportError> {
+    use Dim::{Const as C, Tensor as T};
+    let (side, d) = (c.grid() as i64, c.dim as i64);
+    let pos = g.param("pos_embed", net.pos_embed.val())?;
+    let square = g.reshape(&pos, &[1, side, side, d]);
+    let square = g.transpose(&square, &[0, 3, 1, 2]);
+    let target = g.shape_of(&[C(1), C(d), T(&sizes.grid[0]), T(&sizes.grid[1])]);
+    let resized = g.op(
+        "Resize",
+        &[&square, "", "", &target],
+        vec![
+            attr_string("mode", "linear"),
+            attr_string("coordinate_transformation_mode", "half_pixel"),
+        ],
+    );
+    let resized = g.transpose(&resized, &[0, 2, 3, 1]);
+    Ok(g.reshape(&resized, &[1, -1, d]))
 }
 
 fn camera_head(
@@ -210,13 +264,15 @@ fn decoder(
     levels: &[String],
     centred: &str,
     c: &ModelConfig,
+    sizes: &Sizes,
 ) -> Result<(), ExportError> {
-    let gr = c.grid() as i64;
+    use Dim::{Const as C, Tensor as T};
     let refs: Vec<&str> = levels.iter().map(String::as_str).collect();
     let x = g.op("Concat", &refs, vec![attr_int("axis", 2)]);
     let x = layer_norm(g, "decoder.norm", &m.norm, &x)?;
     let x = linear(g, "decoder.fuse", &m.fuse, &x)?;
-    let x = g.reshape(&x, &[-1, gr, gr, c.decoder_dim as i64]);
+    let grid = [T(&sizes.grid[0]), T(&sizes.grid[1])];
+    let x = g.reshape_to(&x, &[C(-1), grid[0], grid[1], C(c.decoder_dim as i64)]);
     let mut features: Vec<String> = Vec::with_capacity(m.skips.len());
     for (l, skip) in m.skips.iter().enumerate() {
         let input = features.last().map_or(centred, String::as_str);
@@ -273,8 +329,8 @@ fn decoder(
 pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     let c = net.config();
     let d = c.dim as i64;
-    let s = (c.grid() * c.grid() + 1) as i64;
-    let (centred, mut x) = embed(g, net, c)?;
+    let sizes = Sizes::of_images(g, c);
+    let (centred, mut x) = embed(g, net, c, &sizes)?;
     let mut levels = Vec::new();
     for (i, b) in net.blocks.iter().enumerate() {
         let hint = format!("blocks.{i}");
@@ -282,15 +338,15 @@ pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
             x = block(g, &hint, b, &x, c.dim, None)?;
         } else {
             let flat = g.reshape(&x, &[1, -1, d]);
-            let y = block(g, &hint, b, &flat, c.dim, c.global_kv_pool.map(|p| (c.grid(), p)))?;
-            x = g.reshape(&y, &[-1, s, d]);
+            let y = block(g, &hint, b, &flat, c.dim, c.global_kv_pool.map(|p| (&sizes, p)))?;
+            x = g.reshape_to(&y, &[Dim::Tensor(&sizes.views), Dim::Const(-1), Dim::Const(d)]);
             levels.push(g.slice(&x, &[1], &[END], &[1]));
         }
     }
     let cam = g.slice(&x, &[0], &[1], &[1]);
     let cam = g.reshape(&cam, &[-1, d]);
     camera_head(g, &net.camera_head, &cam, c)?;
-    decoder(g, &net.decoder, &levels, &centred, c)?;
+    decoder(g, &net.decoder, &levels, &centred, c, &sizes)?;
     let (w, b) = net.sem_proj();
     let w = g.param("sem_proj.weight", w)?;
     let b = g.param("sem_proj.bias", b)?;

@@ -76,31 +76,31 @@ impl Block {
 }
 
 /// How a global layer pools its keys and values: the sequence holds `views` views of one
-/// camera token and `grid`² patch tokens each (row-major); each view keeps its camera token
-/// and averages its patches' keys (and values) over `pool` × `pool` squares.
+/// camera token and a `grid` (rows, columns) of patch tokens each (row-major); each view keeps
+/// its camera token and averages its patches' keys (and values) over `pool` × `pool` squares.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct KeyPooling {
     pub views: usize,
-    pub grid: usize,
+    pub grid: [usize; 2],
     pub pool: usize,
 }
 
 impl KeyPooling {
-    /// `[1, heads, views·(1 + grid²), head_dim]` → `[1, heads, views·(1 + (grid/pool)²),
-    /// head_dim]`.
+    /// `[1, heads, views·(1 + rows·columns), head_dim]` → `[1, heads, views·(1 + rows·columns
+    /// / pool²), head_dim]`.
     pub fn apply(&self, t: Tensor<4>) -> Tensor<4> {
         let [_, heads, _, hd] = t.dims();
-        let (n, g, p) = (self.views, self.grid, self.pool);
-        let q = g / p;
-        let t = t.reshape([heads, n, 1 + g * g, hd]);
+        let ([gh, gw], n, p) = (self.grid, self.views, self.pool);
+        let (qh, qw) = (gh / p, gw / p);
+        let t = t.reshape([heads, n, 1 + gh * gw, hd]);
         let camera = t.clone().narrow(2, 0, 1);
         let pooled = t
-            .narrow(2, 1, g * g)
-            .reshape([heads * n, q, p, q, p, hd])
+            .narrow(2, 1, gh * gw)
+            .reshape([heads * n, qh, p, qw, p, hd])
             .mean_dim(2)
             .mean_dim(4)
-            .reshape([heads, n, q * q, hd]);
-        Tensor::cat(vec![camera, pooled], 2).reshape([1, heads, n * (1 + q * q), hd])
+            .reshape([heads, n, qh * qw, hd]);
+        Tensor::cat(vec![camera, pooled], 2).reshape([1, heads, n * (1 + qh * qw), hd])
     }
 }
 
@@ -115,7 +115,7 @@ mod tests {
         let device = Device::flex();
         let values: Vec<f32> = (0..34).map(|i| i as f32).collect();
         let t = Tensor::<1>::from_floats(values.as_slice(), &device).reshape([1, 1, 34, 1]);
-        let pooled = KeyPooling { views: 2, grid: 4, pool: 2 }.apply(t);
+        let pooled = KeyPooling { views: 2, grid: [4, 4], pool: 2 }.apply(t);
         assert_eq!(pooled.dims(), [1, 1, 10, 1]);
         let got = pooled.into_data().try_to_vec::<f32>().expect("f32");
         // View 0: camera 0, patches 1..=16 row-major; its top-left square is 1, 2, 5, 6.

@@ -167,7 +167,6 @@ impl DenseDecoder {
         c: &ModelConfig,
     ) -> DenseOutput {
         let [n, _, h, w] = images.dims();
-        let g = c.grid();
         let centred = images.clone() - 0.5;
         let mut features = Vec::with_capacity(self.skips.len());
         for skip in &self.skips {
@@ -175,7 +174,8 @@ impl DenseDecoder {
             features.push(gelu(skip.encode.forward(input)));
         }
         let tokens = self.fuse.forward(self.norm.forward(Tensor::cat(levels, 2)));
-        let mut x = tokens.reshape([n, g, g, c.decoder_dim]).permute([0, 3, 1, 2]);
+        let mut x =
+            tokens.reshape([n, h / c.patch, w / c.patch, c.decoder_dim]).permute([0, 3, 1, 2]);
         for (s, stage) in self.stages.iter().enumerate() {
             x = x.clone() + gelu(stage.refine.forward(x));
             x = stage.up.forward(x);
@@ -207,7 +207,6 @@ impl DenseDecoder {
             1,
         ]);
         let colour = colour + (images - 0.5) * (1.0 / SH_C0);
-        debug_assert_eq!([h, w], [c.image_size, c.image_size]);
         DenseOutput {
             depth: softplus(depth, 1.0) * c.depth_scale,
             depth_conf: conf.exp() + 1.0,

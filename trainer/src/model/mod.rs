@@ -20,6 +20,8 @@ use inssplat_proto::rays;
 use burn::module::Param;
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
+use burn::tensor::module::interpolate;
+use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use inssplat_proto::signature::TEXT_DIM;
 
 pub use block::{Block, KeyPooling, LN_EPS};
@@ -95,6 +97,12 @@ impl ModelConfig {
     /// Patches per side.
     pub fn grid(&self) -> usize {
         self.image_size / self.patch
+    }
+
+    /// What the input's height and width must be multiples of: the patch, times the pooled
+    /// square's side with [`ModelConfig::global_kv_pool`].
+    pub fn size_multiple(&self) -> usize {
+        self.patch * self.global_kv_pool.unwrap_or(1)
     }
 
     /// Upsampling stages of the decoder (log2 of the patch size).
@@ -190,8 +198,10 @@ impl ModelConfig {
 pub enum ModelError {
     #[error("invalid model configuration: {0}")]
     Config(String),
-    #[error("images must be [N, 3, {size}, {size}] with N ≥ 1, got {got:?}")]
-    InputShape { size: usize, got: [usize; 4] },
+    #[error(
+        "images must be [N, 3, H, W] with N ≥ 1 and H, W positive multiples of {multiple}, got {got:?}"
+    )]
+    InputShape { multiple: usize, got: [usize; 4] },
     #[error("camera rays: {0}")]
     Rays(String),
 }
@@ -201,7 +211,8 @@ pub enum ModelError {
 pub struct InsSplatNet {
     /// Patch embedding: a linear map of each flattened (channel, row, column) patch.
     pub(crate) patch_embed: Linear,
-    /// Learned position embedding, `[tokens, dim]`.
+    /// Learned position embedding, `[tokens, dim]` of the square grid at `image_size`;
+    /// interpolated to other grids ([`InsSplatNet::position_embedding`]).
     pub(crate) pos_embed: Param<Tensor<2>>,
     /// Camera token of the reference view (row 0) and of every other view (row 1).
     pub(crate) camera_tokens: Param<Tensor<2>>,
@@ -263,18 +274,35 @@ impl InsSplatNet {
         self.sem_proj.forward(features)
     }
 
+    /// The position embedding of a `gh` × `gw` patch grid, `[gh·gw, dim]`: the learned one at
+    /// its own square grid, else that one resampled bilinearly (half-pixel centres, as ONNX
+    /// `Resize` in linear mode), as ViTs take other input sizes.
+    pub fn position_embedding(&self, gh: usize, gw: usize) -> Tensor<2> {
+        let (g, d) = (self.config.grid(), self.config.dim);
+        let pos = self.pos_embed.val();
+        if (gh, gw) == (g, g) {
+            return pos;
+        }
+        let square = pos.reshape([1, g, g, d]).permute([0, 3, 1, 2]);
+        let options = InterpolateOptions::new(InterpolateMode::Bilinear)
+            .with_align_corners(false)
+            .with_output_size([gh, gw]);
+        interpolate(square, options).permute([0, 2, 3, 1]).reshape([gh * gw, d])
+    }
+
     /// Token embedding: `[N, 3, H, W]` images in [0, 1] (and the views' camera rays, with
     /// [`ModelConfig::camera_rays`]) → `[N, 1 + tokens, dim]`, camera token first, reference
     /// embedding on view 0.
     fn embed(&self, images: Tensor<4>, rays: Option<Tensor<3>>) -> Tensor<3> {
-        let c = &self.config;
-        let (p, g) = (c.patch, c.grid());
-        let n = images.dims()[0];
+        let p = self.config.patch;
+        let [n, _, h, w] = images.dims();
+        let (gh, gw) = (h / p, w / p);
         let patches = (images - 0.5)
-            .reshape([n, 3, g, p, g, p])
+            .reshape([n, 3, gh, p, gw, p])
             .permute([0, 2, 4, 1, 3, 5])
-            .reshape([n, g * g, 3 * p * p]);
-        let mut x = self.patch_embed.forward(patches) + self.pos_embed.val().unsqueeze_dim(0);
+            .reshape([n, gh * gw, 3 * p * p]);
+        let mut x =
+            self.patch_embed.forward(patches) + self.position_embedding(gh, gw).unsqueeze_dim(0);
         if let (Some(embed), Some(rays)) = (&self.ray_embed, rays) {
             x = x + embed.forward(rays);
         }
@@ -294,7 +322,9 @@ impl InsSplatNet {
         Tensor::cat(vec![first, rest], 0)
     }
 
-    /// The forward pass. `images`: `[N, 3, H, W]`, RGB in [0, 1], N ≥ 1.
+    /// The forward pass. `images`: `[N, 3, H, W]`, RGB in [0, 1], N ≥ 1, H and W multiples of
+    /// [`ModelConfig::size_multiple`] (trained at `image_size` square; other sizes read
+    /// the position embedding resampled).
     pub fn forward(&self, images: Tensor<4>) -> Result<ModelOutput, ModelError> {
         self.forward_with_rays(images, None)
     }
@@ -309,11 +339,14 @@ impl InsSplatNet {
     ) -> Result<ModelOutput, ModelError> {
         let c = &self.config;
         let dims = images.dims();
-        if dims[0] == 0 || dims[1] != 3 || dims[2] != c.image_size || dims[3] != c.image_size {
-            return Err(ModelError::InputShape { size: c.image_size, got: dims });
+        let m = c.size_multiple();
+        let fits = |side: usize| side > 0 && side.is_multiple_of(m);
+        if dims[0] == 0 || dims[1] != 3 || !fits(dims[2]) || !fits(dims[3]) {
+            return Err(ModelError::InputShape { multiple: m, got: dims });
         }
         let n = dims[0];
-        let tokens = c.grid() * c.grid();
+        let grid = [dims[2] / c.patch, dims[3] / c.patch];
+        let tokens = grid[0] * grid[1];
         let expected = c.camera_rays.map(|k| [n, tokens, rays::ray_channels(k)]);
         let got = rays.as_ref().map(|r| r.dims());
         if got != expected {
@@ -328,7 +361,7 @@ impl InsSplatNet {
         let mut x = self.embed(images.clone(), rays);
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
-        let pooling = c.global_kv_pool.map(|pool| KeyPooling { views: n, grid: c.grid(), pool });
+        let pooling = c.global_kv_pool.map(|pool| KeyPooling { views: n, grid, pool });
         for (i, block) in self.blocks.iter().enumerate() {
             if i % 2 == 0 {
                 x = block.forward(x);

@@ -124,7 +124,10 @@ pub fn input_rays(net: &InsSplatNet, sample: &Sample, device: &Device) -> Option
     }
     let scale = median_depth(&sample.depth[..inputs * size * size]).unwrap_or(1.0);
     Some(Tensor::from_data(
-        TensorData::new(rays::patch_rays(&sample.cameras[..inputs], size, patch, k, scale), shape),
+        TensorData::new(
+            rays::patch_rays(&sample.cameras[..inputs], [size, size], patch, k, scale),
+            shape,
+        ),
         device,
     ))
 }

@@ -117,8 +117,8 @@ fn compare(name: &str, ours: Vec<f32>, theirs: &[f32], tol: Tol) -> f32 {
     relative
 }
 
-/// Runs `views` random images through `net` and the session, compares every output, and
-/// returns each output's [`compare`] figure by name.
+/// Runs `views` random images of the trained size through `net` and the session, compares
+/// every output, and returns each output's [`compare`] figure by name.
 fn check_views(
     views: usize,
     net: &InsSplatNet,
@@ -127,15 +127,26 @@ fn check_views(
     tol: Tol,
 ) -> Vec<(&'static str, f32)> {
     let size = net.config().image_size;
-    let images =
-        Tensor::<4>::random([views, 3, size, size], Distribution::Uniform(0.0, 1.0), device);
-    let input = OrtTensor::from_array(([views, 3, size, size], to_vec(images.clone())))
-        .expect("input tensor");
+    check_size(views, [size, size], net, session, device, tol)
+}
+
+/// [`check_views`] on images `[height, width]`.
+fn check_size(
+    views: usize,
+    [h, w]: [usize; 2],
+    net: &InsSplatNet,
+    session: &mut Session,
+    device: &Device,
+    tol: Tol,
+) -> Vec<(&'static str, f32)> {
+    let images = Tensor::<4>::random([views, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
+    let input =
+        OrtTensor::from_array(([views, 3, h, w], to_vec(images.clone()))).expect("input tensor");
     // A network that reads camera rays gets random ones, the same on both sides.
     let rays = net.config().camera_rays.map(|k| {
-        let grid = size / net.config().patch;
+        let p = net.config().patch;
         Tensor::<3>::random(
-            [views, grid * grid, inssplat_proto::rays::ray_channels(k)],
+            [views, (h / p) * (w / p), inssplat_proto::rays::ray_channels(k)],
             Distribution::Uniform(-1.0, 1.0),
             device,
         )
@@ -214,9 +225,37 @@ fn a_network_that_reads_camera_rays_exports_with_parity() {
         session_of(&inssplat_trainer::export::to_onnx_bytes(&net, &meta).expect("export"));
     let rays =
         session.inputs().iter().find(|i| i.name() == sig::INPUT_RAYS.name).expect("a rays input");
-    assert_eq!(rays.dtype().tensor_shape().map(|s| s.to_vec()), Some(vec![-1, 16, 24]));
+    assert_eq!(rays.dtype().tensor_shape().map(|s| s.to_vec()), Some(vec![-1, -1, 24]));
     for views in [2, 3] {
         check_views(views, &net, &mut session, &device, Tol::Exact);
+    }
+}
+
+/// One file runs every input whose sides are multiples of its size multiple: a network with
+/// pooled global keys and camera rays, on inputs wider, taller and smaller than the square it
+/// was built at, computes in ONNX Runtime what the trainer's forward computes (the position
+/// embedding resampled by `Resize` as by burn's bilinear interpolation).
+#[test]
+fn one_file_runs_inputs_of_any_aspect_with_parity() {
+    let device = Device::flex();
+    device.seed(11);
+    let net = small_config()
+        .with_image_skips(Some(4))
+        .with_camera_rays(Some(2))
+        .with_global_kv_pool(Some(2))
+        .init(&device)
+        .expect("valid config")
+        .map(&mut Perturb { std: 0.15 });
+    let meta =
+        ExportMeta { model_version: "parity-aspect".into(), train_steps: 0, weights: Weights::F32 };
+    let mut session =
+        session_of(&inssplat_trainer::export::to_onnx_bytes(&net, &meta).expect("export"));
+    assert_eq!(
+        session.metadata().expect("metadata").custom(sig::META_SIZE_MULTIPLE).as_deref(),
+        Some("16")
+    );
+    for size in [[32, 32], [16, 32], [32, 16], [48, 32]] {
+        check_size(2, size, &net, &mut session, &device, Tol::Exact);
     }
 }
 
@@ -282,6 +321,7 @@ fn export_declares_the_signature() {
     assert_eq!(names(&graph.output), want_out);
     let allowed = [
         "Add",
+        "Resize",
         "Concat",
         "Conv",
         "ConvTranspose",
