@@ -225,7 +225,13 @@ fn load_and_spawn(
     let models = (0..state.workers)
         .map(|_| Model::load(&config.model, config.threads))
         .collect::<Result<Vec<_>, _>>()?;
-    let version = models[0].network.model_version.clone();
+    let network = &models[0].network;
+    if config.pipeline.photo_aspect && network.size_multiple.is_none() {
+        // Refused at start rather than on every request.
+        let resolution = network.resolution;
+        return Err(inssplat_pipeline::reconstruct::PipelineError::SquareOnly { resolution }.into());
+    }
+    let version = network.model_version.clone();
     for (i, model) in models.into_iter().enumerate() {
         let worker = Worker {
             model,
