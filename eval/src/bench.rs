@@ -50,11 +50,12 @@ pub struct BenchRow {
 }
 
 impl BenchRow {
-    /// Everything after the network (and its second pass, stage "rays").
+    /// Everything after the network (and its second pass, stage "rays"; the detector's
+    /// network, stage "detect", is no post-processing either).
     pub fn post_ms(&self) -> f64 {
         self.stage_ms
             .iter()
-            .filter(|(s, _)| !matches!(s.as_str(), "decode" | "model" | "rays"))
+            .filter(|(s, _)| !matches!(s.as_str(), "decode" | "detect" | "model" | "rays"))
             .map(|(_, v)| v)
             .sum()
     }
@@ -242,10 +243,12 @@ pub fn compare_markdown(rows: &[CompareRow], names: [&str; 2], threads: usize) -
 /// The table and the growth ratios, in markdown.
 pub fn markdown(rows: &[BenchRow], threads: usize, gpu: Option<&str>) -> String {
     // The refine stage only runs when asked for (`--refine-steps`), the rays stage only for a
-    // network that reads its cameras.
+    // network that reads its cameras, the detect stage only with a detector.
     let ran = |stage: &str| rows.iter().any(|r| r.stage_ms.contains_key(stage));
-    let stages: Vec<&str> = ["decode", "model", "superpixels", "register", "heading"]
+    let stages: Vec<&str> = ["decode"]
         .into_iter()
+        .chain(ran("detect").then_some("detect"))
+        .chain(["model", "superpixels", "register", "heading"])
         .chain(ran("rays").then_some("rays"))
         .chain(["backproject", "voxelize", "cluster", "vote", "label"])
         .chain(ran("refine").then_some("refine"))

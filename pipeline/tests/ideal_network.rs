@@ -127,7 +127,7 @@ fn an_ideal_network_behind_the_backend_gives_the_rooms_objects_named() {
 
     let stages: Vec<&str> = rec.timings.iter().map(|t| t.stage.as_str()).collect();
     let expected =
-        "decode model superpixels backproject voxelize cluster vote label masks upsample";
+        "decode model superpixels backproject voxelize cluster vote masks label upsample";
     assert_eq!(stages.join(" "), expected, "the stages run, in order");
     for (v, (view, frame)) in rec.views.iter().zip(&scene.frames).enumerate() {
         let truth: Vec<u32> =

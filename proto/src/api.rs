@@ -102,6 +102,40 @@ pub struct InstanceOut {
     pub gaussians: usize,
     /// Axis-aligned bounding box in the scene frame: min xyz, max xyz.
     pub bbox: [[f32; 3]; 2],
+    /// Which evidence gave the label (absent in outputs written before 0.15: `features`).
+    #[serde(default)]
+    pub named_by: NamedBy,
+    /// The object detector's strongest class for this instance, where it found any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<DetectorVote>,
+}
+
+/// The evidence that named an instance: each kind moves its semantic prototype in the text
+/// space, and the label is the one the last kind that changed the nearest word chose.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "snake_case")]
+pub enum NamedBy {
+    /// The network's semantic features alone.
+    #[default]
+    Features,
+    /// The shape classifier (size, height above the floor, colour) moved it to this label.
+    Shape,
+    /// The object detector's boxes in the photos moved it to this label.
+    Detector,
+}
+
+/// What the object detector said of an instance.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct DetectorVote {
+    /// The detector's class (COCO's name, e.g. `couch`).
+    pub class: String,
+    /// Its vote in [0, 1]: the box score × the box's IoU with the instance's pixels, averaged
+    /// over the views weighted by how much of the instance each sees.
+    pub vote: f32,
+    /// Views that see the instance.
+    pub views: usize,
 }
 
 /// Wall time of one pipeline stage.

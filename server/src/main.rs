@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use inssplat_pipeline::backend::{Model, threads_or_all};
+use inssplat_pipeline::detector::{Detector, DetectorParams};
 use inssplat_pipeline::reconstruct::{DEFAULT_SHAPE_WEIGHT, PipelineConfig, reconstruct_with};
-use inssplat_pipeline::switches::PipelineSwitches;
+use inssplat_pipeline::switches::{DetectorSwitches, PipelineSwitches};
 use inssplat_pipeline::vocab::label_cache;
 use inssplat_pipeline::{inputs, output, query, render_view, saved, vocab};
 use inssplat_raster::render::{Backend, GpuRenderer};
@@ -68,6 +69,26 @@ enum Command {
         /// Print the answer as JSON.
         #[arg(long, env = "INSSPLAT_JSON")]
         json: bool,
+    },
+    /// Find objects in photos with the object detector that helps name the instances (COCO's
+    /// 80 classes): each photo's boxes in its pixels, with class and score.
+    Detect {
+        /// Photo files, or folders of photos.
+        #[arg(required = true)]
+        photos: Vec<PathBuf>,
+        /// The network file whose `detector/` folder is the default.
+        #[arg(long, env = "INSSPLAT_MODEL", default_value = "models/inssplat-default.onnx")]
+        model: PathBuf,
+        /// The detector's folder (`nanodet_g_416.onnx`, `coco80.txt`); default: `detector/`
+        /// beside the network's file, else the workspace's `models/detector`.
+        #[arg(long, env = "INSSPLAT_DETECTOR", value_name = "DIR")]
+        detector: Option<PathBuf>,
+        /// Print JSON.
+        #[arg(long, env = "INSSPLAT_JSON")]
+        json: bool,
+        /// Threads for ONNX Runtime (default: all cores).
+        #[arg(long, env = "INSSPLAT_THREADS")]
+        threads: Option<usize>,
     },
     /// Render a reconstruction from new cameras: RGB, instance and label images.
     Render {
@@ -190,6 +211,25 @@ fn main() -> anyhow::Result<()> {
                     println!("{msg}");
                 } else {
                     println!("masks in {}", dir.display());
+                }
+            }
+            Ok(())
+        }
+        Command::Detect { photos, model, detector, json, threads } => {
+            let paths = inputs::photo_paths(&photos)?;
+            let photos = inputs::read_photos(&paths)?;
+            let dir = DetectorSwitches { detector, ..Default::default() }.dir(&model);
+            let found = Detector::load(&dir, threads_or_all(threads), DetectorParams::default())?
+                .detect_photos(&photos)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&found)?);
+            } else {
+                for photo in &found {
+                    println!("{} ({}×{}):", photo.photo, photo.width, photo.height);
+                    for d in &photo.detections {
+                        let [x0, y0, x1, y1] = d.bbox.map(|v| v.round());
+                        println!("  {:<14} {:.2}  [{x0}, {y0}, {x1}, {y1}]", d.class, d.score);
+                    }
                 }
             }
             Ok(())

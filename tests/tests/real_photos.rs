@@ -8,10 +8,14 @@
 
 use std::path::{Path, PathBuf};
 
+use image::RgbImage;
+
 use crate::support::photo::save_jpeg_with_exif;
 use crate::support::s;
 use inssplat_e2e::{inssplat, inssplat_eval};
-use inssplat_proto::api::{CameraOut, FocalSource, Placement, QueryResponse, ReconstructResponse};
+use inssplat_proto::api::{
+    CameraOut, FocalSource, NamedBy, Placement, QueryResponse, ReconstructResponse,
+};
 
 /// The motorcycle pair's focal length, 995 px (Middlebury 2014's calibration, scaled to
 /// 741 px), as the 35 mm-equivalent EXIF field gives it: whole millimetres.
@@ -267,4 +271,85 @@ fn a_real_stereo_pair_takes_its_exif_focal_length_and_gives_masks_at_its_size() 
     let hit = answer.matches.iter().find(|m| m.instance_id == best.id).expect("its own label");
     let mask = &hit.masks[0];
     assert_eq!((mask.rle.width, mask.rle.height), (741, 500));
+}
+
+/// `inssplat detect --json` on `photos`: each photo's `[(class, score)]`, strongest first.
+fn detect(photos: &[&Path]) -> Vec<Vec<(String, f64)>> {
+    let mut args = vec!["detect", "--json"];
+    args.extend(photos.iter().map(|p| s(p)));
+    let run = inssplat(&args);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let found: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let list = found.as_array().unwrap();
+    assert_eq!(list.len(), photos.len());
+    list.iter()
+        .map(|p| {
+            let d = p["detections"].as_array().unwrap();
+            d.iter().map(|d| (d["class"].as_str().unwrap().into(), d["score"].as_f64().unwrap()))
+        })
+        .map(Iterator::collect)
+        .collect()
+}
+
+#[test]
+fn the_detector_finds_the_motorcycle_and_nothing_in_a_blank_or_tiny_photo() {
+    let dir = tempfile::tempdir().unwrap();
+    let blank = dir.path().join("blank.png");
+    RgbImage::from_pixel(64, 48, image::Rgb([128, 128, 128])).save(&blank).unwrap();
+    let tiny = dir.path().join("tiny.png");
+    RgbImage::from_fn(3, 2, |x, y| image::Rgb([40 * x as u8, 90 * y as u8, 200]))
+        .save(&tiny)
+        .unwrap();
+    let motorcycle = photos_dir().join("motorcycle/motorcycle_left.png");
+    let found = detect(&[&motorcycle, &blank, &tiny]);
+    assert_eq!(found[0][0].0, "motorcycle", "{:?}", found[0]);
+    assert!(found[0][0].1 > 0.7, "{:?}", found[0]);
+    assert!(found[1].is_empty() && found[2].is_empty(), "{found:?}");
+    // A file that is no photo: the error names it.
+    let fake = dir.path().join("fake.png");
+    std::fs::write(&fake, b"not a photo").unwrap();
+    let run = inssplat(&["detect", s(&fake)]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("fake.png"));
+}
+
+#[test]
+fn a_detected_class_names_the_nearest_word_and_a_street_is_not_forced_into_a_room() {
+    let dir = tempfile::tempdir().unwrap();
+    let pair: Vec<PathBuf> = ["motorcycle_left.png", "motorcycle_right.png"]
+        .iter()
+        .map(|n| photos_dir().join("motorcycle").join(n))
+        .collect();
+    // COCO's `motorcycle` is no word of this vocabulary; `motorbike` is the nearest.
+    let out = dir.path().join("moto");
+    let vocab = ["--vocab", "motorbike,wall,floor,chair,table"];
+    let r = reconstruct_with(&pair, &out, &vocab);
+    let by_detector: Vec<_> =
+        r.instances.iter().filter(|i| i.named_by == NamedBy::Detector).collect();
+    assert!(!by_detector.is_empty(), "{:?}", r.instances);
+    for i in &by_detector {
+        assert_eq!(i.label, "motorbike");
+        assert_eq!(i.detector.as_ref().unwrap().class, "motorcycle");
+    }
+    let q = inssplat(&["query", s(&out), "the motorbike", "--json"]);
+    assert!(q.status.success(), "{}", String::from_utf8_lossy(&q.stderr));
+    let answer: QueryResponse = serde_json::from_slice(&q.stdout).unwrap();
+    assert!(answer.matches.iter().any(|m| by_detector.iter().any(|i| i.id == m.instance_id)));
+    // Without the detector, nothing is named so.
+    let without = reconstruct_with(
+        &pair,
+        &dir.path().join("plain"),
+        &[&vocab[..], &["--no-detector"]].concat(),
+    );
+    assert!(
+        without.instances.iter().all(|i| i.named_by != NamedBy::Detector && i.detector.is_none())
+    );
+
+    // The street photos: the detector sees trucks, trains and people, none near a word of the
+    // default vocabulary, so none names an instance.
+    let street: Vec<PathBuf> =
+        (2889..=2892).map(|n| photos_dir().join(format!("street/resized_IMG_{n}.jpg"))).collect();
+    let r = reconstruct(&street, &dir.path().join("street"));
+    assert!(r.instances.iter().any(|i| i.detector.is_some()), "the detector saw something");
+    assert!(r.instances.iter().all(|i| i.named_by != NamedBy::Detector), "{:?}", r.instances);
 }

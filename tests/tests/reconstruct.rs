@@ -54,6 +54,7 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
         stages,
         [
             "decode",
+            "detect",
             "model",
             "superpixels",
             "register",
@@ -62,8 +63,8 @@ fn reconstructs_a_scene_and_writes_every_artefact() {
             "voxelize",
             "cluster",
             "vote",
-            "label",
             "masks",
+            "label",
             "upsample"
         ]
     );

@@ -60,6 +60,10 @@ pub enum RuntimeError {
         "keypoint matcher file {path} not found: pass --matcher DIR (a folder with xfeat.onnx and lighterglue.onnx, as models/matcher) or --brief-matches"
     )]
     MatcherMissing { path: PathBuf },
+    #[error(
+        "object detector file {path} not found: pass --detector DIR (a folder with nanodet_g_416.onnx and coco80.txt, as models/detector) or --no-detector"
+    )]
+    DetectorMissing { path: PathBuf },
     #[error("cannot load model {path}: {message}")]
     Load { path: PathBuf, message: String },
     #[error("model {path}: tensor `{tensor}`: {problem}")]

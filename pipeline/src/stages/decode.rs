@@ -100,6 +100,8 @@ pub struct ModelImage {
     pub exif_focal: Option<f32>,
     /// The photo at the masks' size ([`Sizes::mask`]); `None` when none was asked.
     pub guide: Option<RgbImage>,
+    /// The photo for the object detector ([`Sizes::detect`]); `None` when none was asked.
+    pub detect: Option<RgbImage>,
 }
 
 /// The sizes a photo is decoded to.
@@ -115,6 +117,9 @@ pub struct Sizes {
     /// Long side of the masks at the photo's resolution, no larger than the photo's own
     /// (0: none).
     pub mask: u32,
+    /// Long side of the copy the object detector reads, no larger than the photo's own (0:
+    /// none).
+    pub detect: u32,
 }
 
 /// A copy of a photo and its pixels per original pixel.
@@ -149,6 +154,7 @@ pub fn decode_all<'a>(
         .map(|(rgb, exif_focal)| {
             let mut image = letterbox(&rgb, input);
             image.guide = (sizes.mask > 0).then(|| at_most(&rgb, sizes.mask));
+            image.detect = (sizes.detect > 0).then(|| at_most(&rgb, sizes.detect));
             image.detail = detail_copy(rgb, sizes.res, sizes.detail);
             image.exif_focal = exif_focal;
             image
@@ -173,7 +179,7 @@ pub fn input_size(dims: impl IntoIterator<Item = (u32, u32)>, sizes: Sizes) -> [
 }
 
 /// `rgb` with its long side scaled down to `long` when longer.
-fn at_most(rgb: &RgbImage, long: u32) -> RgbImage {
+pub(crate) fn at_most(rgb: &RgbImage, long: u32) -> RgbImage {
     let (w, h) = rgb.dimensions();
     if w.max(h) <= long {
         return rgb.clone();
@@ -326,6 +332,7 @@ fn letterbox(rgb: &RgbImage, input: [u32; 2]) -> ModelImage {
         detail: None,
         exif_focal: None,
         guide: None,
+        detect: None,
     }
 }
 
@@ -334,7 +341,7 @@ mod tests {
     use super::*;
 
     fn sizes(res: u32, detail: u32) -> Sizes {
-        Sizes { res, multiple: None, detail, mask: 0 }
+        Sizes { res, multiple: None, detail, mask: 0, detect: 0 }
     }
 
     /// One photo decoded as the stage decodes a request.
@@ -379,7 +386,7 @@ mod tests {
     /// photos the transposed box, the two together the square; no multiple, the square.
     #[test]
     fn the_input_takes_the_photos_aspect_rounded_to_the_multiple() {
-        let aspect = Sizes { res: 128, multiple: Some(32), detail: 0, mask: 0 };
+        let aspect = Sizes { res: 128, multiple: Some(32), detail: 0, mask: 0, detect: 0 };
         assert_eq!(input_size([(640, 480), (4000, 3000)], aspect), [128, 96]);
         assert_eq!(input_size([(480, 640)], aspect), [96, 128]);
         assert_eq!(input_size([(640, 480), (480, 640)], aspect), [128, 128]);
@@ -445,7 +452,7 @@ mod tests {
 
     #[test]
     fn keeps_the_masks_guide_at_most_the_mask_size() {
-        let sized = |mask| Sizes { res: 10, multiple: None, detail: 0, mask };
+        let sized = |mask| Sizes { res: 10, multiple: None, detail: 0, mask, detect: 0 };
         let guide = |bytes: &[u8], mask| decode("a.png", bytes, sized(mask)).unwrap().guide;
         assert_eq!(guide(&png(40, 20), 16).unwrap().dimensions(), (16, 8));
         assert_eq!(guide(&png(40, 20), 64).unwrap().dimensions(), (40, 20), "never enlarged");

@@ -1,19 +1,24 @@
 //! Stage "label": each instance's semantic prototype (its Gaussians' semantic features through
 //! Φ_sem), moved toward what the model's shape classifier makes of the instance's size,
-//! height above the floor and colour, then named by the nearest text of the vocabulary
-//! ([`inssplat_understand::label`]). The names go into the scene's metadata and the instance
-//! table.
+//! height above the floor and colour, then toward the classes the object detector's boxes
+//! vote for ([`inssplat_understand::label::detections`]), then named by the nearest text of
+//! the vocabulary ([`inssplat_understand::label`]). A detector class votes for the word of the
+//! vocabulary nearest it in the text space (`couch` for `sofa`), and for nothing when no word is
+//! near enough (so a person or a car found in a photo is not forced onto a room's word). The names go into the scene's metadata and the
+//! instance table, with the evidence that gave each.
 
-use inssplat_proto::api::InstanceOut;
+use inssplat_proto::api::{DetectorVote, InstanceOut, NamedBy};
 use inssplat_proto::shape::{DESCRIPTOR, ShapeClassifier, label_cosines};
 use inssplat_proto::{Camera, GaussianScene};
-use inssplat_text::LabelCache;
+use inssplat_text::{Embedding, LabelCache, cosine};
+use inssplat_understand::label::detections::{ClassVotes, ViewDetections, class_votes, fuse_votes};
 use inssplat_understand::label::shape::{fuse, instance_descriptors};
 use inssplat_understand::label::{
     InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes,
 };
 
 use super::stage_err;
+use crate::detector::DetectorParams;
 use crate::reconstruct::PipelineError;
 
 /// The naming of a scene's instances.
@@ -26,6 +31,20 @@ pub struct Naming {
     pub matches: Vec<Option<LabelMatch>>,
     /// Each instance's shape descriptor (ids with too few Gaussians left out).
     pub descriptors: Vec<(u32, [f32; DESCRIPTOR.len()])>,
+    /// Which evidence gave each prototype its label.
+    pub named_by: Vec<NamedBy>,
+    /// The detector's votes for the instances it saw, with its class names.
+    pub votes: Vec<ClassVotes>,
+    pub classes: Vec<String>,
+}
+
+/// The object detector's boxes in the input views, and how naming reads them.
+pub struct DetectorEvidence<'a> {
+    /// The detector's class names.
+    pub classes: &'a [String],
+    /// Each view's instance map with the boxes found in it.
+    pub views: Vec<ViewDetections<'a>>,
+    pub params: &'a DetectorParams,
 }
 
 /// What naming reads besides the scene.
@@ -38,6 +57,8 @@ pub struct LabelInputs<'a> {
     pub shape_weight: f32,
     pub labels: &'a LabelCache,
     pub vocabulary: &'a [String],
+    /// The object detector's boxes, where it ran.
+    pub detections: Option<DetectorEvidence<'a>>,
 }
 
 /// Names the instances of `scene`.
@@ -65,8 +86,43 @@ pub fn run(scene: &GaussianScene, inputs: &LabelInputs<'_>) -> Result<Naming, Pi
     }
     let words: Vec<&str> = inputs.vocabulary.iter().map(String::as_str).collect();
     let texts = inputs.labels.embed(&words).map_err(|e| err(&e))?;
+    let by_features = assign_labels(&unfused, &texts).map_err(|e| err(&e))?;
+    let by_shape = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
+    let (mut votes, mut classes) = (Vec::new(), Vec::new());
+    if let Some(evidence) = &inputs.detections {
+        let params = evidence.params;
+        classes = evidence.classes.to_vec();
+        votes = class_votes(&evidence.views, classes.len(), params.min_pixels);
+        // Only the classes that voted are embedded (each new text costs the encoder a pass).
+        let voted: Vec<usize> =
+            (0..classes.len()).filter(|&c| votes.iter().any(|v| v.votes[c] > 0.0)).collect();
+        let names: Vec<&str> = voted.iter().map(|&c| classes[c].as_str()).collect();
+        let class_texts = inputs.labels.embed(&names).map_err(|e| err(&e))?;
+        let mut usable: Vec<Option<Vec<f32>>> = vec![None; classes.len()];
+        for (&c, t) in voted.iter().zip(&class_texts) {
+            usable[c] = word_family(t, &texts, params.min_cosine);
+        }
+        fuse_votes(&mut prototypes, &votes, &usable, params.weight);
+    }
     let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
-    Ok(Naming { prototypes, unfused, matches, descriptors })
+    let label = |m: &Option<LabelMatch>| m.map(|m| m.label);
+    let named_by = (0..matches.len())
+        .map(|i| match () {
+            _ if label(&matches[i]) != label(&by_shape[i]) => NamedBy::Detector,
+            _ if label(&by_shape[i]) != label(&by_features[i]) => NamedBy::Shape,
+            _ => NamedBy::Features,
+        })
+        .collect();
+    Ok(Naming { prototypes, unfused, matches, descriptors, named_by, votes, classes })
+}
+
+/// The sum of the words of `words` at least `min_cosine` near `text` (unit text embeddings):
+/// the kind of thing a detector's class says, among which the other evidence chooses (`dining
+/// table`: table and coffee table); `None` when no word is that near.
+fn word_family(text: &Embedding, words: &[Embedding], min_cosine: f32) -> Option<Vec<f32>> {
+    let near: Vec<&Embedding> = words.iter().filter(|w| cosine(text, w) >= min_cosine).collect();
+    (!near.is_empty())
+        .then(|| (0..text.len()).map(|k| near.iter().map(|w| w[k]).sum::<f32>()).collect())
 }
 
 impl Naming {
@@ -102,7 +158,8 @@ impl Naming {
         self.prototypes
             .iter()
             .zip(&self.matches)
-            .map(|(p, m)| {
+            .zip(&self.named_by)
+            .map(|((p, m), named_by)| {
                 let mut bbox = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for (mean, _) in
                     scene.means.iter().zip(&scene.instance_id).filter(|(_, id)| **id == p.id)
@@ -118,6 +175,15 @@ impl Naming {
                     score: m.map_or(0.0, |m| m.score),
                     gaussians: p.gaussians,
                     bbox,
+                    named_by: *named_by,
+                    detector: self.votes.iter().find(|v| v.id == p.id).and_then(|v| {
+                        let (class, vote) = v.best()?;
+                        Some(DetectorVote {
+                            class: self.classes[class].clone(),
+                            vote,
+                            views: v.views,
+                        })
+                    }),
                 }
             })
             .collect()

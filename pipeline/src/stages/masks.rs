@@ -10,6 +10,7 @@ use inssplat_geometry::voxel::{DROPPED, Voxelized};
 use inssplat_proto::Camera;
 use inssplat_proto::api::{CameraFit, FocalSource, Placement};
 use inssplat_raster::masks::label_map;
+use inssplat_understand::label::detections::{DetectedBox, ViewDetections};
 use inssplat_understand::upsample::{LowRes, Placement as Grid, UpsampleParams, upsample_labels};
 use rayon::prelude::*;
 
@@ -30,6 +31,20 @@ pub fn run(
     voted_maps(voxelized, per_pixel, segments, pixels)
         .chunks_exact(pixels)
         .map(<[u32]>::to_vec)
+        .collect()
+}
+
+/// Each view's instance map with the detector's boxes in it (model pixels), as naming reads
+/// them.
+pub fn view_detections<'a>(
+    id_maps: &'a [Vec<u32>],
+    boxes: &'a [Vec<DetectedBox>],
+    out: &ModelOutput,
+) -> Vec<ViewDetections<'a>> {
+    id_maps
+        .iter()
+        .zip(boxes)
+        .map(|(ids, boxes)| ViewDetections { ids, width: out.width, height: out.height, boxes })
         .collect()
 }
 

@@ -1,13 +1,14 @@
 //! The stages of the request path, one file each, in the order [`crate::reconstruct`] runs
-//! them: [`decode`] → [`network`] → [`superpixels`] → [`cameras`] (registration) →
-//! [`heading`] → [`rays`] → [`backproject`] → [`voxelize`] → [`cluster`] → [`vote`] →
-//! [`label`] → [`refine`] → [`masks`]. Each has one entry function `run` over its own
-//! parameters; [`Stopwatch`] times every stage in one place.
+//! them: [`decode`] → [`detect`] → [`network`] → [`superpixels`] → [`cameras`]
+//! (registration) → [`heading`] → [`rays`] → [`backproject`] → [`voxelize`] → [`cluster`] →
+//! [`vote`] → [`masks`] → [`label`] → [`refine`] → the maps at the photos' size. Each has one
+//! entry function `run` over its own parameters; [`Stopwatch`] times every stage in one place.
 
 pub mod backproject;
 pub mod cameras;
 pub mod cluster;
 pub mod decode;
+pub mod detect;
 pub mod exif;
 pub mod heading;
 pub mod label;

@@ -6,6 +6,7 @@
 //! instances of the queried kind come back and near-misses of another kind do not. Text
 //! embeddings come in as plain vectors: this crate does not know the text model.
 
+pub mod detections;
 pub mod shape;
 
 use inssplat_proto::GaussianScene;
@@ -253,6 +254,12 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
 /// w·x with w in f32 and x in f64, summed in f64.
 fn dot64(w: &[f32], x: &[f64]) -> f64 {
     w.iter().zip(x).map(|(&w, x)| w as f64 * x).sum()
+}
+
+/// Moves `p`'s embedding by `weight` × `dir` and normalizes it again.
+fn add_direction(p: &mut InstancePrototype, dir: &[f32], weight: f32) {
+    let sum: Vec<f32> = p.embedding.iter().zip(dir).map(|(e, d)| e + weight * d).collect();
+    p.embedding = normalized(&sum);
 }
 
 fn normalized(v: &[f32]) -> Vec<f32> {

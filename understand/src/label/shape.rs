@@ -16,7 +16,7 @@ use inssplat_proto::{Camera, GaussianScene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::{InstancePrototype, normalized};
+use super::{InstancePrototype, add_direction, normalized};
 
 /// Largest angle between the floor's normal and the cameras' up direction.
 pub const MAX_TILT_DEG: f32 = 40.0;
@@ -199,9 +199,7 @@ pub fn fuse<T: AsRef<[f32]>>(
         for (t, &w) in texts.iter().zip(probs) {
             dir.iter_mut().zip(t).for_each(|(d, x)| *d += w * x);
         }
-        let dir = normalized(&dir);
-        let sum: Vec<f32> = p.embedding.iter().zip(&dir).map(|(e, d)| e + weight * d).collect();
-        p.embedding = normalized(&sum);
+        add_direction(p, &normalized(&dir), weight);
     }
 }
 
