@@ -318,12 +318,9 @@ pub fn reconstruct_with(
     }
     let id_maps =
         clock.time("masks", || masks::run(&voxelized, &per_pixel, segments.as_ref(), pixels));
-    let detections =
-        config.detector.as_deref().zip(boxes.as_ref()).map(|(detector, boxes)| DetectorEvidence {
-            classes: &detector.classes,
-            views: masks::view_detections(&id_maps, boxes, out),
-            params: &detector.params,
-        });
+    let detections = config.detector.as_deref().zip(boxes.as_ref()).map(|(detector, boxes)| {
+        DetectorEvidence { detector, views: masks::view_detections(&id_maps, boxes, out) }
+    });
     let inputs = LabelInputs {
         projection: SemanticProjection { weight: &out.sem_proj_weight, bias: &out.sem_proj_bias },
         cameras: &cameras,

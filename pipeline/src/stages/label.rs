@@ -2,23 +2,24 @@
 //! Φ_sem), moved toward what the model's shape classifier makes of the instance's size,
 //! height above the floor and colour, then toward the classes the object detector's boxes
 //! vote for ([`inssplat_understand::label::detections`]), then named by the nearest text of
-//! the vocabulary ([`inssplat_understand::label`]). A detector class votes for the word of the
-//! vocabulary nearest it in the text space (`couch` for `sofa`), and for nothing when no word is
-//! near enough (so a person or a car found in a photo is not forced onto a room's word). The names go into the scene's metadata and the
-//! instance table, with the evidence that gave each.
+//! the vocabulary ([`inssplat_understand::label`]). A detector class pulls toward the words of
+//! the vocabulary near it in the text space (`couch` toward `sofa`), and toward nothing when no
+//! word is near enough (so a person or a car found in a photo is not forced onto a room's
+//! word). The names go into the scene's metadata and the instance table, with the evidence
+//! that gave each.
 
 use inssplat_proto::api::{DetectorVote, InstanceOut, NamedBy};
 use inssplat_proto::shape::{DESCRIPTOR, ShapeClassifier, label_cosines};
 use inssplat_proto::{Camera, GaussianScene};
 use inssplat_text::{Embedding, LabelCache, cosine};
-use inssplat_understand::label::detections::{ClassVotes, ViewDetections, class_votes, fuse_votes};
+use inssplat_understand::label::detections::{ViewDetections, class_votes, fuse_votes};
 use inssplat_understand::label::shape::{fuse, instance_descriptors};
 use inssplat_understand::label::{
     InstancePrototype, LabelMatch, SemanticProjection, assign_labels, semantic_prototypes,
 };
 
 use super::stage_err;
-use crate::detector::DetectorParams;
+use crate::detector::Detector;
 use crate::reconstruct::PipelineError;
 
 /// The naming of a scene's instances.
@@ -33,18 +34,16 @@ pub struct Naming {
     pub descriptors: Vec<(u32, [f32; DESCRIPTOR.len()])>,
     /// Which evidence gave each prototype its label.
     pub named_by: Vec<NamedBy>,
-    /// The detector's votes for the instances it saw, with its class names.
-    pub votes: Vec<ClassVotes>,
-    pub classes: Vec<String>,
+    /// The detector's strongest vote for each prototype's instance, where it voted.
+    pub detector_votes: Vec<Option<DetectorVote>>,
 }
 
-/// The object detector's boxes in the input views, and how naming reads them.
+/// The object detector (its class names and how naming reads its boxes) and its boxes in the
+/// input views.
 pub struct DetectorEvidence<'a> {
-    /// The detector's class names.
-    pub classes: &'a [String],
+    pub detector: &'a Detector,
     /// Each view's instance map with the boxes found in it.
     pub views: Vec<ViewDetections<'a>>,
-    pub params: &'a DetectorParams,
 }
 
 /// What naming reads besides the scene.
@@ -88,11 +87,10 @@ pub fn run(scene: &GaussianScene, inputs: &LabelInputs<'_>) -> Result<Naming, Pi
     let texts = inputs.labels.embed(&words).map_err(|e| err(&e))?;
     let by_features = assign_labels(&unfused, &texts).map_err(|e| err(&e))?;
     let by_shape = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
-    let (mut votes, mut classes) = (Vec::new(), Vec::new());
+    let mut detector_votes = vec![None; prototypes.len()];
     if let Some(evidence) = &inputs.detections {
-        let params = evidence.params;
-        classes = evidence.classes.to_vec();
-        votes = class_votes(&evidence.views, classes.len(), params.min_pixels);
+        let (classes, params) = (&evidence.detector.classes, &evidence.detector.params);
+        let votes = class_votes(&evidence.views, classes.len(), params.min_pixels);
         // Only the classes that voted are embedded (each new text costs the encoder a pass).
         let voted: Vec<usize> =
             (0..classes.len()).filter(|&c| votes.iter().any(|v| v.votes[c] > 0.0)).collect();
@@ -103,17 +101,29 @@ pub fn run(scene: &GaussianScene, inputs: &LabelInputs<'_>) -> Result<Naming, Pi
             usable[c] = word_family(t, &texts, params.min_cosine);
         }
         fuse_votes(&mut prototypes, &votes, &usable, params.weight);
+        for (p, slot) in prototypes.iter().zip(&mut detector_votes) {
+            let Some(v) = votes.iter().find(|v| v.id == p.id) else { continue };
+            *slot = v.best().map(|(class, vote)| DetectorVote {
+                class: classes[class].clone(),
+                vote,
+                views: v.views,
+            });
+        }
     }
     let matches = assign_labels(&prototypes, &texts).map_err(|e| err(&e))?;
     let label = |m: &Option<LabelMatch>| m.map(|m| m.label);
     let named_by = (0..matches.len())
-        .map(|i| match () {
-            _ if label(&matches[i]) != label(&by_shape[i]) => NamedBy::Detector,
-            _ if label(&by_shape[i]) != label(&by_features[i]) => NamedBy::Shape,
-            _ => NamedBy::Features,
+        .map(|i| {
+            if label(&matches[i]) != label(&by_shape[i]) {
+                NamedBy::Detector
+            } else if label(&by_shape[i]) != label(&by_features[i]) {
+                NamedBy::Shape
+            } else {
+                NamedBy::Features
+            }
         })
         .collect();
-    Ok(Naming { prototypes, unfused, matches, descriptors, named_by, votes, classes })
+    Ok(Naming { prototypes, unfused, matches, descriptors, named_by, detector_votes })
 }
 
 /// The sum of the words of `words` at least `min_cosine` near `text` (unit text embeddings):
@@ -158,8 +168,8 @@ impl Naming {
         self.prototypes
             .iter()
             .zip(&self.matches)
-            .zip(&self.named_by)
-            .map(|((p, m), named_by)| {
+            .zip(self.named_by.iter().zip(&self.detector_votes))
+            .map(|((p, m), (named_by, detector))| {
                 let mut bbox = [[f32::INFINITY; 3], [f32::NEG_INFINITY; 3]];
                 for (mean, _) in
                     scene.means.iter().zip(&scene.instance_id).filter(|(_, id)| **id == p.id)
@@ -176,14 +186,7 @@ impl Naming {
                     gaussians: p.gaussians,
                     bbox,
                     named_by: *named_by,
-                    detector: self.votes.iter().find(|v| v.id == p.id).and_then(|v| {
-                        let (class, vote) = v.best()?;
-                        Some(DetectorVote {
-                            class: self.classes[class].clone(),
-                            vote,
-                            views: v.views,
-                        })
-                    }),
+                    detector: detector.clone(),
                 }
             })
             .collect()
