@@ -2,6 +2,8 @@
 //! `inssplat-train` binaries, found in the workspace's target folder and built there once if
 //! they are missing.
 
+pub mod postgres;
+
 use std::path::PathBuf;
 use std::process::{Command, Output};
 use std::sync::OnceLock;

@@ -1,11 +1,14 @@
-//! Durable jobs: a 10-scene job on the real service (shipped network, real SQLite file) is
-//! interrupted twice, first by `kill -9` mid-scene, then by SIGTERM (which lets the running
-//! scene finish); after each restart on the same data directory the job resumes, and it ends
-//! with exactly 10 results: none lost, none run into a second scene folder.
+//! Durable jobs: a 10-scene job on the real service (shipped network; the job store a real
+//! SQLite file, or a real PostgreSQL server with `--jobs`) is interrupted twice, first by
+//! `kill -9` mid-scene, then by SIGTERM (which lets the running scene finish); after each
+//! restart on the same data directory the job resumes, and it ends with exactly 10 results:
+//! none lost, none run into a second scene folder. A job store `serve` cannot use is refused
+//! at start, by name.
 
 use std::time::{Duration, Instant};
 
 use crate::support::http::{Server, multipart, png};
+use inssplat_e2e::postgres::TestPostgres;
 use inssplat_proto::api::{JobAccepted, JobState, JobStatus};
 
 const SCENES: usize = 10;
@@ -34,11 +37,22 @@ fn wait_done(server: &Server, job: &str, n: usize, limit: Duration) -> JobStatus
 
 #[test]
 fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
+    survives_kill_9_and_sigterm(&[]);
+}
+
+#[test]
+fn a_job_on_postgresql_survives_kill_9_and_sigterm_with_every_result_once() {
+    let postgres = TestPostgres::start();
+    survives_kill_9_and_sigterm(&["--jobs", &postgres.database("jobs")]);
+}
+
+/// The job's run through both interruptions, the server started with `args`.
+fn survives_kill_9_and_sigterm(args: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let model =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
     let data = dir.path().join("data");
-    let mut server = Server::start(&model, &data, &[]);
+    let mut server = Server::start(&model, &data, args);
 
     let photos: Vec<Vec<u8>> = (0..8).map(|i| png(160, 120, i)).collect();
     let names: Vec<String> = (0..SCENES).map(|i| format!("scene{i:02}")).collect();
@@ -63,7 +77,7 @@ fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
         .collect();
     server.kill9();
 
-    let server = Server::start(&model, &data, &[]);
+    let server = Server::start(&model, &data, args);
     assert!(
         server.log_text().contains("queued again") || running.is_empty(),
         "{}",
@@ -83,7 +97,7 @@ fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
     assert!(code.success(), "{code:?}\n{}", server.log_text());
     assert!(server.log_text().contains("stopped"), "{}", server.log_text());
 
-    let server = Server::start(&model, &data, &[]);
+    let server = Server::start(&model, &data, args);
     let end = wait_done(&server, &job.job_id, SCENES, Duration::from_secs(90));
     assert_eq!(end.state, JobState::Done, "{end:?}");
     assert_eq!((end.done, end.total), (SCENES, SCENES));
@@ -101,4 +115,27 @@ fn a_job_survives_kill_9_and_sigterm_with_every_result_once() {
         .collect();
     folders.sort();
     assert_eq!(folders, ids, "exactly the 10 results are stored, no leftovers");
+}
+
+#[test]
+fn serve_refuses_a_job_store_it_cannot_use_and_names_it_without_the_password() {
+    let dir = tempfile::tempdir().unwrap();
+    let serve = |url: &str| {
+        let out = std::process::Command::new(inssplat_e2e::inssplat_bin())
+            .args(["serve", "--listen", "127.0.0.1:0", "--jobs", url, "--data-dir"])
+            .arg(dir.path())
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{url} was accepted");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = serve("mysql://jobs@db/inssplat");
+    assert!(err.contains("--jobs") && err.contains("not a PostgreSQL URL"), "{err}");
+    // Port 1 on loopback: nothing listens.
+    let err = serve("postgres://jobs:secret@127.0.0.1:1/inssplat");
+    assert!(
+        err.contains("cannot connect to the job store postgres://jobs:***@127.0.0.1:1"),
+        "{err}"
+    );
+    assert!(!err.contains("secret"), "{err}");
 }

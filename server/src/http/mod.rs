@@ -32,7 +32,6 @@ use tokio::sync::{broadcast, watch};
 pub use error::ApiError;
 
 use crate::jobs::JobStore;
-use crate::jobs::sqlite::SqliteStore;
 use crate::metrics::Metrics;
 use crate::scene_store::SceneStore;
 use crate::worker::{Pool, Shared, WorkerConfig};
@@ -51,6 +50,10 @@ pub struct ServeArgs {
     /// Folder for the job store (jobs.sqlite), job inputs and stored scenes.
     #[arg(long, env = "INSSPLAT_DATA_DIR", default_value = "inssplat-data")]
     pub data_dir: PathBuf,
+    /// Keep the batch jobs in this PostgreSQL database (`postgres://user:password@host/db`),
+    /// which several replicas can share, instead of jobs.sqlite in the data directory.
+    #[arg(long, env = "INSSPLAT_JOBS_URL", value_name = "URL", value_parser = jobs_url)]
+    pub jobs: Option<String>,
     /// Model worker threads (each loads its own copy of the network).
     #[arg(long, env = "INSSPLAT_WORKERS", default_value_t = 1)]
     pub workers: usize,
@@ -104,24 +107,35 @@ pub(crate) struct AppState {
 /// Runs the service until SIGTERM or Ctrl-C.
 pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     tracing_subscriber::fmt().with_writer(std::io::stderr).with_target(false).init();
+    anyhow::ensure!(args.workers >= 1, "--workers must be at least 1");
+    anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
+    std::fs::create_dir_all(&args.data_dir)
+        .with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
+    // The PostgreSQL client blocks: the store opens before the async runtime starts.
+    let jobs = crate::jobs::open(args.jobs.as_deref(), &args.data_dir)?;
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .context("cannot start the async runtime")?
-        .block_on(run(args))
+        .block_on(run(args, jobs))
 }
 
-async fn run(args: ServeArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.workers >= 1, "--workers must be at least 1");
-    anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
-    std::fs::create_dir_all(&args.data_dir)
-        .with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
+/// `--jobs`: a PostgreSQL URL.
+fn jobs_url(url: &str) -> Result<String, String> {
+    if url.starts_with("postgres://") || url.starts_with("postgresql://") {
+        Ok(url.to_string())
+    } else {
+        Err(format!("`{url}` is not a PostgreSQL URL (postgres://user:password@host/database)"))
+    }
+}
+
+async fn run(args: ServeArgs, jobs: Arc<dyn JobStore>) -> anyhow::Result<()> {
     let expiry = (args.scene_ttl_h > 0).then(|| Duration::from_secs(args.scene_ttl_h * 3600));
     let scenes =
         SceneStore::open(&args.data_dir.join("scenes"), args.scene_quota_mb << 20, expiry)?;
-    let jobs: Arc<dyn JobStore> = Arc::new(SqliteStore::open(&args.data_dir.join("jobs.sqlite"))?);
-    let requeued = jobs.requeue_interrupted()?;
+    let store = jobs.clone();
+    let requeued = tokio::task::spawn_blocking(move || store.requeue_interrupted()).await??;
     if requeued > 0 {
         tracing::info!("{requeued} job scene(s) interrupted by the last stop are queued again");
     }

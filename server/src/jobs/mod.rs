@@ -1,17 +1,22 @@
 //! Durable batch jobs: a job is a list of scenes (photo sets or dataset scene folders,
 //! unpacked by [`intake`] into the data directory) that the model workers reconstruct one at a
 //! time between interactive requests, scoring the ones that carry ground truth ([`run`]).
-//! The state lives behind [`JobStore`], SQLite by default ([`sqlite`]); each scene's state is
+//! The state lives behind [`JobStore`]: SQLite in the data directory by default ([`sqlite`]),
+//! or PostgreSQL, which several replicas can share ([`postgres`]). Each scene's state is
 //! committed before it runs and its result after, so a killed server resumes where it stopped:
 //! scenes found `running` at start were interrupted and run again, under the same scene id.
 
 pub mod intake;
+pub mod postgres;
 pub mod run;
 pub mod sqlite;
+#[cfg(test)]
+mod suite;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use inssplat_proto::api::{JobState, JobStatus};
+use inssplat_proto::api::{JobSceneStatus, JobState, JobStatus};
 
 /// A job as submitted: its id, scenes (name, input folder), and optional label vocabulary and
 /// steps of test-time refinement (`None`: the server's).
@@ -59,6 +64,63 @@ pub trait JobStore: Send + Sync {
     fn requeue_interrupted(&self) -> anyhow::Result<usize>;
     /// Number of jobs in each state.
     fn count_by_state(&self) -> anyhow::Result<Vec<(JobState, usize)>>;
+}
+
+/// The job store `url` names (`postgres://…`), else SQLite's file in `data_dir`. On PostgreSQL
+/// this server claims scenes as the host's name and `data_dir`, the same after a restart.
+pub fn open(url: Option<&str>, data_dir: &Path) -> anyhow::Result<Arc<dyn JobStore>> {
+    Ok(match url {
+        Some(url) => {
+            let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+            let dir = std::fs::canonicalize(data_dir).unwrap_or_else(|_| data_dir.to_path_buf());
+            let replica = format!("{}:{}", host.trim(), dir.display());
+            Arc::new(postgres::PostgresStore::connect(url, &replica, postgres::LEASE)?)
+        }
+        None => Arc::new(sqlite::SqliteStore::open(&data_dir.join("jobs.sqlite"))?),
+    })
+}
+
+/// The name a scene state has in the stores.
+fn state_name(s: JobState) -> &'static str {
+    match s {
+        JobState::Queued => "queued",
+        JobState::Running => "running",
+        JobState::Done => "done",
+        JobState::Failed => "failed",
+        JobState::Cancelled => "cancelled",
+    }
+}
+
+/// The scene state a store's name stands for.
+fn parse_state(s: &str) -> Option<JobState> {
+    ALL_STATES.into_iter().find(|&state| state_name(state) == s)
+}
+
+const ALL_STATES: [JobState; 5] =
+    [JobState::Queued, JobState::Running, JobState::Done, JobState::Failed, JobState::Cancelled];
+
+/// A job's status from its scenes' (in index order).
+fn job_status(job_id: &str, cancelled: bool, scenes: Vec<JobSceneStatus>) -> JobStatus {
+    let states: Vec<JobState> = scenes.iter().map(|s| s.state).collect();
+    JobStatus {
+        job_id: job_id.to_string(),
+        state: job_state(cancelled, &states),
+        done: scenes
+            .iter()
+            .filter(|s| matches!(s.state, JobState::Done | JobState::Failed))
+            .count(),
+        total: scenes.len(),
+        scenes,
+    }
+}
+
+/// How many of `jobs` are in each state, every state listed.
+fn count_states(jobs: impl IntoIterator<Item = JobState>) -> Vec<(JobState, usize)> {
+    let mut counts: Vec<(JobState, usize)> = ALL_STATES.map(|s| (s, 0)).to_vec();
+    for state in jobs {
+        counts.iter_mut().filter(|(s, _)| *s == state).for_each(|(_, n)| *n += 1);
+    }
+    counts
 }
 
 /// A job's state from its scenes': cancelled if asked, queued until one starts, running until

@@ -10,7 +10,7 @@ use anyhow::Context;
 use inssplat_proto::api::{JobSceneStatus, JobState, JobStatus};
 use rusqlite::{Connection, OptionalExtension, Transaction, TransactionBehavior, params};
 
-use super::{JobStore, NewJob, SceneOutcome, SceneTask, job_state};
+use super::{JobStore, NewJob, SceneOutcome, SceneTask, count_states, job_status, state_name};
 
 const SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS jobs (
@@ -41,30 +41,13 @@ pub struct SqliteStore {
     conn: Mutex<Connection>,
 }
 
-fn state_name(s: JobState) -> &'static str {
-    match s {
-        JobState::Queued => "queued",
-        JobState::Running => "running",
-        JobState::Done => "done",
-        JobState::Failed => "failed",
-        JobState::Cancelled => "cancelled",
-    }
-}
-
 fn parse_state(s: &str) -> rusqlite::Result<JobState> {
-    Ok(match s {
-        "queued" => JobState::Queued,
-        "running" => JobState::Running,
-        "done" => JobState::Done,
-        "failed" => JobState::Failed,
-        "cancelled" => JobState::Cancelled,
-        other => {
-            return Err(rusqlite::Error::InvalidColumnType(
-                0,
-                format!("job state `{other}`"),
-                rusqlite::types::Type::Text,
-            ));
-        }
+    super::parse_state(s).ok_or_else(|| {
+        rusqlite::Error::InvalidColumnType(
+            0,
+            format!("job state `{s}`"),
+            rusqlite::types::Type::Text,
+        )
     })
 }
 
@@ -131,17 +114,7 @@ fn read_status(conn: &Connection, job_id: &str) -> rusqlite::Result<Option<JobSt
             })
         })?
         .collect::<rusqlite::Result<Vec<_>>>()?;
-    let states: Vec<JobState> = scenes.iter().map(|s| s.state).collect();
-    Ok(Some(JobStatus {
-        job_id: job_id.to_string(),
-        state: job_state(cancelled, &states),
-        done: scenes
-            .iter()
-            .filter(|s| matches!(s.state, JobState::Done | JobState::Failed))
-            .count(),
-        total: scenes.len(),
-        scenes,
-    }))
+    Ok(Some(job_status(job_id, cancelled, scenes)))
 }
 
 impl JobStore for SqliteStore {
@@ -249,24 +222,15 @@ impl JobStore for SqliteStore {
         let mut stmt = conn.prepare("SELECT id FROM jobs")?;
         let ids =
             stmt.query_map([], |r| r.get::<_, String>(0))?.collect::<rusqlite::Result<Vec<_>>>()?;
-        let mut counts: Vec<(JobState, usize)> = [
-            JobState::Queued,
-            JobState::Running,
-            JobState::Done,
-            JobState::Failed,
-            JobState::Cancelled,
-        ]
-        .map(|s| (s, 0))
-        .to_vec();
+        let mut states = Vec::with_capacity(ids.len());
         for id in ids {
-            if let Some(status) = read_status(&conn, &id)? {
-                counts.iter_mut().filter(|(s, _)| *s == status.state).for_each(|(_, n)| *n += 1);
-            }
+            states.extend(read_status(&conn, &id)?.map(|s| s.state));
         }
-        Ok(counts)
+        Ok(count_states(states))
     }
 }
 
+/// The behaviour every store shares is tested in `super::suite`; here what is SQLite's own.
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -280,36 +244,6 @@ mod tests {
             vocabulary: None,
             refine_steps: None,
         }
-    }
-
-    #[test]
-    fn scenes_run_in_order_and_an_interrupted_one_reruns_under_its_id() {
-        let dir = tempfile::tempdir().unwrap();
-        let db = dir.path().join("jobs.sqlite");
-        let store = SqliteStore::open(&db).unwrap();
-        store.create(&job("a", 2)).unwrap();
-        let first = store.claim().unwrap().unwrap();
-        assert_eq!((first.job_id.as_str(), first.index), ("a", 0));
-        store
-            .finish(
-                &first,
-                &SceneOutcome::Done { metrics: Some(serde_json::json!({"psnr": 20.0})) },
-            )
-            .unwrap();
-        let second = store.claim().unwrap().unwrap();
-        assert_eq!(store.status("a").unwrap().unwrap().state, JobState::Running);
-        drop(store); // the process dies with scene 1 running
-
-        let store = SqliteStore::open(&db).unwrap();
-        assert_eq!(store.requeue_interrupted().unwrap(), 1);
-        let again = store.claim().unwrap().unwrap();
-        assert_eq!((again.index, &again.scene_id), (1, &second.scene_id));
-        store.finish(&again, &SceneOutcome::Failed { error: "bad photo".into() }).unwrap();
-        assert!(store.claim().unwrap().is_none());
-        let s = store.status("a").unwrap().unwrap();
-        assert_eq!((s.state, s.done, s.total), (JobState::Done, 2, 2));
-        assert_eq!(s.scenes[0].metrics.as_ref().unwrap()["psnr"], 20.0);
-        assert_eq!(s.scenes[1].error.as_deref(), Some("bad photo"));
     }
 
     #[test]
@@ -334,23 +268,5 @@ mod tests {
         assert_eq!((second.job_id.as_str(), second.refine_steps), ("new", Some(40)));
         drop(store);
         SqliteStore::open(&db).expect("opens again once the column is there");
-    }
-
-    #[test]
-    fn cancel_stops_queued_scenes() {
-        let dir = tempfile::tempdir().unwrap();
-        let store = SqliteStore::open(&dir.path().join("jobs.sqlite")).unwrap();
-        store.create(&job("a", 3)).unwrap();
-        let running = store.claim().unwrap().unwrap();
-        let s = store.cancel("a").unwrap().unwrap();
-        assert_eq!(s.state, JobState::Cancelled);
-        assert_eq!(
-            s.scenes.iter().map(|s| s.state).collect::<Vec<_>>(),
-            [JobState::Running, JobState::Cancelled, JobState::Cancelled]
-        );
-        assert!(store.claim().unwrap().is_none());
-        store.finish(&running, &SceneOutcome::Done { metrics: None }).unwrap();
-        assert!(store.cancel("nope").unwrap().is_none() && store.status("nope").unwrap().is_none());
-        assert!(store.count_by_state().unwrap().contains(&(JobState::Cancelled, 1)));
     }
 }
