@@ -364,8 +364,15 @@ impl Worker {
     }
 
     /// Runs a claimed job scene and commits its outcome; its input folder goes once committed.
+    /// Where the store's claims lapse, a second thread renews this one while the scene runs.
     fn run_scene(&mut self, task: &SceneTask) {
         let _ = self.shared.job_events.send(task.job_id.clone());
+        let jobs = self.shared.jobs.clone();
+        let (done, renewals) = std::sync::mpsc::channel::<()>();
+        let renewer = jobs.lease().map(|lease| {
+            let task = task.clone();
+            std::thread::spawn(move || renew_while_running(jobs.as_ref(), &task, lease, &renewals))
+        });
         let result = catch(|| {
             let id: SceneId = task.scene_id.parse().map_err(TaskError::Internal)?;
             let dir = self.shared.scenes.staging(&id).map_err(internal)?;
@@ -381,6 +388,10 @@ impl Worker {
             self.shared.metrics.record_stages(&timings);
             Ok(metrics)
         });
+        drop(done);
+        if let Some(renewer) = renewer {
+            let _ = renewer.join();
+        }
         let outcome = match result {
             Ok(metrics) => SceneOutcome::Done { metrics },
             Err(e) => SceneOutcome::Failed { error: e.to_string() },
@@ -414,6 +425,33 @@ impl Worker {
 }
 
 /// Runs `f`, turning a panic into an internal error (a bad input must never take a worker down).
+/// Renews the claim on `task` every third of `lease` until `stop`'s sender is dropped.
+fn renew_while_running(
+    jobs: &dyn JobStore,
+    task: &SceneTask,
+    lease: Duration,
+    stop: &Receiver<()>,
+) {
+    while let Err(RecvTimeoutError::Timeout) = stop.recv_timeout(lease / 3) {
+        match jobs.renew(task) {
+            Ok(true) => {}
+            Ok(false) => {
+                tracing::warn!(
+                    "job {} scene {}: the claim lapsed; another replica may run it",
+                    task.job_id,
+                    task.index
+                );
+                return;
+            }
+            Err(e) => tracing::warn!(
+                "job {} scene {}: cannot renew the claim: {e:#}",
+                task.job_id,
+                task.index
+            ),
+        }
+    }
+}
+
 fn catch<T>(f: impl FnOnce() -> Result<T, TaskError>) -> Result<T, TaskError> {
     std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|p| {
         let what = p

@@ -7,6 +7,7 @@
 use std::convert::Infallible;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Duration;
 
 use axum::Json;
 use axum::body::Bytes;
@@ -253,6 +254,10 @@ fn finished(s: &JobStatus) -> bool {
     matches!(s.state, JobState::Done | JobState::Failed | JobState::Cancelled)
 }
 
+/// How often an event stream reads the job's status without news of a change: a replica
+/// sharing a PostgreSQL store with others hears only of its own scenes.
+const POLL: Duration = Duration::from_secs(1);
+
 /// Stream state: what was last sent, and whether the stream is over.
 struct Watch {
     state: Arc<AppState>,
@@ -281,6 +286,8 @@ impl Watch {
                     Err(broadcast::error::RecvError::Closed) => return None,
                 },
                 _ = shutdown.wait_for(|stop| *stop) => return None,
+                // Other replicas sharing the store announce nothing here: read it anyway.
+                _ = tokio::time::sleep(POLL) => true,
             };
             if !changed {
                 continue;
@@ -293,8 +300,9 @@ impl Watch {
     }
 }
 
-/// The job's status as server-sent events (`event: status`, JSON data) each time it changes;
-/// the stream ends after the job does.
+/// The job's status as server-sent events (`event: status`, JSON data) each time it changes
+/// (on this replica at once, on others sharing the job store within a second); the stream ends
+/// after the job does.
 #[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs",
     params(("id" = String, Path, pattern = "^[0-9a-f]{32}$", description = "Job id (32 hex digits)")),
     responses((status = 200, description = "text/event-stream of JobStatus", content_type = "text/event-stream", body = JobStatus),

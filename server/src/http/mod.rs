@@ -51,7 +51,9 @@ pub struct ServeArgs {
     #[arg(long, env = "INSSPLAT_DATA_DIR", default_value = "inssplat-data")]
     pub data_dir: PathBuf,
     /// Keep the batch jobs in this PostgreSQL database (`postgres://user:password@host/db`),
-    /// which several replicas can share, instead of jobs.sqlite in the data directory.
+    /// which several replicas can share, instead of jobs.sqlite in the data directory. Each
+    /// replica claims scenes in the name of its host and `--listen` address, so replicas on
+    /// one host need their own ports.
     #[arg(long, env = "INSSPLAT_JOBS_URL", value_name = "URL", value_parser = jobs_url)]
     pub jobs: Option<String>,
     /// Model worker threads (each loads its own copy of the network).
@@ -111,8 +113,11 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
     std::fs::create_dir_all(&args.data_dir)
         .with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
-    // The PostgreSQL client blocks: the store opens before the async runtime starts.
-    let jobs = crate::jobs::open(args.jobs.as_deref(), &args.data_dir)?;
+    // The PostgreSQL client blocks: the store opens before the async runtime starts. Replicas
+    // sharing it claim scenes in the name of their host and address.
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    let replica = format!("{}:{}", host.trim(), args.listen);
+    let jobs = crate::jobs::open(args.jobs.as_deref(), &replica, &args.data_dir)?;
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

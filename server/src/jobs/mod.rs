@@ -58,6 +58,10 @@ pub trait JobStore: Send + Sync {
     fn claim(&self) -> anyhow::Result<Option<SceneTask>>;
     /// Records the outcome of a claimed scene.
     fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()>;
+    /// How long a claim holds unless renewed (`None`: for as long as the process lives).
+    fn lease(&self) -> Option<std::time::Duration>;
+    /// Extends the claim on a running scene; `false` when it is no longer this replica's.
+    fn renew(&self, task: &SceneTask) -> anyhow::Result<bool>;
     /// Cancels the job's queued scenes (a running one finishes); `None` if there is no such job.
     fn cancel(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>>;
     /// Puts scenes left `running` by a previous process back in the queue; returns how many.
@@ -66,16 +70,15 @@ pub trait JobStore: Send + Sync {
     fn count_by_state(&self) -> anyhow::Result<Vec<(JobState, usize)>>;
 }
 
-/// The job store `url` names (`postgres://…`), else SQLite's file in `data_dir`. On PostgreSQL
-/// this server claims scenes as the host's name and `data_dir`, the same after a restart.
-pub fn open(url: Option<&str>, data_dir: &Path) -> anyhow::Result<Arc<dyn JobStore>> {
+/// The job store `url` names (`postgres://…`), claiming scenes as `replica` (a name no other
+/// replica sharing it has, the same after a restart), else SQLite's file in `data_dir`.
+pub fn open(
+    url: Option<&str>,
+    replica: &str,
+    data_dir: &Path,
+) -> anyhow::Result<Arc<dyn JobStore>> {
     Ok(match url {
-        Some(url) => {
-            let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
-            let dir = std::fs::canonicalize(data_dir).unwrap_or_else(|_| data_dir.to_path_buf());
-            let replica = format!("{}:{}", host.trim(), dir.display());
-            Arc::new(postgres::PostgresStore::connect(url, &replica, postgres::LEASE)?)
-        }
+        Some(url) => Arc::new(postgres::PostgresStore::connect(url, replica, postgres::LEASE)?),
         None => Arc::new(sqlite::SqliteStore::open(&data_dir.join("jobs.sqlite"))?),
     })
 }

@@ -2,7 +2,8 @@
 //! The tables are the SQLite store's, made by the migrations in `server/migrations/postgres/`
 //! (run by refinery when the store opens), with a lease on each running scene: a replica claims
 //! the oldest queued scene with `SELECT … FOR UPDATE SKIP LOCKED`, so two replicas never take
-//! the same one, and holds it until `lease_until`. A scene whose lease ran out (its replica
+//! the same one, and holds it until `lease_until`, renewed while it runs. A scene whose lease
+//! ran out (its replica
 //! died) is claimed again under the same scene id, at once by the same replica restarted; a
 //! finish counts only from the lease's owner, so a scene is never reported twice. The
 //! connection is made again when it drops (a restarted database).
@@ -21,8 +22,9 @@ use super::{
 
 refinery::embed_migrations!("migrations/postgres");
 
-/// How long a claim holds before another replica may run the scene.
-pub const LEASE: Duration = Duration::from_secs(600);
+/// How long a claim holds unless renewed; the worker renews it every third of that while the
+/// scene runs, so a replica that dies frees its scene within this.
+pub const LEASE: Duration = Duration::from_secs(30);
 
 /// The job store in a PostgreSQL database.
 pub struct PostgresStore {
@@ -203,6 +205,21 @@ impl JobStore for PostgresStore {
             task.index
         );
         Ok(())
+    }
+
+    fn lease(&self) -> Option<Duration> {
+        Some(self.lease)
+    }
+
+    fn renew(&self, task: &SceneTask) -> anyhow::Result<bool> {
+        let updated = self.write(|tx| {
+            Ok(tx.execute(
+                "UPDATE job_scenes SET lease_until = now() + make_interval(secs => $4)
+                 WHERE job_id = $1 AND idx = $2 AND state = 'running' AND lease_owner = $3",
+                &[&task.job_id, &(task.index as i32), &self.owner, &self.lease_seconds()],
+            )?)
+        })?;
+        Ok(updated == 1)
     }
 
     fn cancel(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>> {

@@ -198,6 +198,15 @@ impl JobStore for SqliteStore {
         Ok(())
     }
 
+    /// One process a file: its claims hold until it stops.
+    fn lease(&self) -> Option<std::time::Duration> {
+        None
+    }
+
+    fn renew(&self, _task: &SceneTask) -> anyhow::Result<bool> {
+        Ok(true)
+    }
+
     fn cancel(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>> {
         self.write(|tx| {
             if tx.execute("UPDATE jobs SET cancelled = 1 WHERE id = ?1", [job_id])? == 0 {

@@ -184,3 +184,18 @@ fn a_lapsed_claim_is_taken_over_and_its_late_result_refused() {
     let s = fast.status("a").unwrap().unwrap();
     assert_eq!((s.state, s.scenes[0].error.as_deref()), (JobState::Failed, Some("x")));
 }
+
+/// PostgreSQL only: a renewed claim outlasts its first term, and only its holder renews it.
+#[test]
+fn a_renewed_claim_is_not_taken_over() {
+    let backend = postgres();
+    let (runner, other) = (backend.replica("runner"), backend.replica("other"));
+    runner.create(&job("a", 1)).unwrap();
+    let task = runner.claim().unwrap().unwrap();
+    std::thread::sleep(TEST_LEASE * 7 / 10);
+    assert!(runner.renew(&task).unwrap());
+    assert!(!other.renew(&task).unwrap(), "not the other replica's claim");
+    std::thread::sleep(TEST_LEASE * 6 / 10); // past the first term, within the second
+    assert!(other.claim().unwrap().is_none(), "still held");
+    runner.finish(&task, &SceneOutcome::Done { metrics: None }).unwrap();
+}
