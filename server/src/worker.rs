@@ -424,7 +424,6 @@ impl Worker {
     }
 }
 
-/// Runs `f`, turning a panic into an internal error (a bad input must never take a worker down).
 /// Renews the claim on `task` every third of `lease` until `stop`'s sender is dropped.
 fn renew_while_running(
     jobs: &dyn JobStore,
@@ -452,6 +451,7 @@ fn renew_while_running(
     }
 }
 
+/// Runs `f`, turning a panic into an internal error (a bad input must never take a worker down).
 fn catch<T>(f: impl FnOnce() -> Result<T, TaskError>) -> Result<T, TaskError> {
     std::panic::catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|p| {
         let what = p
