@@ -16,9 +16,7 @@ use anyhow::Context;
 use inssplat_proto::api::{JobSceneStatus, JobState, JobStatus};
 use postgres::{Client, GenericClient, NoTls, Transaction};
 
-use super::{
-    JobStore, NewJob, SceneOutcome, SceneTask, count_states, job_status, parse_state, state_name,
-};
+use super::{JobStore, NewJob, SceneOutcome, SceneTask, count_states, job_status, state_name};
 
 refinery::embed_migrations!("migrations/postgres");
 
@@ -96,6 +94,11 @@ fn redacted(url: &str) -> String {
     }
 }
 
+/// A scene state read from the table; an unknown name is an error naming it.
+fn parse_state(s: &str) -> anyhow::Result<JobState> {
+    super::parse_state(s).with_context(|| format!("job state `{s}`"))
+}
+
 fn read_status(client: &mut impl GenericClient, job_id: &str) -> anyhow::Result<Option<JobStatus>> {
     let Some(row) = client.query_opt("SELECT cancelled FROM jobs WHERE id = $1", &[&job_id])?
     else {
@@ -113,7 +116,7 @@ fn read_status(client: &mut impl GenericClient, job_id: &str) -> anyhow::Result<
             Ok(JobSceneStatus {
                 index: r.get::<_, i32>(0) as usize,
                 name: r.get(1),
-                state: parse_state(state).with_context(|| format!("job state `{state}`"))?,
+                state: parse_state(state)?,
                 scene_id: r.get(3),
                 error: r.get(4),
                 metrics: r.get(5),
@@ -259,7 +262,7 @@ impl JobStore for PostgresStore {
                 let scenes = r
                     .get::<_, Vec<String>>(2)
                     .iter()
-                    .map(|s| parse_state(s).with_context(|| format!("job state `{s}`")))
+                    .map(|s| parse_state(s))
                     .collect::<anyhow::Result<Vec<_>>>()?;
                 states.push(super::job_state(r.get(1), &scenes));
             }
