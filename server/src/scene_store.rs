@@ -4,6 +4,11 @@
 //! never sees half a scene. Each read touches the scene's `.used` marker; the store keeps the
 //! folders under a byte quota by removing the least recently used ones, and removes scenes
 //! unused for longer than the expiry.
+//!
+//! Replicas may share the folder (one volume, one PostgreSQL job store): everything is in the
+//! files, none of it in memory. Each replica stages under its own name in `.staging/`, and
+//! commits, reads and evictions only rename and remove whole folders, so replicas doing them
+//! at once at worst both remove the same scene.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
@@ -53,61 +58,107 @@ impl std::fmt::Display for SceneId {
 
 /// Marker file whose modification time is the scene's last use.
 const USED: &str = ".used";
-/// Prefix of staging folders (never a valid id, so never served).
-const STAGING: &str = ".staging-";
+/// The folder of the replicas' staging folders (never a valid id, so never served).
+const STAGING: &str = ".staging";
+/// Age after which another replica's staged scene is a crash's leftover: no scene takes this
+/// long, and a replica's claim on a job scene runs out far sooner.
+const ABANDONED: Duration = Duration::from_secs(3600);
 
 /// The scene folders and their limits.
 #[derive(Debug, Clone)]
 pub struct SceneStore {
     root: PathBuf,
+    /// This replica's staging folder.
+    staging: PathBuf,
     quota_bytes: u64,
     /// `None`: scenes never expire.
     expiry: Option<Duration>,
 }
 
+/// A scene being written: fill [`Staged::dir`], then [`SceneStore::commit`] it.
+#[derive(Debug)]
+pub struct Staged {
+    id: SceneId,
+    dir: PathBuf,
+}
+
+impl Staged {
+    /// The folder to write the scene into.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
 impl SceneStore {
-    /// Opens (creating) `root` and removes staging folders a crash left behind.
-    pub fn open(root: &Path, quota_bytes: u64, expiry: Option<Duration>) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(root)
-            .with_context(|| format!("cannot create the scene folder {}", root.display()))?;
-        for entry in std::fs::read_dir(root)
-            .with_context(|| format!("cannot list {}", root.display()))?
-            .flatten()
-        {
-            if entry.file_name().to_string_lossy().starts_with(STAGING) {
-                std::fs::remove_dir_all(entry.path())
-                    .with_context(|| format!("cannot remove {}", entry.path().display()))?;
+    /// Opens (creating) `root` for `replica` (a name no other replica sharing `root` has),
+    /// removing what this replica staged before a crash and what others staged over an hour
+    /// ago.
+    pub fn open(
+        root: &Path,
+        replica: &str,
+        quota_bytes: u64,
+        expiry: Option<Duration>,
+    ) -> anyhow::Result<Self> {
+        let folder: String = replica
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() || c == '.' || c == '-' { c } else { '_' })
+            .collect();
+        let staging = root.join(STAGING).join(folder);
+        remove_gone(&staging)?;
+        std::fs::create_dir_all(&staging)
+            .with_context(|| format!("cannot create the scene folder {}", staging.display()))?;
+        let others = std::fs::read_dir(root.join(STAGING))
+            .with_context(|| format!("cannot list {}", root.join(STAGING).display()))?;
+        for replica in others.flatten().filter(|e| e.path() != staging) {
+            for staged in std::fs::read_dir(replica.path()).into_iter().flatten().flatten() {
+                let age = staged.metadata().and_then(|m| m.modified()).map(|t| t.elapsed());
+                if matches!(age, Ok(Ok(age)) if age > ABANDONED) {
+                    remove_gone(&staged.path())?;
+                }
             }
         }
-        Ok(Self { root: root.to_path_buf(), quota_bytes, expiry })
+        Ok(Self { root: root.to_path_buf(), staging, quota_bytes, expiry })
     }
 
-    /// An empty staging folder for `id`, to write the scene into before [`SceneStore::commit`].
-    pub fn staging(&self, id: &SceneId) -> anyhow::Result<PathBuf> {
-        let dir = self.root.join(format!("{STAGING}{id}"));
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir)
-                .with_context(|| format!("cannot clear {}", dir.display()))?;
-        }
+    /// An empty staging folder for scene `id` (a new one each call, so two attempts at one
+    /// scene never write into one folder).
+    pub fn staging(&self, id: &SceneId) -> anyhow::Result<Staged> {
+        let dir = self.staging.join(format!("{id}-{}", SceneId::new()));
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;
-        Ok(dir)
+        Ok(Staged { id: id.clone(), dir })
     }
 
-    /// Moves the staged scene `id` into place (replacing an older copy), then evicts other
-    /// scenes as the quota and expiry require.
-    pub fn commit(&self, id: &SceneId) -> anyhow::Result<()> {
-        let staged = self.root.join(format!("{STAGING}{id}"));
+    /// Moves the staged scene into place (replacing an older copy), then evicts other scenes
+    /// as the quota and expiry require.
+    pub fn commit(&self, staged: Staged) -> anyhow::Result<()> {
+        let Staged { id, dir: staged } = staged;
         std::fs::write(staged.join(USED), b"")
             .with_context(|| format!("cannot write {}", staged.join(USED).display()))?;
         let dir = self.root.join(id.to_string());
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir)
-                .with_context(|| format!("cannot replace {}", dir.display()))?;
+        // An older copy is renamed aside (atomic, like the move in) and removed; another try
+        // covers another replica committing the same scene in between.
+        for attempt in 0.. {
+            match std::fs::rename(&staged, &dir) {
+                Ok(()) => break,
+                Err(_) if attempt < 2 && dir.exists() => {
+                    let old = self.staging.join(format!("{id}-replaced-{}", SceneId::new()));
+                    match std::fs::rename(&dir, &old) {
+                        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                            return Err(e)
+                                .with_context(|| format!("cannot replace {}", dir.display()));
+                        }
+                        _ => remove_gone(&old)?,
+                    }
+                }
+                Err(e) => {
+                    return Err(e).with_context(|| {
+                        format!("cannot move {} to {}", staged.display(), dir.display())
+                    });
+                }
+            }
         }
-        std::fs::rename(&staged, &dir)
-            .with_context(|| format!("cannot move {} to {}", staged.display(), dir.display()))?;
-        self.evict(Some(id))?;
+        self.evict(Some(&id))?;
         Ok(())
     }
 
@@ -140,9 +191,7 @@ impl SceneStore {
             let expired =
                 self.expiry.is_some_and(|e| now.duration_since(s.used).unwrap_or_default() > e);
             if expired || total > self.quota_bytes {
-                let dir = self.root.join(&s.id);
-                std::fs::remove_dir_all(&dir)
-                    .with_context(|| format!("cannot remove {}", dir.display()))?;
+                remove_gone(&self.root.join(&s.id))?;
                 total -= s.bytes;
                 removed += 1;
             }
@@ -165,6 +214,16 @@ impl SceneStore {
                 Some(StoredScene { bytes: folder_bytes(&e.path()), id, used })
             })
             .collect()
+    }
+}
+
+/// Removes the folder `dir`; one already gone (another replica removed it) is no error.
+fn remove_gone(dir: &Path) -> anyhow::Result<()> {
+    match std::fs::remove_dir_all(dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("cannot remove {}", dir.display()))
+        }
+        _ => Ok(()),
     }
 }
 
@@ -192,9 +251,9 @@ mod tests {
 
     fn store_scene(store: &SceneStore, bytes: usize) -> SceneId {
         let id = SceneId::new();
-        let dir = store.staging(&id).unwrap();
-        std::fs::write(dir.join("scene.ply"), vec![0u8; bytes]).unwrap();
-        store.commit(&id).unwrap();
+        let staged = store.staging(&id).unwrap();
+        std::fs::write(staged.dir().join("scene.ply"), vec![0u8; bytes]).unwrap();
+        store.commit(staged).unwrap();
         id
     }
 
@@ -215,7 +274,7 @@ mod tests {
     #[test]
     fn evicts_least_recently_used_over_quota_and_never_the_new_one() {
         let dir = tempfile::tempdir().unwrap();
-        let store = SceneStore::open(dir.path(), 2500, None).unwrap();
+        let store = SceneStore::open(dir.path(), "a", 2500, None).unwrap();
         let a = store_scene(&store, 1000);
         std::thread::sleep(Duration::from_millis(20));
         let b = store_scene(&store, 1000);
@@ -233,14 +292,42 @@ mod tests {
     fn expired_scenes_and_crash_leftovers_go() {
         let dir = tempfile::tempdir().unwrap();
         let store =
-            SceneStore::open(dir.path(), u64::MAX, Some(Duration::from_millis(10))).unwrap();
+            SceneStore::open(dir.path(), "a", u64::MAX, Some(Duration::from_millis(10))).unwrap();
         let old = store_scene(&store, 10);
-        let half = SceneId::new();
-        store.staging(&half).unwrap();
+        let half = store.staging(&SceneId::new()).unwrap();
         std::thread::sleep(Duration::from_millis(30));
         let new = store_scene(&store, 10);
         assert!(store.open_scene(&old).is_none() && store.open_scene(&new).is_some());
-        SceneStore::open(dir.path(), u64::MAX, None).unwrap();
-        assert!(!dir.path().join(format!("{STAGING}{half}")).exists());
+        SceneStore::open(dir.path(), "b", u64::MAX, None).unwrap();
+        assert!(half.dir().exists(), "another replica's fresh staging stays");
+        SceneStore::open(dir.path(), "a", u64::MAX, None).unwrap();
+        assert!(!half.dir().exists(), "the replica's own leftovers go when it starts again");
+    }
+
+    #[test]
+    fn replicas_sharing_the_folder_commit_the_same_scene_and_read_each_others() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (
+            SceneStore::open(dir.path(), "host:127.0.0.1:8080", u64::MAX, None).unwrap(),
+            SceneStore::open(dir.path(), "host:127.0.0.1:8081", u64::MAX, None).unwrap(),
+        );
+        let id = SceneId::new();
+        // Both run the scene (a claim that lapsed); both commit, in either order.
+        let (from_a, from_b) = (a.staging(&id).unwrap(), b.staging(&id).unwrap());
+        assert_ne!(from_a.dir(), from_b.dir());
+        std::fs::write(from_a.dir().join("scene.ply"), b"a").unwrap();
+        std::fs::write(from_b.dir().join("scene.ply"), b"b").unwrap();
+        b.commit(from_b).unwrap();
+        a.commit(from_a).unwrap();
+        let read = b.open_scene(&id).expect("b reads what a committed");
+        assert_eq!(std::fs::read(read.join("scene.ply")).unwrap(), b"a");
+        // Both evict the same scene: the second finds it gone, which is no error.
+        let (tight_a, tight_b) = (
+            SceneStore::open(dir.path(), "host:127.0.0.1:8080", 0, None).unwrap(),
+            SceneStore::open(dir.path(), "host:127.0.0.1:8081", 0, None).unwrap(),
+        );
+        assert_eq!(tight_a.evict(None).unwrap(), 1);
+        assert_eq!(tight_b.evict(None).unwrap(), 0);
+        assert!(a.open_scene(&id).is_none());
     }
 }

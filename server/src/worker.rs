@@ -30,6 +30,10 @@ use inssplat_pipeline::{output, query};
 
 /// How long an idle worker waits on the queue before looking for job scenes again.
 const IDLE_POLL: Duration = Duration::from_millis(100);
+/// How long a worker waits for the job store after an error before claiming again.
+const STORE_RETRY: Duration = Duration::from_secs(1);
+/// How long a worker keeps trying to record a finished scene while the job store is down.
+const RECORD_FOR: Duration = Duration::from_secs(120);
 
 /// Why a task failed.
 #[derive(Debug, thiserror::Error)]
@@ -291,7 +295,8 @@ impl Worker {
         }
     }
 
-    /// An interactive task if one waits, else a job scene, else a task within [`IDLE_POLL`].
+    /// An interactive task if one waits, else a job scene, else a task within [`IDLE_POLL`]
+    /// ([`STORE_RETRY`] when the job store failed).
     fn next(&self, rx: &Mutex<Receiver<Task>>) -> Next {
         if self.state.stop.load(Ordering::SeqCst) {
             return Next::Stop;
@@ -301,12 +306,16 @@ impl Worker {
             Err(TryRecvError::Disconnected) => return Next::Stop,
             Err(TryRecvError::Empty) => {}
         }
+        let mut wait = IDLE_POLL;
         match self.shared.jobs.claim() {
             Ok(Some(scene)) => return Next::Scene(scene),
             Ok(None) => {}
-            Err(e) => tracing::error!("job store: cannot claim a scene: {e:#}"),
+            Err(e) => {
+                tracing::error!("job store: cannot claim a scene: {e:#}");
+                wait = STORE_RETRY;
+            }
         }
-        match lock(rx).recv_timeout(IDLE_POLL) {
+        match lock(rx).recv_timeout(wait) {
             Ok(task) => Next::Task(task),
             Err(RecvTimeoutError::Timeout) => Next::Idle,
             Err(RecvTimeoutError::Disconnected) => Next::Stop,
@@ -357,9 +366,10 @@ impl Worker {
         )?;
         self.shared.metrics.record_stages(&rec.timings);
         let id = SceneId::new();
-        let dir = self.shared.scenes.staging(&id).map_err(internal)?;
-        output::write_reconstruction(&rec, images, &dir).map_err(|e| internal(format!("{e:#}")))?;
-        self.shared.scenes.commit(&id).map_err(|e| internal(format!("{e:#}")))?;
+        let staged = self.shared.scenes.staging(&id).map_err(internal)?;
+        output::write_reconstruction(&rec, images, staged.dir())
+            .map_err(|e| internal(format!("{e:#}")))?;
+        self.shared.scenes.commit(staged).map_err(|e| internal(format!("{e:#}")))?;
         Ok(ReconstructResponse { scene_id: id.to_string(), ..output::summary(&rec) })
     }
 
@@ -375,16 +385,16 @@ impl Worker {
         });
         let result = catch(|| {
             let id: SceneId = task.scene_id.parse().map_err(TaskError::Internal)?;
-            let dir = self.shared.scenes.staging(&id).map_err(internal)?;
+            let staged = self.shared.scenes.staging(&id).map_err(internal)?;
             let (timings, metrics) = crate::jobs::run::run_scene(
                 &mut self.model,
                 &self.labels,
                 &self.pipeline,
                 task,
-                &dir,
+                staged.dir(),
             )
             .map_err(|e| internal(format!("{e:#}")))?;
-            self.shared.scenes.commit(&id).map_err(internal)?;
+            self.shared.scenes.commit(staged).map_err(internal)?;
             self.shared.metrics.record_stages(&timings);
             Ok(metrics)
         });
@@ -396,18 +406,13 @@ impl Worker {
             Ok(metrics) => SceneOutcome::Done { metrics },
             Err(e) => SceneOutcome::Failed { error: e.to_string() },
         };
-        match self.shared.jobs.finish(task, &outcome) {
-            Ok(()) => {
-                if let Err(e) = std::fs::remove_dir_all(&task.input) {
-                    tracing::warn!(
-                        "job {}: cannot remove the input of scene {}: {e}",
-                        task.job_id,
-                        task.index
-                    );
-                }
-            }
-            Err(e) => {
-                tracing::error!("job {}: cannot record scene {}: {e:#}", task.job_id, task.index)
+        if record(self.shared.jobs.as_ref(), task, &outcome) {
+            if let Err(e) = std::fs::remove_dir_all(&task.input) {
+                tracing::warn!(
+                    "job {}: cannot remove the input of scene {}: {e}",
+                    task.job_id,
+                    task.index
+                );
             }
         }
         tracing::info!(
@@ -421,6 +426,44 @@ impl Worker {
             }
         );
         let _ = self.shared.job_events.send(task.job_id.clone());
+    }
+}
+
+/// Records `outcome` for `task`, trying again for [`RECORD_FOR`] while the store cannot be
+/// reached (a database restarting); whether it was recorded. When it was not, the claim ran
+/// out or stays unrecorded, and the scene is run again, by whichever replica claims it.
+fn record(jobs: &dyn JobStore, task: &SceneTask, outcome: &SceneOutcome) -> bool {
+    let start = Instant::now();
+    let mut wait = Duration::from_millis(100);
+    loop {
+        match jobs.finish(task, outcome) {
+            Ok(true) => return true,
+            Ok(false) => {
+                tracing::warn!(
+                    "job {} scene {}: not recorded, the claim ran out first (another replica runs it, or it was cancelled)",
+                    task.job_id,
+                    task.index
+                );
+                return false;
+            }
+            Err(e) if start.elapsed() + wait > RECORD_FOR => {
+                tracing::error!(
+                    "job {} scene {}: cannot record it, giving up: {e:#}",
+                    task.job_id,
+                    task.index
+                );
+                return false;
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "job {} scene {}: cannot record it yet, trying again in {wait:?}: {e:#}",
+                    task.job_id,
+                    task.index
+                );
+                std::thread::sleep(wait);
+                wait = (wait * 2).min(Duration::from_secs(5));
+            }
+        }
     }
 }
 

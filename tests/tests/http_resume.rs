@@ -75,9 +75,11 @@ fn survives_kill_9_and_sigterm(args: &[&str]) {
         .filter(|s| s.state == JobState::Running)
         .map(|s| (s.index, s.scene_id.clone().unwrap()))
         .collect();
+    let listen = server.addr.to_string();
     server.kill9();
 
-    let server = Server::start(&model, &data, args);
+    // Started again where it listened: the same replica, which takes its scenes back at once.
+    let server = Server::start_on(&listen, &model, &data, args);
     assert!(
         server.log_text().contains("queued again") || running.is_empty(),
         "{}",
@@ -97,7 +99,7 @@ fn survives_kill_9_and_sigterm(args: &[&str]) {
     assert!(code.success(), "{code:?}\n{}", server.log_text());
     assert!(server.log_text().contains("stopped"), "{}", server.log_text());
 
-    let server = Server::start(&model, &data, args);
+    let server = Server::start_on(&listen, &model, &data, args);
     let end = wait_done(&server, &job.job_id, SCENES, Duration::from_secs(90));
     assert_eq!(end.state, JobState::Done, "{end:?}");
     assert_eq!((end.done, end.total), (SCENES, SCENES));
@@ -112,9 +114,14 @@ fn survives_kill_9_and_sigterm(args: &[&str]) {
     let mut folders: Vec<String> = std::fs::read_dir(data.join("scenes"))
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| !name.starts_with('.'))
         .collect();
     folders.sort();
-    assert_eq!(folders, ids, "exactly the 10 results are stored, no leftovers");
+    assert_eq!(folders, ids, "exactly the 10 results are stored");
+    for replica in std::fs::read_dir(data.join("scenes/.staging")).unwrap() {
+        let left: Vec<_> = std::fs::read_dir(replica.unwrap().path()).unwrap().collect();
+        assert!(left.is_empty(), "staged scenes left behind: {left:?}");
+    }
 }
 
 #[test]

@@ -47,13 +47,15 @@ pub struct ServeArgs {
     /// The network (ONNX file exported by inssplat-train).
     #[arg(long, env = "INSSPLAT_MODEL", default_value = "models/inssplat-default.onnx")]
     pub model: PathBuf,
-    /// Folder for the job store (jobs.sqlite), job inputs and stored scenes.
+    /// Folder for the job store (jobs.sqlite), job inputs and stored scenes. Replicas sharing
+    /// a PostgreSQL job store share this folder too (a volume every replica mounts), so each
+    /// serves the scenes the others made.
     #[arg(long, env = "INSSPLAT_DATA_DIR", default_value = "inssplat-data")]
     pub data_dir: PathBuf,
     /// Keep the batch jobs in this PostgreSQL database (`postgres://user:password@host/db`),
     /// which several replicas can share, instead of jobs.sqlite in the data directory. Each
-    /// replica claims scenes in the name of its host and `--listen` address, so replicas on
-    /// one host need their own ports.
+    /// replica claims scenes in the name of its host and bound address, so replicas on one
+    /// host need their own ports.
     #[arg(long, env = "INSSPLAT_JOBS_URL", value_name = "URL", value_parser = jobs_url)]
     pub jobs: Option<String>,
     /// Model worker threads (each loads its own copy of the network).
@@ -113,17 +115,21 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.queue >= 1, "--queue must be at least 1");
     std::fs::create_dir_all(&args.data_dir)
         .with_context(|| format!("--data-dir {}: cannot create it", args.data_dir.display()))?;
+    // Bound first, so the replica's name has the port that port 0 picked.
+    let listener = std::net::TcpListener::bind(args.listen)
+        .with_context(|| format!("--listen {}: cannot bind", args.listen))?;
+    let addr = listener.local_addr()?;
     // The PostgreSQL client blocks: the store opens before the async runtime starts. Replicas
-    // sharing it claim scenes in the name of their host and address.
+    // sharing it claim scenes (and stage them) in the name of their host and address.
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
-    let replica = format!("{}:{}", host.trim(), args.listen);
+    let replica = format!("{}:{addr}", host.trim());
     let jobs = crate::jobs::open(args.jobs.as_deref(), &replica, &args.data_dir)?;
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .context("cannot start the async runtime")?
-        .block_on(run(args, jobs))
+        .block_on(run(args, listener, &replica, jobs))
 }
 
 /// `--jobs`: a PostgreSQL URL.
@@ -135,10 +141,19 @@ fn jobs_url(url: &str) -> Result<String, String> {
     }
 }
 
-async fn run(args: ServeArgs, jobs: Arc<dyn JobStore>) -> anyhow::Result<()> {
+async fn run(
+    args: ServeArgs,
+    listener: std::net::TcpListener,
+    replica: &str,
+    jobs: Arc<dyn JobStore>,
+) -> anyhow::Result<()> {
     let expiry = (args.scene_ttl_h > 0).then(|| Duration::from_secs(args.scene_ttl_h * 3600));
-    let scenes =
-        SceneStore::open(&args.data_dir.join("scenes"), args.scene_quota_mb << 20, expiry)?;
+    let scenes = SceneStore::open(
+        &args.data_dir.join("scenes"),
+        replica,
+        args.scene_quota_mb << 20,
+        expiry,
+    )?;
     let store = jobs.clone();
     let requeued = tokio::task::spawn_blocking(move || store.requeue_interrupted()).await??;
     if requeued > 0 {
@@ -176,9 +191,8 @@ async fn run(args: ServeArgs, jobs: Arc<dyn JobStore>) -> anyhow::Result<()> {
         tracing::warn!("the web page will not work: {missing}");
     }
 
-    let listener = tokio::net::TcpListener::bind(args.listen)
-        .await
-        .with_context(|| format!("--listen {}: cannot bind", args.listen))?;
+    listener.set_nonblocking(true)?;
+    let listener = tokio::net::TcpListener::from_std(listener)?;
     let addr = listener.local_addr()?;
     println!("listening on http://{addr}");
     std::io::stdout().flush()?;

@@ -56,8 +56,9 @@ pub trait JobStore: Send + Sync {
     fn status(&self, job_id: &str) -> anyhow::Result<Option<JobStatus>>;
     /// Marks the next queued scene (oldest job first) `running` and returns it.
     fn claim(&self) -> anyhow::Result<Option<SceneTask>>;
-    /// Records the outcome of a claimed scene.
-    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()>;
+    /// Records the outcome of a claimed scene; `false` when the claim is no longer this
+    /// replica's (it ran out and another took the scene), so nothing was recorded.
+    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<bool>;
     /// How long a claim holds unless renewed (`None`: for as long as the process lives).
     fn lease(&self) -> Option<std::time::Duration>;
     /// Extends the claim on a running scene; `false` when it is no longer this replica's.

@@ -182,7 +182,7 @@ impl JobStore for PostgresStore {
         }))
     }
 
-    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()> {
+    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<bool> {
         let (state, error, metrics) = match outcome {
             SceneOutcome::Done { metrics } => (JobState::Done, None, metrics.clone()),
             SceneOutcome::Failed { error } => (JobState::Failed, Some(error.as_str()), None),
@@ -201,13 +201,7 @@ impl JobStore for PostgresStore {
                 ],
             )?)
         })?;
-        anyhow::ensure!(
-            updated == 1,
-            "job {} scene {}: the claim ran out before it finished (another replica runs it, or it was cancelled)",
-            task.job_id,
-            task.index
-        );
-        Ok(())
+        Ok(updated == 1)
     }
 
     fn lease(&self) -> Option<Duration> {

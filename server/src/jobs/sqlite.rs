@@ -182,20 +182,20 @@ impl JobStore for SqliteStore {
         })
     }
 
-    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<()> {
+    fn finish(&self, task: &SceneTask, outcome: &SceneOutcome) -> anyhow::Result<bool> {
         let (state, error, metrics) = match outcome {
             SceneOutcome::Done { metrics } => {
                 (JobState::Done, None, metrics.as_ref().map(serde_json::Value::to_string))
             }
             SceneOutcome::Failed { error } => (JobState::Failed, Some(error.as_str()), None),
         };
-        self.write(|tx| {
+        let updated = self.write(|tx| {
             tx.execute(
                 "UPDATE job_scenes SET state = ?3, error = ?4, metrics = ?5 WHERE job_id = ?1 AND idx = ?2 AND state = 'running'",
                 params![task.job_id, task.index as i64, state_name(state), error, metrics],
             )
         })?;
-        Ok(())
+        Ok(updated == 1)
     }
 
     /// One process a file: its claims hold until it stops.
@@ -272,7 +272,7 @@ mod tests {
         store.create(&NewJob { refine_steps: Some(40), ..job("new", 1) }).unwrap();
         let first = store.claim().unwrap().unwrap();
         assert_eq!((first.job_id.as_str(), first.refine_steps), ("old", None));
-        store.finish(&first, &SceneOutcome::Done { metrics: None }).unwrap();
+        assert!(store.finish(&first, &SceneOutcome::Done { metrics: None }).unwrap());
         let second = store.claim().unwrap().unwrap();
         assert_eq!((second.job_id.as_str(), second.refine_steps), ("new", Some(40)));
         drop(store);

@@ -28,6 +28,18 @@ impl Server {
 
     /// Starts the service without waiting for readiness.
     pub fn spawn(model: &Path, data: &Path, args: &[&str]) -> Server {
+        Self::spawn_on("127.0.0.1:0", model, data, args)
+    }
+
+    /// [`Server::start`] listening on `listen` (a replica restarted where it was, keeping its
+    /// name in a shared job store).
+    pub fn start_on(listen: &str, model: &Path, data: &Path, args: &[&str]) -> Server {
+        let server = Self::spawn_on(listen, model, data, args);
+        server.wait_ready(Duration::from_secs(120));
+        server
+    }
+
+    fn spawn_on(listen: &str, model: &Path, data: &Path, args: &[&str]) -> Server {
         std::fs::create_dir_all(data).unwrap();
         let log = data.join(format!(
             "serve-{}.log",
@@ -37,7 +49,7 @@ impl Server {
             .args([
                 "serve",
                 "--listen",
-                "127.0.0.1:0",
+                listen,
                 "--model",
                 model.to_str().unwrap(),
                 "--data-dir",
