@@ -406,14 +406,14 @@ impl Worker {
             Ok(metrics) => SceneOutcome::Done { metrics },
             Err(e) => SceneOutcome::Failed { error: e.to_string() },
         };
-        if record(self.shared.jobs.as_ref(), task, &outcome) {
-            if let Err(e) = std::fs::remove_dir_all(&task.input) {
-                tracing::warn!(
-                    "job {}: cannot remove the input of scene {}: {e}",
-                    task.job_id,
-                    task.index
-                );
-            }
+        if record(self.shared.jobs.as_ref(), task, &outcome)
+            && let Err(e) = std::fs::remove_dir_all(&task.input)
+        {
+            tracing::warn!(
+                "job {}: cannot remove the input of scene {}: {e}",
+                task.job_id,
+                task.index
+            );
         }
         tracing::info!(
             "job {} scene {} ({}): {}",
