@@ -376,6 +376,7 @@ impl Worker {
     /// Runs a claimed job scene and commits its outcome; its input folder goes once committed.
     /// Where the store's claims lapse, a second thread renews this one while the scene runs.
     fn run_scene(&mut self, task: &SceneTask) {
+        tracing::info!("job {} scene {} ({}): started", task.job_id, task.index, task.name);
         let _ = self.shared.job_events.send(task.job_id.clone());
         let jobs = self.shared.jobs.clone();
         let (done, renewals) = std::sync::mpsc::channel::<()>();
@@ -406,25 +407,25 @@ impl Worker {
             Ok(metrics) => SceneOutcome::Done { metrics },
             Err(e) => SceneOutcome::Failed { error: e.to_string() },
         };
-        if record(self.shared.jobs.as_ref(), task, &outcome)
-            && let Err(e) = std::fs::remove_dir_all(&task.input)
-        {
-            tracing::warn!(
-                "job {}: cannot remove the input of scene {}: {e}",
+        if record(self.shared.jobs.as_ref(), task, &outcome) {
+            tracing::info!(
+                "job {} scene {} ({}): {}",
                 task.job_id,
-                task.index
+                task.index,
+                task.name,
+                match &outcome {
+                    SceneOutcome::Done { .. } => "done".to_string(),
+                    SceneOutcome::Failed { error } => format!("failed: {error}"),
+                }
             );
-        }
-        tracing::info!(
-            "job {} scene {} ({}): {}",
-            task.job_id,
-            task.index,
-            task.name,
-            match &outcome {
-                SceneOutcome::Done { .. } => "done".to_string(),
-                SceneOutcome::Failed { error } => format!("failed: {error}"),
+            if let Err(e) = std::fs::remove_dir_all(&task.input) {
+                tracing::warn!(
+                    "job {}: cannot remove the input of scene {}: {e}",
+                    task.job_id,
+                    task.index
+                );
             }
-        );
+        }
         let _ = self.shared.job_events.send(task.job_id.clone());
     }
 }

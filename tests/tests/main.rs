@@ -8,6 +8,7 @@ mod eval;
 mod hard_photos;
 mod http_errors;
 mod http_load;
+mod http_replicas;
 mod http_resume;
 mod http_service;
 mod real_photos;

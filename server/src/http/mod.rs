@@ -58,6 +58,10 @@ pub struct ServeArgs {
     /// host need their own ports.
     #[arg(long, env = "INSSPLAT_JOBS_URL", value_name = "URL", value_parser = jobs_url)]
     pub jobs: Option<String>,
+    /// Seconds a replica's claim on a job scene holds on PostgreSQL; the replica renews it every
+    /// third of that while the scene runs, so a replica that dies frees its scene within it.
+    #[arg(long, env = "INSSPLAT_JOB_LEASE_S", default_value_t = 30, value_parser = clap::value_parser!(u64).range(3..))]
+    pub job_lease_s: u64,
     /// Model worker threads (each loads its own copy of the network).
     #[arg(long, env = "INSSPLAT_WORKERS", default_value_t = 1)]
     pub workers: usize,
@@ -123,7 +127,8 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     // sharing it claim scenes (and stage them) in the name of their host and address.
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
     let replica = format!("{}:{addr}", host.trim());
-    let jobs = crate::jobs::open(args.jobs.as_deref(), &replica, &args.data_dir)?;
+    let lease = Duration::from_secs(args.job_lease_s);
+    let jobs = crate::jobs::open(args.jobs.as_deref(), &replica, lease, &args.data_dir)?;
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -72,14 +72,16 @@ pub trait JobStore: Send + Sync {
 }
 
 /// The job store `url` names (`postgres://…`), claiming scenes as `replica` (a name no other
-/// replica sharing it has, the same after a restart), else SQLite's file in `data_dir`.
+/// replica sharing it has, the same after a restart) for `lease`, else SQLite's file in
+/// `data_dir`.
 pub fn open(
     url: Option<&str>,
     replica: &str,
+    lease: std::time::Duration,
     data_dir: &Path,
 ) -> anyhow::Result<Arc<dyn JobStore>> {
     Ok(match url {
-        Some(url) => Arc::new(postgres::PostgresStore::connect(url, replica, postgres::LEASE)?),
+        Some(url) => Arc::new(postgres::PostgresStore::connect(url, replica, lease)?),
         None => Arc::new(sqlite::SqliteStore::open(&data_dir.join("jobs.sqlite"))?),
     })
 }

@@ -20,10 +20,6 @@ use super::{JobStore, NewJob, SceneOutcome, SceneTask, count_states, job_status,
 
 refinery::embed_migrations!("migrations/postgres");
 
-/// How long a claim holds unless renewed; the worker renews it every third of that while the
-/// scene runs, so a replica that dies frees its scene within this.
-pub const LEASE: Duration = Duration::from_secs(30);
-
 /// The job store in a PostgreSQL database.
 pub struct PostgresStore {
     url: String,
