@@ -5,12 +5,15 @@
 //! runs the scene again under its id) and another restarted, or through a restart of
 //! PostgreSQL itself. Either way every scene is recorded exactly once, with the scores and the
 //! PLY that one replica alone makes, every replica serves every result, and a client following
-//! the job's events on another replica sees it end.
+//! the job's events on another replica sees it end. The nginx configuration that
+//! `docker/compose.yaml` puts in front of two replicas is run too (Debian's nginx, its upstreams
+//! pointed at two replicas on loopback): a job sent through it is run by both and followed
+//! through it as it goes.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use crate::support::http::{Events, Server};
+use crate::support::http::{Client, Events, Server};
 use crate::support::{test_scene, tiny_model};
 use inssplat_e2e::postgres::TestPostgres;
 use inssplat_proto::api::{JobAccepted, JobState, JobStatus};
@@ -108,7 +111,7 @@ fn scores(metrics: &serde_json::Value) -> serde_json::Value {
     scores
 }
 
-fn submit(server: &Server, tar: &[u8]) -> String {
+fn submit(server: &Client, tar: &[u8]) -> String {
     let r = server.send("POST", "/v1/jobs", &[("Content-Type", "application/x-tar")], tar);
     assert_eq!(r.status, 202, "{}", r.text());
     let job: JobAccepted = r.json();
@@ -116,7 +119,7 @@ fn submit(server: &Server, tar: &[u8]) -> String {
     job.job_id
 }
 
-fn status(server: &Server, job: &str) -> JobStatus {
+fn status(server: &Client, job: &str) -> JobStatus {
     server.get(&format!("/v1/jobs/{job}")).json()
 }
 
@@ -231,4 +234,107 @@ fn replicas_ride_out_a_postgresql_restart() {
     assert!(text.contains("cannot connect to the job store"), "no replica saw the outage\n{text}");
     let ran: usize = all.iter().map(|s| scenes_in(&s.log_text(), &job, "done").len()).sum();
     assert_eq!(ran, SCENES, "each scene recorded once\n{text}");
+}
+
+/// nginx with `docker/nginx.conf`, its upstreams `replicas` and its port free on loopback.
+struct Proxy {
+    child: std::process::Child,
+    addr: std::net::SocketAddr,
+    _dir: tempfile::TempDir,
+}
+
+impl Proxy {
+    fn start(replicas: [&Server; 2]) -> Proxy {
+        let dir = tempfile::tempdir().unwrap();
+        let conf = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docker/nginx.conf"),
+        )
+        .unwrap();
+        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+        let mut local = conf.clone();
+        for (host, replica) in [("replica-a:8080", replicas[0]), ("replica-b:8080", replicas[1])] {
+            assert!(local.contains(host), "docker/nginx.conf has no upstream {host}");
+            local = local.replace(host, &replica.addr.to_string());
+        }
+        let listen = format!("listen 127.0.0.1:{};", port.port());
+        local = local.replace("listen 8080;", &listen);
+        assert!(local.contains(&listen), "docker/nginx.conf does not listen on 8080");
+        // Logs and buffers in the test's folder rather than the system's.
+        let paths =
+            "http {\n  access_log off;\n  client_body_temp_path body;\n  proxy_temp_path proxy;";
+        local = local.replacen("http {", paths, 1);
+        std::fs::write(dir.path().join("nginx.conf"), local).unwrap();
+        let nginx = ["/usr/sbin/nginx", "nginx"]
+            .into_iter()
+            .find(|n| std::process::Command::new(n).arg("-v").output().is_ok())
+            .expect("nginx (Debian's nginx, installed by scripts/setup)");
+        let pid = dir.path().join("nginx.pid");
+        let child = std::process::Command::new(nginx)
+            .arg("-p")
+            .arg(dir.path())
+            .args(["-c", "nginx.conf", "-e", "stderr", "-g"])
+            .arg(format!("daemon off; pid {};", pid.display()))
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        while std::net::TcpStream::connect(port).is_err() {
+            assert!(start.elapsed() < Duration::from_secs(20), "nginx did not start");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Proxy { child, addr: port, _dir: dir }
+    }
+}
+
+impl Drop for Proxy {
+    /// SIGTERM, which stops nginx's workers with it (SIGKILL would leave them running).
+    fn drop(&mut self) {
+        let pid = self.child.id().to_string();
+        let _ = std::process::Command::new("kill").args(["-TERM", &pid]).status();
+        let _ = self.child.wait();
+    }
+}
+
+#[test]
+fn the_compose_proxy_spreads_a_job_over_two_replicas_and_streams_its_progress() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = tiny_model(dir.path());
+    let postgres = TestPostgres::start();
+    let url = postgres.database("jobs");
+    let data = dir.path().join("shared");
+    let args = ["--jobs", url.as_str()];
+    let (a, b) = (Server::start(&model, &data, &args), Server::start(&model, &data, &args));
+    let proxy = Proxy::start([&a, &b]);
+    // The proxy as a client sees it: one address.
+    let front = Client::new(proxy.addr);
+
+    let photos: Vec<Vec<u8>> = (0..2).map(|i| crate::support::http::png(64, 48, i)).collect();
+    let names: Vec<String> = (0..8).map(|i| format!("room{i}")).collect();
+    let parts: Vec<(&str, Option<&str>, &[u8])> = names
+        .iter()
+        .flat_map(|n| photos.iter().map(move |p| (n.as_str(), Some("p.jpg"), p.as_slice())))
+        .collect();
+    let (ct, body) = crate::support::http::multipart(&parts);
+    let r = front.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
+    assert_eq!(r.status, 202, "{}", r.text());
+    let job: JobAccepted = r.json();
+    let mut events = front.events(&format!("/v1/jobs/{}/events", job.job_id), &[]);
+    let mut progress = Vec::new();
+    while let Some((_, data)) = events.next_event() {
+        progress.push(serde_json::from_str::<JobStatus>(&data).unwrap().done);
+    }
+    assert_eq!(progress.last(), Some(&names.len()), "{progress:?}");
+    assert!(
+        progress.iter().any(|&d| 0 < d && d < names.len()),
+        "no progress came through the proxy before the end: {progress:?}"
+    );
+    let end = status(&front, &job.job_id);
+    assert_eq!(end.state, JobState::Done, "{end:?}");
+    for s in &end.scenes {
+        let ply = front.get(&format!("/v1/scenes/{}/scene.ply", s.scene_id.as_ref().unwrap()));
+        assert_eq!(ply.status, 200, "{}", s.name);
+    }
+    let ran: Vec<usize> =
+        [&a, &b].iter().map(|s| scenes_in(&s.log_text(), &job.job_id, "done").len()).collect();
+    assert_eq!(ran.iter().sum::<usize>(), names.len(), "{ran:?}");
+    assert!(ran.iter().all(|&n| n > 0), "both replicas ran scenes: {ran:?}");
 }

@@ -10,11 +10,25 @@ use std::time::{Duration, Instant};
 
 use inssplat_proto::api::ErrorBody;
 
-/// A running `inssplat serve`; killed when dropped.
+/// A running `inssplat serve`; killed when dropped. Its [`Client`] methods speak to it.
 pub struct Server {
     child: Child,
+    client: Client,
+}
+
+/// Speaks HTTP/1.1 to one address (a server, or a proxy in front of several).
+pub struct Client {
     pub addr: SocketAddr,
-    pub log: PathBuf,
+    /// The server's log, shown when a request fails.
+    log: Option<PathBuf>,
+}
+
+impl std::ops::Deref for Server {
+    type Target = Client;
+
+    fn deref(&self) -> &Client {
+        &self.client
+    }
 }
 
 impl Server {
@@ -73,7 +87,7 @@ impl Server {
             .unwrap();
         // Keep draining stdout so the server never blocks on it.
         std::thread::spawn(move || for _ in lines {});
-        Server { child, addr, log }
+        Server { child, client: Client { addr, log: Some(log) } }
     }
 
     pub fn wait_ready(&self, limit: Duration) {
@@ -95,10 +109,6 @@ impl Server {
 
     pub fn pid(&self) -> u32 {
         self.child.id()
-    }
-
-    pub fn log_text(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
     /// Whether the process is still running.
@@ -134,6 +144,18 @@ impl Server {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.pid())).unwrap();
         let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap();
         line.split_whitespace().nth(1).unwrap().parse().unwrap()
+    }
+}
+
+impl Client {
+    /// A client of `addr`.
+    pub fn new(addr: SocketAddr) -> Client {
+        Client { addr, log: None }
+    }
+
+    /// The server's log so far (empty when unknown).
+    pub fn log_text(&self) -> String {
+        self.log.as_ref().and_then(|l| std::fs::read_to_string(l).ok()).unwrap_or_default()
     }
 
     pub fn try_send(
