@@ -1,6 +1,6 @@
 //! The service's counters and latency histograms, rendered in the Prometheus text format
 //! for `/metrics`: requests by route, method and status, request latency by route, pipeline
-//! latency by stage, and the gauges the caller samples at scrape time (queue depth, jobs by
+//! latency by stage, job-store latency by call, and the gauges the caller samples at scrape time (queue depth, jobs by
 //! state, stored scene bytes, readiness).
 
 use std::collections::BTreeMap;
@@ -11,8 +11,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use inssplat_proto::api::{JobState, StageTiming};
 
 /// Upper bounds of the latency buckets, seconds.
-const BUCKETS: [f64; 13] =
-    [0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0];
+const BUCKETS: [f64; 16] = [
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0,
+    60.0,
+];
 
 #[derive(Debug, Clone, Default)]
 struct Histogram {
@@ -60,6 +62,9 @@ pub struct Metrics {
     requests: Mutex<BTreeMap<(String, String, u16), u64>>,
     request_seconds: Mutex<BTreeMap<String, Histogram>>,
     stage_seconds: Mutex<BTreeMap<String, Histogram>>,
+    /// Job-store latency by call: `claim` (found a scene), `poll` (found none), `finish`,
+    /// `renew`.
+    store_seconds: Mutex<BTreeMap<&'static str, Histogram>>,
     /// Tasks skipped because their requester had gone.
     dropped: AtomicU64,
 }
@@ -91,6 +96,11 @@ impl Metrics {
         }
     }
 
+    /// Times one job-store call.
+    pub fn record_store(&self, call: &'static str, seconds: f64) {
+        lock(&self.store_seconds).entry(call).or_default().observe(seconds);
+    }
+
     /// The Prometheus text exposition of everything.
     pub fn render(&self, g: &Gauges) -> String {
         let mut out = String::new();
@@ -108,6 +118,10 @@ impl Metrics {
         out.push_str("# HELP inssplat_stage_duration_seconds Pipeline latency by stage.\n# TYPE inssplat_stage_duration_seconds histogram\n");
         for (stage, h) in lock(&self.stage_seconds).iter() {
             h.render(&mut out, "inssplat_stage_duration_seconds", "stage", stage);
+        }
+        out.push_str("# HELP inssplat_job_store_duration_seconds Job-store latency by call.\n# TYPE inssplat_job_store_duration_seconds histogram\n");
+        for (call, h) in lock(&self.store_seconds).iter() {
+            h.render(&mut out, "inssplat_job_store_duration_seconds", "call", call);
         }
         let dropped = self.dropped.load(Ordering::Relaxed);
         let _ = writeln!(
@@ -163,6 +177,7 @@ mod tests {
         m.record_request("POST", "/v1/reconstruct", 200, 0.02);
         m.record_request("POST", "/v1/reconstruct", 429, 0.001);
         m.record_stages(&[StageTiming { stage: "model".into(), ms: 300.0 }]);
+        m.record_store("claim", 0.0008);
         let text = m.render(&Gauges {
             queue_depth: 3,
             jobs_by_state: vec![(JobState::Running, 2)],
@@ -176,6 +191,12 @@ mod tests {
         );
         assert!(
             text.contains("inssplat_stage_duration_seconds_bucket{stage=\"model\",le=\"0.5\"} 1"),
+            "{text}"
+        );
+        assert!(
+            text.contains(
+                "inssplat_job_store_duration_seconds_bucket{call=\"claim\",le=\"0.001\"} 1"
+            ),
             "{text}"
         );
         assert!(

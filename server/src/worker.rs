@@ -307,7 +307,11 @@ impl Worker {
             Err(TryRecvError::Empty) => {}
         }
         let mut wait = IDLE_POLL;
-        match self.shared.jobs.claim() {
+        let start = Instant::now();
+        let claimed = self.shared.jobs.claim();
+        let call = if matches!(claimed, Ok(Some(_))) { "claim" } else { "poll" };
+        self.shared.metrics.record_store(call, start.elapsed().as_secs_f64());
+        match claimed {
             Ok(Some(scene)) => return Next::Scene(scene),
             Ok(None) => {}
             Err(e) => {
@@ -378,11 +382,13 @@ impl Worker {
     fn run_scene(&mut self, task: &SceneTask) {
         tracing::info!("job {} scene {} ({}): started", task.job_id, task.index, task.name);
         let _ = self.shared.job_events.send(task.job_id.clone());
-        let jobs = self.shared.jobs.clone();
+        let (jobs, metrics) = (self.shared.jobs.clone(), self.shared.metrics.clone());
         let (done, renewals) = std::sync::mpsc::channel::<()>();
         let renewer = jobs.lease().map(|lease| {
             let task = task.clone();
-            std::thread::spawn(move || renew_while_running(jobs.as_ref(), &task, lease, &renewals))
+            std::thread::spawn(move || {
+                renew_while_running(jobs.as_ref(), &metrics, &task, lease, &renewals)
+            })
         });
         let result = catch(|| {
             let id: SceneId = task.scene_id.parse().map_err(TaskError::Internal)?;
@@ -407,7 +413,7 @@ impl Worker {
             Ok(metrics) => SceneOutcome::Done { metrics },
             Err(e) => SceneOutcome::Failed { error: e.to_string() },
         };
-        if record(self.shared.jobs.as_ref(), task, &outcome) {
+        if record(self.shared.jobs.as_ref(), &self.shared.metrics, task, &outcome) {
             tracing::info!(
                 "job {} scene {} ({}): {}",
                 task.job_id,
@@ -433,11 +439,19 @@ impl Worker {
 /// Records `outcome` for `task`, trying again for [`RECORD_FOR`] while the store cannot be
 /// reached (a database restarting); whether it was recorded. When it was not, the claim ran
 /// out or stays unrecorded, and the scene is run again, by whichever replica claims it.
-fn record(jobs: &dyn JobStore, task: &SceneTask, outcome: &SceneOutcome) -> bool {
+fn record(
+    jobs: &dyn JobStore,
+    metrics: &Metrics,
+    task: &SceneTask,
+    outcome: &SceneOutcome,
+) -> bool {
     let start = Instant::now();
     let mut wait = Duration::from_millis(100);
     loop {
-        match jobs.finish(task, outcome) {
+        let call = Instant::now();
+        let finished = jobs.finish(task, outcome);
+        metrics.record_store("finish", call.elapsed().as_secs_f64());
+        match finished {
             Ok(true) => return true,
             Ok(false) => {
                 tracing::warn!(
@@ -471,12 +485,16 @@ fn record(jobs: &dyn JobStore, task: &SceneTask, outcome: &SceneOutcome) -> bool
 /// Renews the claim on `task` every third of `lease` until `stop`'s sender is dropped.
 fn renew_while_running(
     jobs: &dyn JobStore,
+    metrics: &Metrics,
     task: &SceneTask,
     lease: Duration,
     stop: &Receiver<()>,
 ) {
     while let Err(RecvTimeoutError::Timeout) = stop.recv_timeout(lease / 3) {
-        match jobs.renew(task) {
+        let call = Instant::now();
+        let renewed = jobs.renew(task);
+        metrics.record_store("renew", call.elapsed().as_secs_f64());
+        match renewed {
             Ok(true) => {}
             Ok(false) => {
                 tracing::warn!(

@@ -2,6 +2,7 @@
 //! `inssplat-train` binaries, found in the workspace's target folder and built there once if
 //! they are missing.
 
+pub mod http;
 pub mod postgres;
 
 use std::path::PathBuf;

@@ -293,6 +293,12 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
             && metrics.contains("inssplat_jobs{state=\"cancelled\"} 1"),
         "{metrics}"
     );
+    // The 6 scenes of the first three jobs were claimed and recorded, each timed.
+    for call in ["claim", "finish"] {
+        let key = format!("inssplat_job_store_duration_seconds_count{{call=\"{call}\"}} ");
+        let line = metrics.lines().find(|l| l.starts_with(&key)).expect(&key);
+        assert!(line[key.len()..].parse::<u64>().unwrap() >= 6, "{line}");
+    }
 
     let code = server.terminate(Duration::from_secs(30));
     assert!(code.success(), "SIGTERM ends the service cleanly: {code:?}\n{}", server.log_text());

@@ -2,7 +2,7 @@
 //! weights from a fixed seed, so every run checks the same network: these tests check
 //! plumbing, not accuracy) and procedural scenes.
 
-pub mod http;
+pub use inssplat_e2e::http;
 pub mod photo;
 pub mod web;
 

@@ -1,5 +1,5 @@
-//! The HTTP tests' side of the wire: starts the real `inssplat serve` on port 0 (reading the
-//! bound address it prints), and speaks raw HTTP/1.1 over loopback, so a test can send exactly
+//! The HTTP tests' side of the wire (and the replica benchmark's): starts the real `inssplat
+//! serve` on port 0 (reading the bound address it prints), and speaks raw HTTP/1.1 over loopback, so a test can send exactly
 //! the malformed bytes it means to (truncated bodies, bad headers) and read any answer.
 
 use std::io::{BufRead, BufReader, Read, Write};
@@ -42,24 +42,35 @@ impl Server {
 
     /// Starts the service without waiting for readiness.
     pub fn spawn(model: &Path, data: &Path, args: &[&str]) -> Server {
-        Self::spawn_on("127.0.0.1:0", model, data, args)
+        Self::launch(&crate::inssplat_bin(), "127.0.0.1:0", model, data, args)
     }
 
     /// [`Server::start`] listening on `listen` (a replica restarted where it was, keeping its
     /// name in a shared job store).
     pub fn start_on(listen: &str, model: &Path, data: &Path, args: &[&str]) -> Server {
-        let server = Self::spawn_on(listen, model, data, args);
+        Self::start_binary(&crate::inssplat_bin(), listen, model, data, args)
+    }
+
+    /// [`Server::start_on`] running the `inssplat` at `bin` (a release build, to measure).
+    pub fn start_binary(
+        bin: &Path,
+        listen: &str,
+        model: &Path,
+        data: &Path,
+        args: &[&str],
+    ) -> Server {
+        let server = Self::launch(bin, listen, model, data, args);
         server.wait_ready(Duration::from_secs(120));
         server
     }
 
-    fn spawn_on(listen: &str, model: &Path, data: &Path, args: &[&str]) -> Server {
+    fn launch(bin: &Path, listen: &str, model: &Path, data: &Path, args: &[&str]) -> Server {
         std::fs::create_dir_all(data).unwrap();
         let log = data.join(format!(
             "serve-{}.log",
             std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos()
         ));
-        let mut child = Command::new(inssplat_e2e::inssplat_bin())
+        let mut child = Command::new(bin)
             .args([
                 "serve",
                 "--listen",
