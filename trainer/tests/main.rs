@@ -3,6 +3,7 @@
 //! checkpoints and configurations, export parity, fit-scene and the shape classifier.
 
 mod average;
+mod encoder_reference;
 mod export_parity;
 mod fit_scene;
 mod loss_instance;

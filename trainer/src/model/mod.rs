@@ -13,6 +13,7 @@
 
 mod block;
 mod decoder;
+pub mod efficientnet;
 mod flops;
 mod gelu;
 use inssplat_proto::rays;
