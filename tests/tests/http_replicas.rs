@@ -8,7 +8,7 @@
 //! the job's events on another replica sees it end. The nginx configuration that
 //! `docker/compose.yaml` puts in front of two replicas is run too (Debian's nginx, its upstreams
 //! pointed at two replicas on loopback): a job sent through it is run by both and followed
-//! through it as it goes.
+//! through it as it goes, and a job sent to one replica is cancelled through the other.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -337,4 +337,16 @@ fn the_compose_proxy_spreads_a_job_over_two_replicas_and_streams_its_progress() 
         [&a, &b].iter().map(|s| scenes_in(&s.log_text(), &job.job_id, "done").len()).collect();
     assert_eq!(ran.iter().sum::<usize>(), names.len(), "{ran:?}");
     assert!(ran.iter().all(|&n| n > 0), "both replicas ran scenes: {ran:?}");
+
+    // A job sent to a is cancelled through b: its queued scenes never run on either.
+    let r = a.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
+    let job: JobAccepted = r.json();
+    let cancelled: JobStatus =
+        b.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
+    assert_eq!(cancelled.state, JobState::Cancelled, "{cancelled:?}");
+    std::thread::sleep(Duration::from_millis(500));
+    let later = status(&a, &job.job_id);
+    assert_eq!(later.state, JobState::Cancelled, "{later:?}");
+    let ran = later.scenes.iter().filter(|s| s.state != JobState::Cancelled).count();
+    assert!(ran <= 2, "at most the scene each replica was running goes on: {later:?}");
 }
