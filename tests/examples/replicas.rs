@@ -26,7 +26,7 @@ fn main() -> Result<(), String> {
     let count: usize = count.parse().map_err(|_| format!("<scenes> `{count}`: not a count"))?;
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/inssplat-default.onnx");
     let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
-    let tar = job_tar(&scenes, count, dir.path())?;
+    let tar = job_tar(&scenes, count)?;
     let postgres = TestPostgres::start();
 
     println!(
@@ -79,8 +79,8 @@ fn main() -> Result<(), String> {
     Ok(())
 }
 
-/// The first `count` scenes under `scenes` as one tar, written in `dir`.
-fn job_tar(scenes: &Path, count: usize, dir: &Path) -> Result<Vec<u8>, String> {
+/// The first `count` scenes under `scenes` as one tar.
+fn job_tar(scenes: &Path, count: usize) -> Result<Vec<u8>, String> {
     let mut names: Vec<String> = std::fs::read_dir(scenes)
         .map_err(|e| format!("{}: {e}", scenes.display()))?
         .flatten()
@@ -91,19 +91,8 @@ fn job_tar(scenes: &Path, count: usize, dir: &Path) -> Result<Vec<u8>, String> {
     if names.len() < count {
         return Err(format!("{}: {} dataset scenes, not {count}", scenes.display(), names.len()));
     }
-    let tar = dir.join("job.tar");
-    let ok = std::process::Command::new("tar")
-        .arg("-cf")
-        .arg(&tar)
-        .arg("-C")
-        .arg(scenes)
-        .args(&names[..count])
-        .status()
-        .map_err(|e| format!("tar: {e}"))?;
-    if !ok.success() {
-        return Err("tar failed".into());
-    }
-    std::fs::read(&tar).map_err(|e| e.to_string())
+    let entries: Vec<&str> = names[..count].iter().map(String::as_str).collect();
+    Ok(inssplat_e2e::tar_of(scenes, &entries))
 }
 
 /// Seconds the job store's `call` took in all, from a `/metrics` text.

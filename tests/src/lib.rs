@@ -55,3 +55,18 @@ pub fn inssplat(args: &[&str]) -> Output {
 pub fn inssplat_eval(args: &[&str]) -> Output {
     Command::new(inssplat_eval_bin()).args(args).output().expect("start inssplat-eval")
 }
+
+/// A tar archive (as `tar` writes it) of `entries` under `dir`, e.g. dataset scene folders
+/// for a batch job.
+pub fn tar_of(dir: &std::path::Path, entries: &[&str]) -> Vec<u8> {
+    let out = Command::new("tar")
+        .arg("-cf")
+        .arg("-")
+        .arg("-C")
+        .arg(dir)
+        .args(entries)
+        .output()
+        .expect("run tar");
+    assert!(out.status.success(), "tar: {}", String::from_utf8_lossy(&out.stderr));
+    out.stdout
+}

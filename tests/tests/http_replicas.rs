@@ -44,13 +44,7 @@ fn fixture() -> Fixture {
         t["eval"]["context"].as_object_mut().unwrap().retain(|views, _| views == "4");
         std::fs::write(&transforms, serde_json::to_vec(&t).unwrap()).unwrap();
     }
-    let tar_path = dir.path().join("scenes.tar");
-    let ok = std::process::Command::new("tar")
-        .args(["-cf", tar_path.to_str().unwrap(), "-C", scenes.to_str().unwrap(), "."])
-        .status()
-        .unwrap();
-    assert!(ok.success());
-    let tar = std::fs::read(&tar_path).unwrap();
+    let tar = inssplat_e2e::tar_of(&scenes, &["."]);
     // One replica alone, on SQLite.
     let alone = Server::start(&model, &dir.path().join("alone"), &[]);
     let job = submit(&alone, &tar);

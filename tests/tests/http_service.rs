@@ -196,18 +196,8 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     let mut server = Server::start(&model, &dir.path().join("data"), &[]);
 
     // A tar of two dataset scenes (with eval splits): reconstructed and scored.
-    let tar = dir.path().join("scenes.tar");
-    let ok = std::process::Command::new("tar")
-        .args(["-cf", tar.to_str().unwrap(), "-C", data.to_str().unwrap(), "."])
-        .status()
-        .unwrap();
-    assert!(ok.success());
-    let r = server.send(
-        "POST",
-        "/v1/jobs",
-        &[("Content-Type", "application/x-tar")],
-        &std::fs::read(&tar).unwrap(),
-    );
+    let tar_bytes = inssplat_e2e::tar_of(&data, &["."]);
+    let r = server.send("POST", "/v1/jobs", &[("Content-Type", "application/x-tar")], &tar_bytes);
     assert_eq!(r.status, 202, "{}", r.text());
     let job: JobAccepted = r.json();
     assert_eq!(job.scenes, ["scene_000000", "scene_000001"]);
@@ -232,7 +222,6 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
     );
 
     // The same archive as a multipart part, with refinement: the scores say how the fit moved.
-    let tar_bytes = std::fs::read(&tar).unwrap();
     let (ct, body) =
         multipart(&[("archive", Some("scenes.tar"), &tar_bytes), ("refine_steps", None, b"6")]);
     let r = server.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
