@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use inssplat_e2e::http::Server;
 use inssplat_e2e::postgres::TestPostgres;
-use inssplat_proto::api::{JobAccepted, JobStatus};
+use inssplat_proto::api::JobAccepted;
 
 const USAGE: &str = "usage: replicas <inssplat binary> <folder of dataset scenes> <scenes>";
 
@@ -50,13 +50,9 @@ fn main() -> Result<(), String> {
             return Err(format!("the job was refused: {}", r.text()));
         }
         let job: JobAccepted = r.json();
-        let status = loop {
-            let s: JobStatus = servers[0].get(&format!("/v1/jobs/{}", job.job_id)).json();
-            if s.done == s.total {
-                break s;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        };
+        let status = servers[0]
+            .wait_job(&job.job_id, count, Duration::from_secs(3600))
+            .map_err(|s| format!("not done within an hour: {s:?}"))?;
         let wall = start.elapsed().as_secs_f64();
         let mut seconds: Vec<f64> =
             status.scenes.iter().filter_map(|s| s.metrics.as_ref()?["seconds"].as_f64()).collect();

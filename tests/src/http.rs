@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use inssplat_proto::api::ErrorBody;
+use inssplat_proto::api::{ErrorBody, JobStatus};
 
 /// A running `inssplat serve`; killed when dropped. Its [`Client`] methods speak to it.
 pub struct Server {
@@ -215,6 +215,39 @@ impl Client {
 
     pub fn get(&self, path: &str) -> Response {
         self.send("GET", path, &[], b"")
+    }
+
+    /// The status of batch job `job`.
+    pub fn job(&self, job: &str) -> JobStatus {
+        self.get(&format!("/v1/jobs/{job}")).json()
+    }
+
+    /// Polls batch job `job` until at least `n` of its scenes have finished: that status, or
+    /// the last one read as `Err` once `limit` has passed.
+    pub fn wait_job(&self, job: &str, n: usize, limit: Duration) -> Result<JobStatus, JobStatus> {
+        let start = Instant::now();
+        loop {
+            let s = self.job(job);
+            if s.done >= n {
+                return Ok(s);
+            }
+            if start.elapsed() >= limit {
+                return Err(s);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Every status that batch job `job`'s event stream sends, to its end (at least one).
+    pub fn follow_job(&self, job: &str) -> Vec<JobStatus> {
+        let mut events = self.events(&format!("/v1/jobs/{job}/events"), &[]);
+        let mut seen = Vec::new();
+        while let Some((name, data)) = events.next_event() {
+            assert_eq!(name, "status");
+            seen.push(serde_json::from_str(&data).unwrap());
+        }
+        assert!(!seen.is_empty(), "job {job}: no event");
+        seen
     }
 
     /// Opens `path` as a server-sent event stream.

@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use crate::support::http::{Client, Events, Server};
+use crate::support::http::{Client, Server};
 use crate::support::{test_scene, tiny_model};
 use inssplat_e2e::postgres::TestPostgres;
 use inssplat_proto::api::{JobAccepted, JobState, JobStatus};
@@ -113,21 +113,11 @@ fn submit(server: &Client, tar: &[u8]) -> String {
     job.job_id
 }
 
-fn status(server: &Client, job: &str) -> JobStatus {
-    server.get(&format!("/v1/jobs/{job}")).json()
-}
-
-/// Polls the first of `servers` until the job has `n` scenes finished.
+/// Waits on the first of `servers` until the job has `n` scenes finished.
 fn wait_done(servers: &[&Server], job: &str, n: usize) -> JobStatus {
-    let start = Instant::now();
-    loop {
-        let s = status(servers[0], job);
-        if s.done >= n {
-            return s;
-        }
-        assert!(start.elapsed() < LIMIT, "{} of {n} scenes done: {s:?}\n{}", s.done, logs(servers));
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    servers[0]
+        .wait_job(job, n, LIMIT)
+        .unwrap_or_else(|s| panic!("{} of {n} scenes done: {s:?}\n{}", s.done, logs(servers)))
 }
 
 fn wait_end(servers: &[&Server], job: &str) -> JobStatus {
@@ -150,17 +140,6 @@ fn scenes_in(log: &str, job: &str, what: &str) -> Vec<usize> {
         .collect()
 }
 
-/// Follows the job's events to the end; the last status.
-fn follow(mut events: Events) -> std::thread::JoinHandle<JobStatus> {
-    std::thread::spawn(move || {
-        let mut last = None;
-        while let Some((_, data)) = events.next_event() {
-            last = Some(serde_json::from_str::<JobStatus>(&data).unwrap());
-        }
-        last.expect("at least one event")
-    })
-}
-
 #[test]
 fn three_replicas_run_a_job_through_a_kill_9_and_a_restart() {
     let f = fixture();
@@ -171,7 +150,10 @@ fn three_replicas_run_a_job_through_a_kill_9_and_a_restart() {
     let mut c = f.replica("127.0.0.1:0", &url);
     // Submitted to b, which dies; followed on a, which stays.
     let job = submit(&b, &f.tar);
-    let events = follow(a.events(&format!("/v1/jobs/{job}/events"), &[]));
+    let events = {
+        let (a, job) = (Client::new(a.addr), job.clone());
+        std::thread::spawn(move || a.follow_job(&job).pop().unwrap())
+    };
 
     // SIGKILL b while it runs a scene.
     let start = Instant::now();
@@ -311,17 +293,13 @@ fn the_compose_proxy_spreads_a_job_over_two_replicas_and_streams_its_progress() 
     let r = front.send("POST", "/v1/jobs", &[("Content-Type", &ct)], &body);
     assert_eq!(r.status, 202, "{}", r.text());
     let job: JobAccepted = r.json();
-    let mut events = front.events(&format!("/v1/jobs/{}/events", job.job_id), &[]);
-    let mut progress = Vec::new();
-    while let Some((_, data)) = events.next_event() {
-        progress.push(serde_json::from_str::<JobStatus>(&data).unwrap().done);
-    }
+    let progress: Vec<usize> = front.follow_job(&job.job_id).iter().map(|s| s.done).collect();
     assert_eq!(progress.last(), Some(&names.len()), "{progress:?}");
     assert!(
         progress.iter().any(|&d| 0 < d && d < names.len()),
         "no progress came through the proxy before the end: {progress:?}"
     );
-    let end = status(&front, &job.job_id);
+    let end = front.job(&job.job_id);
     assert_eq!(end.state, JobState::Done, "{end:?}");
     for s in &end.scenes {
         let ply = front.get(&format!("/v1/scenes/{}/scene.ply", s.scene_id.as_ref().unwrap()));
@@ -339,7 +317,7 @@ fn the_compose_proxy_spreads_a_job_over_two_replicas_and_streams_its_progress() 
         b.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
     assert_eq!(cancelled.state, JobState::Cancelled, "{cancelled:?}");
     std::thread::sleep(Duration::from_millis(500));
-    let later = status(&a, &job.job_id);
+    let later = a.job(&job.job_id);
     assert_eq!(later.state, JobState::Cancelled, "{later:?}");
     let ran = later.scenes.iter().filter(|s| s.state != JobState::Cancelled).count();
     assert!(ran <= 2, "at most the scene each replica was running goes on: {later:?}");

@@ -5,7 +5,7 @@
 //! none lost, none run into a second scene folder. A job store `serve` cannot use is refused
 //! at start, by name.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::support::http::{Server, multipart, png};
 use inssplat_e2e::postgres::TestPostgres;
@@ -13,26 +13,11 @@ use inssplat_proto::api::{JobAccepted, JobState, JobStatus};
 
 const SCENES: usize = 10;
 
-fn status(server: &Server, job: &str) -> JobStatus {
-    server.get(&format!("/v1/jobs/{job}")).json()
-}
-
-/// Polls until at least `n` scenes have finished; returns that status.
+/// Waits until at least `n` scenes have finished; returns that status.
 fn wait_done(server: &Server, job: &str, n: usize, limit: Duration) -> JobStatus {
-    let start = Instant::now();
-    loop {
-        let s = status(server, job);
-        if s.done >= n {
-            return s;
-        }
-        assert!(
-            start.elapsed() < limit,
-            "{} of {n} scenes after {limit:?}: {s:?}\n{}",
-            s.done,
-            server.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    server.wait_job(job, n, limit).unwrap_or_else(|s| {
+        panic!("{} of {n} scenes after {limit:?}: {s:?}\n{}", s.done, server.log_text())
+    })
 }
 
 #[test]

@@ -175,16 +175,9 @@ fn reconstructs_serves_artefacts_and_answers_queries() {
 
 /// Follows a job's events until it ends; returns the states seen and the final status.
 fn follow(server: &Server, job: &str) -> (Vec<JobState>, JobStatus) {
-    let mut events = server.events(&format!("/v1/jobs/{job}/events"), &[]);
-    let mut seen = Vec::new();
-    let mut last = None;
-    while let Some((name, data)) = events.next_event() {
-        assert_eq!(name, "status");
-        let status: JobStatus = serde_json::from_str(&data).unwrap();
-        seen.push(status.state);
-        last = Some(status);
-    }
-    (seen, last.expect("at least one event"))
+    let mut statuses = server.follow_job(job);
+    let seen = statuses.iter().map(|s| s.state).collect();
+    (seen, statuses.pop().expect("at least one event"))
 }
 
 #[test]
@@ -215,7 +208,7 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
         let ply = server.get(&format!("/v1/scenes/{}/scene.ply", s.scene_id.as_ref().unwrap()));
         assert_eq!(ply.status, 200);
     }
-    assert_eq!(server.get(&format!("/v1/jobs/{}", job.job_id)).json::<JobStatus>(), status);
+    assert_eq!(server.job(&job.job_id), status);
     assert!(
         status.scenes[0].metrics.as_ref().unwrap()["refine_context_psnr"].is_null(),
         "refined unasked"
@@ -268,7 +261,7 @@ fn batch_jobs_score_dataset_scenes_stream_progress_and_cancel() {
         server.send("DELETE", &format!("/v1/jobs/{}", job.job_id), &[], b"").json();
     assert_eq!(cancelled.state, JobState::Cancelled);
     std::thread::sleep(Duration::from_millis(300));
-    let later: JobStatus = server.get(&format!("/v1/jobs/{}", job.job_id)).json();
+    let later = server.job(&job.job_id);
     let ran = later
         .scenes
         .iter()

@@ -50,6 +50,11 @@ fn close(got: f32, want: f64, what: &str) {
     assert!((got as f64 - want).abs() <= tolerance, "{what}: {got} against PyTorch's {want}");
 }
 
+/// A JSON array of counts.
+fn usizes(v: &Value) -> Vec<usize> {
+    v.as_array().unwrap().iter().map(|x| x.as_u64().unwrap() as usize).collect()
+}
+
 /// Indices of the `k` largest of `v`, largest first.
 fn top(v: &[f32], k: usize) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..v.len()).collect();
@@ -69,13 +74,7 @@ fn features_and_logits_match_pytorch() {
         features.into_iter().zip(want["features"].as_array().unwrap()).enumerate()
     {
         let [_, c, h, w] = got.dims();
-        let shape: Vec<usize> = want["shape"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap() as usize)
-            .collect();
-        assert_eq!(vec![c, h, w], shape, "feature {level}");
+        assert_eq!(vec![c, h, w], usizes(&want["shape"]), "feature {level}");
         assert_eq!(c, FEATURE_CHANNELS[level]);
         let v = values(got);
         let n = v.len() as f64;
@@ -86,7 +85,7 @@ fn features_and_logits_match_pytorch() {
         for (at, value) in
             want["at"].as_array().unwrap().iter().zip(want["values"].as_array().unwrap())
         {
-            let [i, j, k] = [0, 1, 2].map(|d| at[d].as_u64().unwrap() as usize);
+            let [i, j, k] = usizes(at)[..] else { panic!("position {at}") };
             close(
                 v[(i * h + j) * w + k],
                 value.as_f64().unwrap(),
@@ -98,13 +97,7 @@ fn features_and_logits_match_pytorch() {
     for (i, value) in want["logits_first"].as_array().unwrap().iter().enumerate() {
         close(logits[i], value.as_f64().unwrap(), &format!("logit {i}"));
     }
-    let want_top: Vec<usize> = want["logits_top5"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_u64().unwrap() as usize)
-        .collect();
-    assert_eq!(top(&logits, 5), want_top);
+    assert_eq!(top(&logits, 5), usizes(&want["logits_top5"]));
 }
 
 #[test]

@@ -3,10 +3,9 @@
 //! (run by refinery when the store opens), with a lease on each running scene: a replica claims
 //! the oldest queued scene with `SELECT … FOR UPDATE SKIP LOCKED`, so two replicas never take
 //! the same one, and holds it until `lease_until`, renewed while it runs. A scene whose lease
-//! ran out (its replica
-//! died) is claimed again under the same scene id, at once by the same replica restarted; a
-//! finish counts only from the lease's owner, so a scene is never reported twice. The
-//! connection is made again when it drops (a restarted database).
+//! ran out (its replica died) is claimed again under the same scene id, at once by the same
+//! replica restarted; a finish counts only from the lease's owner, so a scene is never
+//! reported twice. The connection is made again when it drops (a restarted database).
 
 use std::path::PathBuf;
 use std::sync::Mutex;
