@@ -12,7 +12,7 @@ use inssplat_synth::{self as synth, Furniture, Split, Structure};
 use inssplat_trainer::loss::{
     BoundaryTerm, CrossView, GaussianTraining, HardNegatives, LossConfig,
 };
-use inssplat_trainer::model::ModelConfig;
+use inssplat_trainer::model::{Encoder, ModelConfig};
 use inssplat_trainer::train::sample::{DataSpec, describe};
 use inssplat_trainer::train::{self, Compute, RayPlan, Session, TrainConfig, checkpoint};
 
@@ -157,6 +157,17 @@ struct NetworkArgs {
     /// input, which `inssplat-eval score --known-poses` fills from the true cameras.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
     camera_rays: Option<u16>,
+    /// Build the network around this pretrained image encoder: its features make the tokens
+    /// (patch 8, sizes multiples of 32) and its fine maps reach the decoder.
+    #[arg(long, value_enum)]
+    encoder: Option<Encoder>,
+    /// The encoder's pretrained weights (a new run with --encoder starts from them).
+    #[arg(long, env = "INSSPLAT_ENCODER_WEIGHTS", value_name = "FILE")]
+    encoder_weights: Option<PathBuf>,
+    /// Keep the encoder's weights as they are (the first phase; fine-tune the whole network
+    /// after it with --init-from and a lower --lr).
+    #[arg(long)]
+    freeze_encoder: bool,
     /// With --camera-rays: the share of samples whose rays are all zero, so that the network
     /// also runs before any camera is known.
     #[arg(long, default_value_t = 0.0)]
@@ -282,7 +293,8 @@ impl TrainArgs {
                     .map(usize::from)
                     .filter(|&p| p > 1 || self.init_from.is_some()),
             )
-            .with_camera_rays(self.network.camera_rays.map(usize::from));
+            .with_camera_rays(self.network.camera_rays.map(usize::from))
+            .with_encoder(self.network.encoder);
         let loss = LossConfig::new()
             .with_rgb_weight(self.loss.rgb_weight)
             .with_geometry_weight(self.loss.geometry_weight)
@@ -332,6 +344,8 @@ impl TrainArgs {
                 (self.network.ray_dropout > 0.0)
                     .then_some(RayPlan { dropout: self.network.ray_dropout }),
             )
+            .with_encoder_weights(self.network.encoder.and(self.network.encoder_weights.clone()))
+            .with_freeze_encoder(self.network.freeze_encoder.then_some(true))
     }
 
     fn furniture(&self) -> Result<Option<PathBuf>> {

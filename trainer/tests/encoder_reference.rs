@@ -3,7 +3,7 @@
 //! maps and ImageNet logits that PyTorch gives for the same procedural image, and names real
 //! photos (`INSSPLAT_PHOTOS_DIR`) as PyTorch does. The reference vectors were made once by
 //! `scripts/convert/efficientnet_reference.py`. A file that is not the encoder's is refused
-//! by name.
+//! by name. The encoder folded as the network carries it computes the same features.
 
 use std::path::PathBuf;
 
@@ -93,7 +93,7 @@ fn features_and_logits_match_pytorch() {
             );
         }
     }
-    let logits = values(net.logits(procedural(size)));
+    let logits = values(net.logits(procedural(size)).expect("the file's classifier"));
     for (i, value) in want["logits_first"].as_array().unwrap().iter().enumerate() {
         close(logits[i], value.as_f64().unwrap(), &format!("logit {i}"));
     }
@@ -115,11 +115,30 @@ fn real_photos_are_named_as_pytorch_names_them() {
             }
         }
         let rgb = Tensor::<1>::from_floats(v.as_slice(), &Device::flex()).reshape([1, 3, 224, 224]);
-        let ours = top(&values(net.logits(rgb)), 3);
+        let ours = top(&values(net.logits(rgb).expect("the file's classifier")), 3);
         // The two resizers differ a little, so the order may too; PyTorch's first class is
         // among ours.
         let first = want_top[0].as_u64().unwrap() as usize;
         assert!(ours.contains(&first), "{file}: our top-3 {ours:?}, PyTorch's first {first}");
+    }
+}
+
+/// Folding the batch norms into the convolutions (as the network carries the encoder) keeps
+/// every feature map, and drops the classifier.
+#[test]
+fn the_folded_encoder_computes_the_same_features() {
+    let net = encoder();
+    let folded = net.clone().fold();
+    assert!(folded.logits(procedural(64)).is_none());
+    let ours = net.features(procedural(96));
+    for (level, (a, b)) in ours.into_iter().zip(folded.features(procedural(96))).enumerate() {
+        assert_eq!(a.dims(), b.dims(), "feature {level}");
+        for (i, (x, y)) in values(a).into_iter().zip(values(b)).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-3 * x.abs().max(1.0),
+                "feature {level}[{i}]: {x} folded to {y}"
+            );
+        }
     }
 }
 

@@ -1,14 +1,17 @@
 //! The network's forward pass against the model I/O signature: output shapes at several view
 //! counts, view 0 as the world frame (identity pose), positive depth, confidence above one,
 //! the Φ_sem layout, configuration validation, and a backward pass on the autodiff device
-//! that reaches the patch embedding (the whole graph is differentiable).
+//! that reaches the patch embedding (the whole graph is differentiable); a network built around
+//! the image encoder, trained or frozen.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use burn::tensor::Gradients;
 use inssplat_proto::signature as sig;
-use inssplat_trainer::model::{InsSplatNet, ModelConfig, ModelError, ModelOutput};
+use inssplat_trainer::model::{
+    Encoder, InsSplatNet, ModelConfig, ModelError, ModelOutput, efficientnet,
+};
 
 fn small() -> ModelConfig {
     ModelConfig::new()
@@ -145,6 +148,54 @@ impl ModuleVisitor for GradCheck<'_> {
             s > 0.0 && s.is_finite()
         });
         if ok { self.with += 1 } else { self.without += 1 }
+    }
+}
+
+/// A network built around the image encoder: it needs patch 8, no pixel skips and sizes in
+/// multiples of 32; every one of its tensors gets a gradient, and none of the encoder's once
+/// frozen; its FLOPs count the encoder's.
+#[test]
+fn a_network_on_the_encoder_checks_its_shape_and_trains_or_freezes_it() {
+    let config = small().with_encoder(Some(Encoder::EfficientnetLite0));
+    assert!(matches!(config.clone().with_patch(4).validate(), Err(ModelError::Config(_))));
+    assert!(matches!(
+        config.clone().with_image_skips(Some(4)).validate(),
+        Err(ModelError::Config(_))
+    ));
+    assert!(matches!(config.clone().with_image_size(48).validate(), Err(ModelError::Config(_))));
+    assert_eq!(config.size_multiple(), 32);
+    assert_eq!(config.clone().with_global_kv_pool(Some(3)).size_multiple(), 96);
+    let device = Device::flex().autodiff();
+    device.seed(3);
+    let net = config.init(&device).expect("config");
+    let wrong = Tensor::<4>::zeros([1, 3, 32, 48], &device);
+    assert!(matches!(net.forward(wrong), Err(ModelError::InputShape { multiple: 32, .. })));
+    let images = || Tensor::<4>::random([2, 3, 64, 32], Distribution::Uniform(0.0, 1.0), &device);
+    let out = net.forward(images()).expect("a 64×32 input");
+    assert_eq!(out.semantic.dims(), [2, 16, 64, 32]);
+    let encoder = net.encoder().expect("an encoder").num_params();
+    assert!(encoder > 2_500_000, "the encoder has {encoder} parameters");
+    assert_eq!(tensors_without_gradient(&net, out), 2, "all but Φ_sem's");
+    let net = net.freeze_encoder();
+    let out = net.forward(images()).expect("forward");
+    let mut frozen = Tensors(0);
+    net.encoder().expect("an encoder").visit(&mut frozen);
+    // Weight and bias of the stem and of 3 layers in each of 16 blocks (the first has 2).
+    assert_eq!(frozen.0, 2 + 2 * (2 + 15 * 3));
+    assert_eq!(tensors_without_gradient(&net, out), 2 + frozen.0, "none reach the frozen encoder");
+    // PyTorch's FlopCounterMode on the reference script's `forward` at 224² counts 770,375,104
+    // FLOPs, 42,700,800 of them in the head and classifier, which the network leaves out.
+    assert_eq!(efficientnet::forward_flops(224, 224), 770_375_104 - 42_700_800);
+    let flops = |c: &ModelConfig| c.init(&Device::flex()).unwrap().forward_flops(4);
+    assert!(flops(&config) > flops(&small()) + 4 * efficientnet::forward_flops(32, 32));
+}
+
+/// Counts the float tensors a module visits.
+struct Tensors(usize);
+
+impl ModuleVisitor for Tensors {
+    fn visit_float<const D: usize>(&mut self, _: &Param<Tensor<D>>) {
+        self.0 += 1;
     }
 }
 

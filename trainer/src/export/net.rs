@@ -3,20 +3,23 @@
 //! one ONNX Runtime's CPU provider runs natively (MatMul, Add, Mul, LayerNormalization,
 //! Softmax, Conv, ConvTranspose, Erf, Reshape, Transpose, Concat, Slice, Split, Squeeze,
 //! Shape, Expand, Exp, Softplus, Sigmoid, Identity; ReduceMean for pooled keys; in an int8
-//! file also DynamicQuantizeLinear, MatMulInteger and Cast; Resize for the position embedding).
+//! file also DynamicQuantizeLinear, MatMulInteger and Cast; Resize for the position embedding;
+//! with the image encoder, grouped and `SAME_UPPER` Conv, Clip for ReLU6, Div, and Resize
+//! (nearest) for its tokens).
 //! The view count and the image's height and width stay symbolic: the patch grid ([`Sizes`])
 //! is read from the images' Shape, and the position embedding is resampled to it by `Resize`
 //! (linear, half-pixel), as [`InsSplatNet::position_embedding`] does.
 
 use burn::nn::conv::{Conv2d, ConvTranspose2d};
-use burn::nn::{LayerNorm, Linear};
+use burn::nn::{LayerNorm, Linear, PaddingConfig2d};
 use inssplat_proto::signature as sig;
 
 use super::ExportError;
 use super::graph::{Dim, Graph, attr_float, attr_int, attr_ints, attr_string};
+use crate::model::efficientnet::{self, EfficientNetLite0};
 use crate::model::{
     Block, CameraHead, DenseDecoder, GAUSSIAN_AFFINE_CHANNELS, InsSplatNet, LN_EPS, ModelConfig,
-    OUT_INSTANCE, SH_C0, gaussian_affine,
+    OUT_INSTANCE, SH_C0, encoder, gaussian_affine,
 };
 
 const END: i64 = i64::MAX;
@@ -51,6 +54,8 @@ fn layer_norm(g: &mut Graph, hint: &str, m: &LayerNorm, x: &str) -> Result<Strin
     ))
 }
 
+/// A convolution padded by half its kernel (the decoder's), or as TensorFlow's `SAME` (the
+/// encoder's, which is ONNX's `SAME_UPPER`: a stride-2 layer pads less before than after).
 fn conv(g: &mut Graph, hint: &str, m: &Conv2d, x: &str) -> Result<String, ExportError> {
     let w = g.param(&format!("{hint}.weight"), m.weight.val())?;
     let b = g.param(
@@ -58,13 +63,85 @@ fn conv(g: &mut Graph, hint: &str, m: &Conv2d, x: &str) -> Result<String, Export
         m.bias.as_ref().ok_or(ExportError::Unsupported("conv without bias"))?.val(),
     )?;
     let [kh, kw] = m.kernel_size;
-    let (ph, pw) = ((kh / 2) as i64, (kw / 2) as i64);
-    let attrs = vec![
+    let padding = match m.padding {
+        PaddingConfig2d::Same => attr_string("auto_pad", "SAME_UPPER"),
+        _ => {
+            let (ph, pw) = ((kh / 2) as i64, (kw / 2) as i64);
+            attr_ints("pads", &[ph, pw, ph, pw])
+        }
+    };
+    let mut attrs = vec![
         attr_ints("kernel_shape", &[kh as i64, kw as i64]),
-        attr_ints("pads", &[ph, pw, ph, pw]),
+        padding,
         attr_ints("strides", &[m.stride[0] as i64, m.stride[1] as i64]),
     ];
+    if m.groups != 1 {
+        attrs.push(attr_int("group", m.groups as i64));
+    }
     Ok(g.op("Conv", &[x, &w, &b], attrs))
+}
+
+/// ReLU6, as `Clip` to [0, 6].
+fn relu6(g: &mut Graph, x: &str) -> String {
+    let (low, high) = (g.scalar(0.0), g.scalar(6.0));
+    g.op("Clip", &[x, &low, &high], vec![])
+}
+
+/// The folded encoder's `features` of `images` (`[N, 3, H, W]` in [0, 1]): the maps at
+/// strides 2 to 32.
+fn encoder(g: &mut Graph, m: &EfficientNetLite0, images: &str) -> Result<Vec<String>, ExportError> {
+    let (mean, std) = (g.scalar(efficientnet::MEAN), g.scalar(efficientnet::STD));
+    let x = g.op("Sub", &[images, &mean], vec![]);
+    let x = g.op("Div", &[&x, &std], vec![]);
+    let x = conv(g, "encoder.conv_stem", &m.conv_stem, &x)?;
+    let mut x = relu6(g, &x);
+    let taps = efficientnet::taps();
+    let mut features = Vec::with_capacity(taps.len());
+    for (i, block) in m.blocks.iter().enumerate() {
+        let hint = format!("encoder.blocks.{i}");
+        let mut y = x.clone();
+        if let Some(expand) = &block.expand_conv {
+            let e = conv(g, &format!("{hint}.expand_conv"), expand, &y)?;
+            y = relu6(g, &e);
+        }
+        let d = conv(g, &format!("{hint}.depthwise_conv"), &block.depthwise_conv, &y)?;
+        let d = relu6(g, &d);
+        let p = conv(g, &format!("{hint}.project_conv"), &block.project_conv, &d)?;
+        x = if block.residual { g.op("Add", &[&p, &x], vec![]) } else { p };
+        if taps.contains(&i) {
+            features.push(x.clone());
+        }
+    }
+    Ok(features)
+}
+
+/// `encoder::tokens`: the token levels repeated to the stride-8 grid (nearest, floor, as
+/// burn's), concatenated and laid out `[N, tokens, channels]`.
+fn encoder_tokens(g: &mut Graph, features: &[String]) -> String {
+    let first = encoder::TOKEN_LEVELS[0];
+    let maps: Vec<String> = encoder::TOKEN_LEVELS
+        .iter()
+        .map(|&l| {
+            let factor = (1 << (l - first)) as f32;
+            if l == first {
+                return features[l].clone();
+            }
+            let scales = g.f32s("scales", &[4], &[1.0, 1.0, factor, factor]);
+            g.op(
+                "Resize",
+                &[&features[l], "", &scales],
+                vec![
+                    attr_string("mode", "nearest"),
+                    attr_string("coordinate_transformation_mode", "asymmetric"),
+                    attr_string("nearest_mode", "floor"),
+                ],
+            )
+        })
+        .collect();
+    let refs: Vec<&str> = maps.iter().map(String::as_str).collect();
+    let x = g.op("Concat", &refs, vec![attr_int("axis", 1)]);
+    let x = g.reshape(&x, &[0, encoder::token_channels() as i64, -1]);
+    g.transpose(&x, &[0, 2, 1])
 }
 
 fn conv_transpose(
@@ -171,21 +248,28 @@ impl Sizes {
     }
 }
 
-/// Token embedding, as `InsSplatNet::embed`. Returns (centred images, tokens `[N, S, dim]`).
+/// Token embedding, as `InsSplatNet::embed`, of the pixels or of the encoder's `features`.
+/// Returns (centred images, tokens `[N, S, dim]`).
 fn embed(
     g: &mut Graph,
     net: &InsSplatNet,
-    c: &ModelConfig,
+    features: Option<&[String]>,
     sizes: &Sizes,
 ) -> Result<(String, String), ExportError> {
     use Dim::{Const as C, Tensor as T};
+    let c = net.config();
     let (p, d) = (c.patch as i64, c.dim);
     let [gh, gw] = [sizes.grid[0].as_str(), sizes.grid[1].as_str()];
     let half = g.scalar(0.5);
     let centred = g.op("Sub", &[sig::INPUT_IMAGES.name, &half], vec![]);
-    let x = g.reshape_to(&centred, &[C(-1), C(3), T(gh), C(p), T(gw), C(p)]);
-    let x = g.transpose(&x, &[0, 2, 4, 1, 3, 5]);
-    let x = g.reshape(&x, &[0, -1, 3 * p * p]);
+    let x = match features {
+        Some(features) => encoder_tokens(g, features),
+        None => {
+            let x = g.reshape_to(&centred, &[C(-1), C(3), T(gh), C(p), T(gw), C(p)]);
+            let x = g.transpose(&x, &[0, 2, 4, 1, 3, 5]);
+            g.reshape(&x, &[0, -1, 3 * p * p])
+        }
+    };
     let x = linear(g, "patch_embed", &net.patch_embed, &x)?;
     let pos = position_embedding(g, net, c, sizes)?;
     let mut x = g.op("Add", &[&x, &pos], vec![]);
@@ -262,6 +346,7 @@ fn decoder(
     g: &mut Graph,
     m: &DenseDecoder,
     levels: &[String],
+    encoded: &[String],
     centred: &str,
     c: &ModelConfig,
     sizes: &Sizes,
@@ -288,6 +373,11 @@ fn decoder(
         let level = m.stages.len() - 1 - i;
         if let (Some(skip), Some(f)) = (m.skips.get(level), features.get(level)) {
             let s = conv(g, &format!("decoder.skips.{level}.inject"), &skip.inject, f)?;
+            x = g.op("Add", &[&x, &s], vec![]);
+        }
+        let e = level.wrapping_sub(1);
+        if let (Some(skip), Some(f)) = (m.encoder_skips.get(e), encoded.get(e)) {
+            let s = conv(g, &format!("decoder.encoder_skips.{e}"), skip, f)?;
             x = g.op("Add", &[&x, &s], vec![]);
         }
     }
@@ -330,7 +420,9 @@ pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     let c = net.config();
     let d = c.dim as i64;
     let sizes = Sizes::of_images(g, c);
-    let (centred, mut x) = embed(g, net, c, &sizes)?;
+    let features =
+        net.encoder.as_ref().map(|e| encoder(g, e, sig::INPUT_IMAGES.name)).transpose()?;
+    let (centred, mut x) = embed(g, net, features.as_deref(), &sizes)?;
     let mut levels = Vec::new();
     for (i, b) in net.blocks.iter().enumerate() {
         let hint = format!("blocks.{i}");
@@ -346,7 +438,8 @@ pub fn network(g: &mut Graph, net: &InsSplatNet) -> Result<(), ExportError> {
     let cam = g.slice(&x, &[0], &[1], &[1]);
     let cam = g.reshape(&cam, &[-1, d]);
     camera_head(g, &net.camera_head, &cam, c)?;
-    decoder(g, &net.decoder, &levels, &centred, c, &sizes)?;
+    let encoded = features.as_ref().map_or(&[][..], |f| &f[..encoder::SKIP_LEVELS]);
+    decoder(g, &net.decoder, &levels, encoded, &centred, c, &sizes)?;
     let (w, b) = net.sem_proj();
     let w = g.param("sem_proj.weight", w)?;
     let b = g.param("sem_proj.bias", b)?;

@@ -14,6 +14,10 @@
 //! see 8×8 patches, and without local image features the maps cannot follow the edges inside
 //! them. Starting at zero, a network grown from one without the encoder computes exactly what
 //! it computed before.
+//!
+//! With [`ModelConfig::encoder`] the pretrained encoder's stride-4 and stride-2 features take
+//! that role: each joins the decoder through a 1×1 layer after the stage that reaches its
+//! resolution.
 
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig, PaddingConfig2d};
@@ -21,7 +25,8 @@ use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};
 use inssplat_proto::signature::{CAMERA_CHANNELS, GAUSSIAN_CHANNELS};
 
-use super::{LN_EPS, ModelConfig, gelu};
+use super::efficientnet::FEATURE_CHANNELS;
+use super::{LN_EPS, ModelConfig, encoder, gelu};
 
 /// Raw output channels of the depth head (depth, confidence).
 pub const OUT_DEPTH: usize = 2;
@@ -105,6 +110,9 @@ pub struct DenseDecoder {
     /// The image encoder, full resolution first; empty without [`ModelConfig::image_skips`].
     /// Level `l` joins the decoder after stage `stages − 1 − l` has upsampled.
     pub(crate) skips: Vec<Skip>,
+    /// With [`ModelConfig::encoder`], its feature at stride 2^(l + 1) → decoder channels
+    /// (1×1); joins after the stage that reaches that resolution. Empty without an encoder.
+    pub(crate) encoder_skips: Vec<Conv2d>,
     /// Full resolution: decoder channels + 3 image channels → decoder channels (1×1).
     pub(crate) mix: Conv2d,
     /// Fused 1×1 output layer: depth (2) | Gaussians (14) | semantic (d_s) | instance (8).
@@ -143,12 +151,22 @@ impl DenseDecoder {
                 })
             })
             .collect();
+        let encoder_skips = match c.encoder {
+            Some(_) => (0..encoder::SKIP_LEVELS)
+                .map(|l| {
+                    let out = c.decoder_channels(c.stages() - 1 - l);
+                    Conv2dConfig::new([FEATURE_CHANNELS[l], out], [1, 1]).init(device)
+                })
+                .collect(),
+            None => Vec::new(),
+        };
         let last = c.decoder_channels(c.stages());
         Self {
             norm: LayerNormConfig::new(levels * c.dim).with_epsilon(LN_EPS).init(device),
             fuse: LinearConfig::new(levels * c.dim, c.decoder_dim).init(device),
             stages,
             skips,
+            encoder_skips,
             mix: Conv2dConfig::new([last + 3, last], [1, 1]).init(device),
             out: Conv2dConfig::new([last, Self::out_channels(c)], [1, 1]).init(device),
         }
@@ -159,11 +177,13 @@ impl DenseDecoder {
         OUT_DEPTH + OUT_GAUSSIANS + c.sem_dim + OUT_INSTANCE
     }
 
-    /// `levels`: patch tokens `[N, tokens, dim]` of each global layer; `images`: the input.
+    /// `levels`: patch tokens `[N, tokens, dim]` of each global layer; `images`: the input;
+    /// `encoded`: the encoder's features at strides 2 and 4 (empty without one).
     pub fn forward(
         &self,
         levels: Vec<Tensor<3>>,
         images: Tensor<4>,
+        encoded: Vec<Tensor<4>>,
         c: &ModelConfig,
     ) -> DenseOutput {
         let [n, _, h, w] = images.dims();
@@ -182,6 +202,12 @@ impl DenseDecoder {
             let level = self.stages.len() - 1 - s;
             if let (Some(skip), Some(f)) = (self.skips.get(level), features.get(level)) {
                 x = x + skip.inject.forward(f.clone());
+            }
+            let encoder_level = level.wrapping_sub(1);
+            if let (Some(skip), Some(f)) =
+                (self.encoder_skips.get(encoder_level), encoded.get(encoder_level))
+            {
+                x = x + skip.forward(f.clone());
             }
         }
         let x = gelu(self.mix.forward(Tensor::cat(vec![x, centred], 1)));

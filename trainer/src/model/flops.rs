@@ -1,15 +1,24 @@
 //! Analytic FLOP count of the network (a multiply-add counts 2), for throughput reports:
-//! matmuls, attention products and convolutions; element-wise work, norms and softmax are
+//! matmuls, attention products and convolutions (the image encoder's too); element-wise work, norms and softmax are
 //! left out, so "effective GFLOP/s" understates the arithmetic actually done.
 
-use super::{DenseDecoder, ModelConfig};
+use super::efficientnet::{self, FEATURE_CHANNELS};
+use super::{DenseDecoder, ModelConfig, encoder};
 
 /// FLOPs of one forward pass at `n` views.
 pub fn forward_flops(c: &ModelConfig, n: usize) -> u64 {
-    let (n, d, p, g) = (n as u64, c.dim as u64, c.patch as u64, c.grid() as u64);
+    let (n, d, g) = (n as u64, c.dim as u64, c.grid() as u64);
     let tokens = g * g;
     let s = tokens + 1;
-    let mut f = 2 * n * tokens * 3 * p * p * d;
+    let mut f = 2 * n * tokens * c.token_channels() as u64 * d;
+    if c.encoder.is_some() {
+        let side = c.image_size;
+        f += n * efficientnet::forward_flops(side, side);
+        for (l, &ch) in FEATURE_CHANNELS.iter().take(encoder::SKIP_LEVELS).enumerate() {
+            let r = (side >> (l + 1)) as u64;
+            f += 2 * n * r * r * ch as u64 * c.decoder_channels(c.stages() - 1 - l) as u64;
+        }
+    }
     let mlp = c.mlp_ratio as u64;
     for i in 0..c.depth {
         f += 2 * n * s * d * d * (4 + 2 * mlp);

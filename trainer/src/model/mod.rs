@@ -1,5 +1,6 @@
 //! The InstanceSplat network, VGGT-style and sized to train on a small CPU: the images of N
-//! views are cut into patches and embedded; transformer layers alternate frame attention
+//! views are cut into patches and embedded (or, with a pretrained image encoder, its
+//! multi-scale features are: [`encoder`]); transformer layers alternate frame attention
 //! (within one view) and global attention (across all views' tokens); a camera token per view
 //! feeds the camera head, and a DPT-style dense decoder turns several layers' patch tokens
 //! into full-resolution maps: depth and confidence, per-pixel Gaussian parameters, the compact
@@ -14,6 +15,7 @@
 mod block;
 mod decoder;
 pub mod efficientnet;
+pub mod encoder;
 mod flops;
 mod gelu;
 use inssplat_proto::rays;
@@ -23,6 +25,7 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
+use efficientnet::EfficientNetLite0;
 use inssplat_proto::signature::TEXT_DIM;
 
 pub use block::{Block, KeyPooling, LN_EPS};
@@ -30,6 +33,7 @@ pub use decoder::{
     CameraHead, DenseDecoder, DenseOutput, GAUSSIAN_AFFINE_CHANNELS, OUT_DEPTH, OUT_GAUSSIANS,
     OUT_INSTANCE, SH_C0, Skip, Stage, gaussian_affine,
 };
+pub use encoder::Encoder;
 pub use gelu::gelu;
 
 /// Shape and output-scaling hyper-parameters of the network. Configurations saved with the
@@ -92,6 +96,12 @@ pub struct ModelConfig {
     /// always compute what it does without them). `None` (also what files saved
     /// before it existed read as): the network sees the images alone.
     pub camera_rays: Option<usize>,
+    /// The pretrained image encoder the network is built around ([`encoder`]): the tokens
+    /// embed its features on the stride-8 grid (so the patch is 8), and its stride-2 and
+    /// stride-4 features join the decoder. Its weights come from its own file
+    /// ([`InsSplatNet::with_pretrained_encoder`]). `None` (also what files saved before it
+    /// existed read as): the tokens embed 8×8 pixel patches.
+    pub encoder: Option<Encoder>,
 }
 
 impl ModelConfig {
@@ -101,9 +111,22 @@ impl ModelConfig {
     }
 
     /// What the input's height and width must be multiples of: the patch, times the pooled
-    /// square's side with [`ModelConfig::global_kv_pool`].
+    /// square's side with [`ModelConfig::global_kv_pool`], and the encoder's deepest stride
+    /// with [`ModelConfig::encoder`].
     pub fn size_multiple(&self) -> usize {
-        self.patch * self.global_kv_pool.unwrap_or(1)
+        let tokens = self.patch * self.global_kv_pool.unwrap_or(1);
+        match self.encoder {
+            Some(_) => least_common_multiple(tokens, encoder::SIZE_MULTIPLE),
+            None => tokens,
+        }
+    }
+
+    /// Channels of a token before its embedding: a patch's pixels, or the encoder's features.
+    pub fn token_channels(&self) -> usize {
+        match self.encoder {
+            Some(_) => encoder::token_channels(),
+            None => 3 * self.patch * self.patch,
+        }
     }
 
     /// Upsampling stages of the decoder (log2 of the patch size).
@@ -154,6 +177,21 @@ impl ModelConfig {
                     .into(),
             );
         }
+        if self.encoder.is_some() {
+            if self.patch != encoder::TOKEN_STRIDE || self.image_skips.is_some() {
+                return bad(format!(
+                    "an encoder makes the tokens on its stride-{} grid, with its own skips: patch must be {0}, and image_skips unset",
+                    encoder::TOKEN_STRIDE
+                ));
+            }
+            if !self.image_size.is_multiple_of(encoder::SIZE_MULTIPLE) {
+                return bad(format!(
+                    "image_size {} must be a multiple of the encoder's {}",
+                    self.image_size,
+                    encoder::SIZE_MULTIPLE
+                ));
+            }
+        }
         if let Some(p) = self.global_kv_pool
             && (p < 2 || !self.grid().is_multiple_of(p))
         {
@@ -171,7 +209,8 @@ impl ModelConfig {
         let tokens = self.grid() * self.grid();
         let small = Initializer::Normal { mean: 0.0, std: 0.02 };
         Ok(InsSplatNet {
-            patch_embed: LinearConfig::new(3 * self.patch * self.patch, self.dim).init(device),
+            encoder: self.encoder.map(|_| EfficientNetLite0::folded(device)),
+            patch_embed: LinearConfig::new(self.token_channels(), self.dim).init(device),
             pos_embed: small.init([tokens, self.dim], device),
             camera_tokens: small.init([2, self.dim], device),
             reference_embed: small.init([1, self.dim], device),
@@ -194,6 +233,14 @@ impl ModelConfig {
     }
 }
 
+fn least_common_multiple(a: usize, b: usize) -> usize {
+    let (mut x, mut y) = (a, b);
+    while y != 0 {
+        (x, y) = (y, x % y);
+    }
+    a / x * b
+}
+
 /// Errors of building or running the network.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -210,7 +257,11 @@ pub enum ModelError {
 /// The network. Fields are crate-visible so that [`crate::export`] can walk them.
 #[derive(Module, Debug)]
 pub struct InsSplatNet {
-    /// Patch embedding: a linear map of each flattened (channel, row, column) patch.
+    /// The pretrained image encoder, folded ([`EfficientNetLite0::fold`]), with
+    /// [`ModelConfig::encoder`].
+    pub(crate) encoder: Option<EfficientNetLite0>,
+    /// Patch embedding: a linear map of each flattened (channel, row, column) patch, or of
+    /// the encoder's features at each token ([`encoder::tokens`]).
     pub(crate) patch_embed: Linear,
     /// Learned position embedding, `[tokens, dim]` of the square grid at `image_size`;
     /// interpolated to other grids ([`InsSplatNet::position_embedding`]).
@@ -291,17 +342,45 @@ impl InsSplatNet {
         interpolate(square, options).permute([0, 2, 3, 1]).reshape([gh * gw, d])
     }
 
-    /// Token embedding: `[N, 3, H, W]` images in [0, 1] (and the views' camera rays, with
-    /// [`ModelConfig::camera_rays`]) → `[N, 1 + tokens, dim]`, camera token first, reference
-    /// embedding on view 0.
-    fn embed(&self, images: Tensor<4>, rays: Option<Tensor<3>>) -> Tensor<3> {
+    /// The same network with the encoder's weights read from its file (the PyTorch file of
+    /// `scripts/setup`, `INSSPLAT_ENCODER_WEIGHTS`), folded.
+    pub fn with_pretrained_encoder(mut self, path: &std::path::Path) -> anyhow::Result<Self> {
+        anyhow::ensure!(self.encoder.is_some(), "this network has no image encoder");
+        let device = self.patch_embed.weight.device();
+        self.encoder = Some(EfficientNetLite0::load(path, &device)?.fold());
+        Ok(self)
+    }
+
+    /// The image encoder, with [`ModelConfig::encoder`].
+    pub fn encoder(&self) -> Option<&EfficientNetLite0> {
+        self.encoder.as_ref()
+    }
+
+    /// The same network with the encoder's weights frozen (no gradient; a no-op without one).
+    pub fn freeze_encoder(mut self) -> Self {
+        self.encoder = self.encoder.map(Module::freeze);
+        self
+    }
+
+    /// Token embedding: `[N, 3, H, W]` images in [0, 1], or the encoder's `features` of them
+    /// (and the views' camera rays, with [`ModelConfig::camera_rays`]) → `[N, 1 + tokens,
+    /// dim]`, camera token first, reference embedding on view 0.
+    fn embed(
+        &self,
+        images: Tensor<4>,
+        features: Option<&[Tensor<4>]>,
+        rays: Option<Tensor<3>>,
+    ) -> Tensor<3> {
         let p = self.config.patch;
         let [n, _, h, w] = images.dims();
         let (gh, gw) = (h / p, w / p);
-        let patches = (images - 0.5)
-            .reshape([n, 3, gh, p, gw, p])
-            .permute([0, 2, 4, 1, 3, 5])
-            .reshape([n, gh * gw, 3 * p * p]);
+        let patches = match features {
+            Some(features) => encoder::tokens(features),
+            None => (images - 0.5)
+                .reshape([n, 3, gh, p, gw, p])
+                .permute([0, 2, 4, 1, 3, 5])
+                .reshape([n, gh * gw, 3 * p * p]),
+        };
         let mut x =
             self.patch_embed.forward(patches) + self.position_embedding(gh, gw).unsqueeze_dim(0);
         if let (Some(embed), Some(rays)) = (&self.ray_embed, rays) {
@@ -359,7 +438,8 @@ impl InsSplatNet {
                 None => "this network reads no camera rays, and some were given".into(),
             }));
         }
-        let mut x = self.embed(images.clone(), rays);
+        let features = self.encoder.as_ref().map(|e| e.features(images.clone()));
+        let mut x = self.embed(images.clone(), features.as_deref(), rays);
         let [_, s, d] = x.dims();
         let mut levels = Vec::with_capacity(c.depth / 2);
         let pooling = c.global_kv_pool.map(|pool| KeyPooling { views: n, grid, pool });
@@ -372,7 +452,11 @@ impl InsSplatNet {
             }
         }
         let camera = self.camera_head.forward(x.slice([0..n, 0..1]).reshape([n, d]), c);
-        let dense = self.decoder.forward(levels, images, c);
+        let skips = features.map(|mut f| {
+            f.truncate(encoder::SKIP_LEVELS);
+            f
+        });
+        let dense = self.decoder.forward(levels, images, skips.unwrap_or_default(), c);
         Ok(ModelOutput {
             camera,
             depth: dense.depth,

