@@ -9,6 +9,7 @@
 pub mod bench;
 pub mod ceiling;
 pub mod confusion;
+pub mod curve;
 mod markdown;
 pub mod perturb;
 pub mod photos;

@@ -38,6 +38,40 @@ enum Command {
     /// disparity: the first view's depth (AbsRel at the median scale; depth ∝ 1 / (disparity
     /// + doffs)) and the registered baseline's direction.
     Stereo(StereoArgs),
+    /// Compare training runs at equal compute: checkpoints' `score` reports placed at the
+    /// CPU hours their runs had spent, drawn against them (OUT/curve.png, curve.svg, curve.md).
+    Curve(CurveArgs),
+}
+
+/// The points of a compute curve.
+#[derive(Args)]
+struct CurveArgs {
+    /// One checkpoint: its run's name, the CPU hours the run had spent, and the checkpoint's
+    /// `score` report (eval.json), as RUN:HOURS:FILE. Repeat for every checkpoint.
+    #[arg(long = "point", required = true, value_name = "RUN:HOURS:FILE")]
+    points: Vec<String>,
+    /// The view count whose scores are drawn.
+    #[arg(long, default_value_t = 8)]
+    views: usize,
+    /// Folder to write the chart and the table into.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn run_curve(args: CurveArgs) -> anyhow::Result<()> {
+    use inssplat_eval::curve;
+    let points = args
+        .points
+        .iter()
+        .map(|spec| {
+            let (run, hours, file) = curve::parse_point(spec)?;
+            curve::read_point(&run, hours, &file, args.views)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    curve::write(&points, &args.out)?;
+    print!("{}", curve::markdown(&points));
+    println!("chart: {} and curve.svg", args.out.join("curve.png").display());
+    Ok(())
 }
 
 /// A reconstructed stereo pair and its truth.
@@ -485,5 +519,6 @@ fn main() -> anyhow::Result<()> {
         Command::Score(args) => score(*args),
         Command::Bench(args) => run_bench(args),
         Command::Stereo(args) => run_stereo(args),
+        Command::Curve(args) => run_curve(args),
     }
 }

@@ -77,8 +77,8 @@ pub fn mark_pareto(points: &mut [SweepPoint]) {
     }
 }
 
-/// Point colours, one per view count.
-const VIEW_COLOURS: [RGBColor; 5] = [
+/// Point colours, one per view count (one per run in [`crate::curve`]).
+pub(crate) const VIEW_COLOURS: [RGBColor; 5] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),
@@ -86,7 +86,7 @@ const VIEW_COLOURS: [RGBColor; 5] = [
     RGBColor(148, 103, 189),
 ];
 
-fn register_font() -> bool {
+pub(crate) fn register_font() -> bool {
     const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *REGISTERED.get_or_init(|| match std::fs::read(FONT) {
