@@ -1,6 +1,6 @@
 //! Analytic FLOP count of the network (a multiply-add counts 2), for throughput reports:
-//! matmuls, attention products and convolutions (the image encoder's too); element-wise work, norms and softmax are
-//! left out, so "effective GFLOP/s" understates the arithmetic actually done.
+//! matmuls, attention products and convolutions (the image encoder's too); element-wise work,
+//! norms and softmax are left out, so "effective GFLOP/s" understates the arithmetic done.
 
 use super::efficientnet::{self, FEATURE_CHANNELS};
 use super::{DenseDecoder, ModelConfig, encoder};
