@@ -11,7 +11,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Deserialize;
 
-use crate::sweep::{VIEW_COLOURS, register_font};
+use crate::sweep::{Axes, VIEW_COLOURS, register_font};
 
 /// One checkpoint's scores at the CPU hours its run had spent.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,17 +120,8 @@ where
     let x_max = points.iter().map(|p| p.hours).fold(0.0, f64::max).max(1e-3);
     let (lo, hi) =
         points.iter().map(score).fold((f64::MAX, f64::MIN), |(lo, hi), s| (lo.min(s), hi.max(s)));
-    let pad = ((hi - lo) * 0.1).max(1e-3);
-    let mut builder = ChartBuilder::on(area);
-    builder.margin(12);
-    if text {
-        builder.caption(title, ("sans-serif", 18)).x_label_area_size(36).y_label_area_size(50);
-    }
-    let mut chart =
-        builder.build_cartesian_2d(0.0..x_max * 1.05, (lo - pad)..(hi + pad)).map_err(err)?;
-    if text {
-        chart.configure_mesh().x_desc("CPU hours").draw().map_err(err)?;
-    }
+    let axes = Axes { title, x_desc: "CPU hours", x_end: x_max * 1.05 };
+    let mut chart = axes.frame(area, (lo, hi), text)?;
     for (i, run) in runs(points).into_iter().enumerate() {
         let colour = VIEW_COLOURS[i % VIEW_COLOURS.len()];
         let mut line: Vec<(f64, f64)> =

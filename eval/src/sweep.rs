@@ -9,6 +9,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -100,6 +101,48 @@ pub(crate) fn register_font() -> bool {
     })
 }
 
+/// A chart panel's axes: x from 0 to `x_end`, y over the scores' range padded by a tenth; the
+/// title and x axis's name where `text` can be drawn.
+pub(crate) struct Axes<'t> {
+    pub title: &'t str,
+    pub x_desc: &'t str,
+    pub x_end: f64,
+}
+
+impl Axes<'_> {
+    /// The panel on `area` for scores from `lo` to `hi`, its mesh drawn.
+    pub(crate) fn frame<'a, DB: DrawingBackend>(
+        &self,
+        area: &'a DrawingArea<DB, Shift>,
+        (lo, hi): (f64, f64),
+        text: bool,
+    ) -> anyhow::Result<ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>>
+    where
+        DB::ErrorType: 'static,
+    {
+        let pad = ((hi - lo) * 0.1).max(1e-3);
+        let mut builder = ChartBuilder::on(area);
+        builder.margin(12);
+        if text {
+            builder
+                .caption(self.title, ("sans-serif", 18))
+                .x_label_area_size(36)
+                .y_label_area_size(50);
+        }
+        let mut chart = builder
+            .build_cartesian_2d(0.0..self.x_end, (lo - pad)..(hi + pad))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        if text {
+            chart
+                .configure_mesh()
+                .x_desc(self.x_desc)
+                .draw()
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+        Ok(chart)
+    }
+}
+
 fn panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     points: &[SweepPoint],
@@ -120,22 +163,8 @@ where
         scored.iter().fold((0.0f64, f64::MAX, f64::MIN), |(x, lo, hi), (t, s, _)| {
             (x.max(*t), lo.min(*s), hi.max(*s))
         });
-    let pad = ((y_max - y_min) * 0.1).max(1e-3);
-    let mut builder = ChartBuilder::on(area);
-    builder.margin(12);
-    if text {
-        builder.caption(title, ("sans-serif", 18)).x_label_area_size(36).y_label_area_size(50);
-    }
-    let mut chart = builder
-        .build_cartesian_2d(0.0..x_max * 1.1, (y_min - pad)..(y_max + pad))
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    if text {
-        chart
-            .configure_mesh()
-            .x_desc("seconds per scene (median)")
-            .draw()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-    }
+    let axes = Axes { title, x_desc: "seconds per scene (median)", x_end: x_max * 1.1 };
+    let mut chart = axes.frame(area, (y_min, y_max), text)?;
     let mut views: Vec<usize> = scored.iter().map(|(_, _, p)| p.knobs.views).collect();
     views.sort_unstable();
     views.dedup();
