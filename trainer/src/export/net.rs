@@ -122,10 +122,10 @@ fn encoder_tokens(g: &mut Graph, features: &[String]) -> String {
     let maps: Vec<String> = encoder::TOKEN_LEVELS
         .iter()
         .map(|&l| {
-            let factor = (1 << (l - first)) as f32;
             if l == first {
                 return features[l].clone();
             }
+            let factor = (1 << (l - first)) as f32;
             let scales = g.f32s("scales", &[4], &[1.0, 1.0, factor, factor]);
             g.op(
                 "Resize",
