@@ -8,24 +8,17 @@
 //! `--known-names` names the instances by their true labels instead; `--photos` reconstructs
 //! from larger photos of the same scene and refuses another's. Also
 //! `inssplat-eval bench`: every stage timed per view count (the refine stage when asked for),
-//! Gaussians in = views × pixels. And `inssplat-eval curve`: reports drawn against CPU hours.
+//! Gaussians in = views × pixels.
 
 use std::path::Path;
 use std::process::Output;
 
-use crate::support::{self, s};
+use crate::support::{self, s, score};
 
 use inssplat_e2e::inssplat_eval;
 use inssplat_proto::shape::LabelledDescriptor;
 use inssplat_synth::{self as synth, Furniture, Split, SynthConfig};
 use serde_json::Value;
-
-/// `inssplat-eval score` of the scenes in `data` at `views` with `model`, then `extra`.
-fn score(data: &Path, views: &str, model: &Path, extra: &[&str]) -> Output {
-    inssplat_eval(
-        &[&["score", "--data", s(data), "--views", views, "--model", s(model)], extra].concat(),
-    )
-}
 
 /// `inssplat-eval bench` of the scene `scene` at `views` with `model`, then `extra`.
 fn bench(scene: &Path, views: &str, model: &Path, extra: &[&str]) -> Output {
@@ -66,9 +59,7 @@ fn a_network_that_reads_rays_runs_again_on_the_registered_cameras() {
 #[test]
 fn eval_reports_every_metric_per_view_count() {
     let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let data = dir.path().join("test");
-    support::test_scene(&data, 0);
+    let (model, data) = support::tiny_model_and_test_data(dir.path(), 0);
     let out_dir = dir.path().join("eval");
     let out = score(&data, "2,4", &model, &["--out", s(&out_dir), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -325,9 +316,7 @@ fn shape_examples_record_the_unfused_prototypes_whatever_the_shape_weight() {
 #[test]
 fn eval_reconstructs_from_larger_photos_of_the_same_scene_and_refuses_another() {
     let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let data = dir.path().join("test");
-    support::test_scene(&data, 0);
+    let (model, data) = support::tiny_model_and_test_data(dir.path(), 0);
     // The same scene at 4× the size (the same seed gives the same room and cameras), and
     // another scene under its name.
     let mut cfg = SynthConfig::new(Split::Test, Furniture::Primitives);
@@ -507,9 +496,7 @@ fn bench_against_times_two_models_in_turns() {
 #[test]
 fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
     let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let data = dir.path().join("test");
-    support::test_scene(&data, 2);
+    let (model, data) = support::tiny_model_and_test_data(dir.path(), 2);
     let out_dir = dir.path().join("eval");
     let out = score(
         &data,
@@ -544,9 +531,7 @@ fn perturb_sweeps_strengths_and_reports_the_worst_scenes() {
 #[test]
 fn sweep_draws_the_speed_accuracy_chart() {
     let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let data = dir.path().join("test");
-    support::test_scene(&data, 3);
+    let (model, data) = support::tiny_model_and_test_data(dir.path(), 3);
     let out_dir = dir.path().join("sweep");
     let out = score(&data, "2", &model, &["--sweep", "--out", s(&out_dir)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -565,59 +550,4 @@ fn sweep_draws_the_speed_accuracy_chart() {
     // --sweep without --out is refused by the argument parser, naming the flag.
     let out = inssplat_eval(&["score", "--data", s(&data), "--sweep"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--out"));
-}
-
-/// `inssplat-eval curve` places score reports at the hours given, one line a run: the table
-/// holds each report's own scores at the view count asked, the chart is drawn, and a view
-/// count a report lacks, a malformed point and a missing file are named errors.
-#[test]
-fn curve_draws_runs_against_cpu_hours() {
-    let dir = tempfile::tempdir().unwrap();
-    let model = support::tiny_model(dir.path());
-    let data = dir.path().join("test");
-    support::test_scene(&data, 1);
-    let eval = dir.path().join("eval");
-    let out = score(&data, "2", &model, &["--out", s(&eval)]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let file = eval.join("eval.json");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
-    let metric = |name: &str| report["summaries"][0]["metrics"][name][0].as_f64().unwrap();
-    let point = |run: &str, hours: &str| format!("{run}:{hours}:{}", file.display());
-    let chart = dir.path().join("curve");
-    let out = inssplat_eval(&[
-        "curve",
-        "--views",
-        "2",
-        "--out",
-        s(&chart),
-        "--point",
-        &point("scratch", "0.5"),
-        "--point",
-        &point("scratch", "1.5"),
-        "--point",
-        &point("encoder", "1"),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let table = std::fs::read_to_string(chart.join("curve.md")).unwrap();
-    let row = format!(
-        "| encoder | 1.00 | {:.3} | {:.1} | {:.1} |",
-        metric("depth_abs_rel"),
-        100.0 * metric("semantic_miou"),
-        100.0 * metric("instance_miou")
-    );
-    assert!(table.contains(&row), "{row} not in\n{table}");
-    assert_eq!(table.lines().filter(|l| l.starts_with("| scratch |")).count(), 2, "{table}");
-    assert_eq!(String::from_utf8_lossy(&out.stdout).lines().next(), table.lines().next());
-    let png = image::open(chart.join("curve.png")).unwrap();
-    assert_eq!((png.width(), png.height()), (1500, 500));
-    assert!(std::fs::read_to_string(chart.join("curve.svg")).unwrap().contains("<svg"));
-    for (args, named) in [
-        (vec!["--views", "8", "--point", &point("a", "1")], "no scores at 8 views"),
-        (vec!["--point", "a:soon:x.json"], "hours \"soon\""),
-        (vec!["--point", "a:1:/nonexistent/eval.json"], "/nonexistent/eval.json"),
-    ] {
-        let out = inssplat_eval(&[&["curve", "--out", s(&chart)], &args[..]].concat());
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success() && stderr.contains(named), "{args:?}: {stderr}");
-    }
 }

@@ -5,6 +5,7 @@ mod chain_synth;
 mod check;
 mod cli_reference;
 mod eval;
+mod eval_curve;
 mod hard_photos;
 mod http_errors;
 mod http_load;

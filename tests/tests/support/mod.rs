@@ -56,6 +56,21 @@ pub fn test_scene(dir: &Path, index: u64) -> PathBuf {
     scene
 }
 
+/// [`tiny_model`] in `dir`, and a data folder `dir/test` holding test-split scene `index`
+/// ([`test_scene`]): (model, data).
+pub fn tiny_model_and_test_data(dir: &Path, index: u64) -> (PathBuf, PathBuf) {
+    let data = dir.join("test");
+    test_scene(&data, index);
+    (tiny_model(dir), data)
+}
+
+/// `inssplat-eval score` of the scenes in `data` at `views` with `model`, then `extra`.
+pub fn score(data: &Path, views: &str, model: &Path, extra: &[&str]) -> std::process::Output {
+    inssplat_e2e::inssplat_eval(
+        &[&["score", "--data", s(data), "--views", views, "--model", s(model)], extra].concat(),
+    )
+}
+
 /// A path as `&str` for command lines.
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
